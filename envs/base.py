@@ -1,0 +1,319 @@
+"""The locomotion base: what PyBullet's walker robots and their env share, on MuJoCo MJX.
+
+A robot is a subclass that names its MJCF file, joints, feet and constants, and says when it is
+alive. Everything else (the observation, the reward terms, termination, truncation and reset)
+lives here, once, with PyBullet's semantics (shared/reference/pybullet-locomotion.md).
+
+The env follows Brax's `Env`/`State` interface: `reset(key)` and `step(state, action)` are pure,
+and jit-, vmap- and shard-able. Per-term rewards are in `state.metrics`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import os
+from typing import ClassVar
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+
+with contextlib.redirect_stdout(io.StringIO()):
+  # mujoco.mjx prints a line at import when its optional GPU backend (warp) is absent.
+  from mujoco import mjx
+
+from brax.envs.base import Env, State
+from flax import struct
+
+from mjx_hopper.envs import specs
+
+ASSETS = os.path.join(os.path.dirname(__file__), "assets")
+REWARD_TERMS = ("alive", "progress", "electricity_cost", "joints_at_limit_cost",
+                "feet_collision_cost")
+
+
+class Robot(struct.PyTreeNode):
+  """What PyBullet's robot computes in `calc_state`, for one env.
+
+  Shapes are per env; J is the number of actuated joints and F the number of feet.
+  """
+
+  body_xyz: jax.Array       # (3,) x, y: mean position of Bullet's parts; z: torso height (m)
+  body_rpy: jax.Array       # (3,) torso roll, pitch, yaw (rad)
+  speed: jax.Array          # (3,) torso linear velocity in the world frame (m/s)
+  joint_pos: jax.Array      # (J,) joint angles scaled to [-1, 1] between their limits
+  joint_speeds: jax.Array   # (J,) 0.1 * joint velocity (rad/s), as PyBullet scales it
+  feet_contact: jax.Array   # (F,) 1.0 where the foot touched the floor; one step old, as in obs
+
+
+def quat_to_rpy(quat: jax.Array) -> jax.Array:
+  """Roll, pitch, yaw (rad) of a (w, x, y, z) unit quaternion, as Bullet's
+  getEulerFromQuaternion gives them (extrinsic x-y-z)."""
+  w, x, y, z = quat[..., 0], quat[..., 1], quat[..., 2], quat[..., 3]
+  roll = jnp.arctan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
+  pitch = jnp.arcsin(jnp.clip(2 * (w * y - z * x), -1.0, 1.0))
+  yaw = jnp.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+  return jnp.stack([roll, pitch, yaw], axis=-1)
+
+
+class LocomotionEnv(Env):
+  """A PyBullet locomotion task (WalkerBaseBulletEnv) on MuJoCo MJX.
+
+  Subclasses set the class constants below and `alive_bonus`. A custom task subclasses a robot
+  and overrides `reward` and/or `is_done`; `episode_steps` sets the time limit.
+  """
+
+  xml_file: ClassVar[str]
+  joints: ClassVar[tuple[str, ...]]        # actuated joints, in action order
+  power: ClassVar[float]
+  power_coefs: ClassVar[tuple[float, ...]]  # torque at |a| = 1 is power * power_coef (Nm)
+  feet: ClassVar[tuple[str, ...]]          # bodies whose floor contact is observed
+  initial_z: ClassVar[float]               # torso height at reset (m)
+  torso: ClassVar[str] = "torso"
+  electricity_cost: ClassVar[float] = -2.0
+  stall_torque_cost: ClassVar[float] = -0.1
+  joints_at_limit_cost: ClassVar[float] = -0.1
+  walk_target: ClassVar[tuple[float, float]] = (1000.0, 0.0)
+  control_dt: ClassVar[float] = 0.0165
+  n_substeps: ClassVar[int] = 4
+  reset_noise: ClassVar[float] = 0.1
+
+  def __init__(self, episode_steps: int = 1000):
+    if not isinstance(episode_steps, (int, np.integer)) or episode_steps < 1:
+      raise ValueError(f"episode_steps must be an integer >= 1, got {episode_steps!r}")
+    self.episode_steps = int(episode_steps)
+    model = mujoco.MjModel.from_xml_path(os.path.join(ASSETS, self.xml_file))
+    if abs(model.opt.timestep * self.n_substeps - self.control_dt) > 1e-9:
+      raise ValueError(f"{self.xml_file}: timestep {model.opt.timestep} x {self.n_substeps} "
+                       f"substeps is not the control dt {self.control_dt}")
+    act_joints = tuple(model.joint(model.actuator_trnid[i, 0]).name for i in range(model.nu))
+    if act_joints != self.joints:
+      raise ValueError(f"{self.xml_file}: actuators drive {act_joints}, expected {self.joints}")
+    model.actuator_gear[:, 0] = self.power * np.asarray(self.power_coefs)
+    self.mj_model = model
+    self.mjx_model = mjx.put_model(model)
+
+    joint_ids = [model.joint(n).id for n in self.joints]
+    self._qadr = np.array([model.jnt_qposadr[j] for j in joint_ids])
+    self._dofadr = np.array([model.jnt_dofadr[j] for j in joint_ids])
+    lower, upper = model.jnt_range[joint_ids].T
+    self._mid, self._half_range = (lower + upper) / 2, (upper - lower) / 2
+    self._torso = model.body(self.torso).id
+    self._torso_root = model.body_rootid[self._torso]
+    # Bullet averages the x, y of its "parts": a link placed after each joint, a link per body
+    # with mass, and the floor, which stays at the origin. After a joint that is followed by
+    # another joint of the same body sits that joint's anchor; after a body's last joint, the
+    # body's frame.
+    self._part_bodies = np.arange(1, model.nbody)
+    last = np.append(model.jnt_bodyid[1:] != model.jnt_bodyid[:-1], True)
+    self._after_joint_anchor = np.flatnonzero(~last) + 1
+    self._after_joint_body = model.jnt_bodyid[last]
+    self._n_parts = model.njnt + len(self._part_bodies) + 1
+    self._foot_geom, self._foot_half_length, self._foot_radius, self._foot_mask = (
+        self._foot_geoms(model))
+    self._data0 = mjx.make_data(self.mjx_model)
+
+  def _foot_geoms(self, model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each foot's capsule and sphere geoms: ids (G,), half-lengths (G,), radii (G,), and a
+    (F, G) mask saying which foot each belongs to."""
+    capsule, sphere = int(mujoco.mjtGeom.mjGEOM_CAPSULE), int(mujoco.mjtGeom.mjGEOM_SPHERE)
+    ids, owner = [], []
+    for f, foot in enumerate(self.feet):
+      geoms = np.flatnonzero(model.geom_bodyid == model.body(foot).id)
+      for g in geoms:
+        if model.geom_type[g] not in (capsule, sphere):
+          raise ValueError(f"{self.xml_file}: foot geom {model.geom(g).name!r} must be a "
+                           "capsule or a sphere")
+      ids += list(geoms)
+      owner += [f] * len(geoms)
+    ids = np.array(ids)
+    is_capsule = model.geom_type[ids] == capsule
+    half_length = np.where(is_capsule, model.geom_size[ids, 1], 0.0)
+    mask = np.arange(len(self.feet))[:, None] == np.array(owner)[None, :]
+    return ids, half_length, model.geom_size[ids, 0], mask
+
+  # ---- Brax Env interface -------------------------------------------------------------------
+
+  @property
+  def observation_size(self) -> int:
+    return 8 + 2 * len(self.joints) + len(self.feet)
+
+  @property
+  def action_size(self) -> int:
+    return len(self.joints)
+
+  @property
+  def backend(self) -> str:
+    return "mjx"
+
+  @property
+  def dt(self) -> float:
+    return self.control_dt
+
+  def reset(self, rng: jax.Array) -> State:
+    """A new episode: every joint at uniform(-0.1, 0.1) rad, zero velocity, root at rest."""
+    noise = jax.random.uniform(rng, (self.action_size,), minval=-self.reset_noise,
+                               maxval=self.reset_noise)
+    qpos = self._data0.qpos.at[self._qadr].set(noise)
+    data = self._kinematics(self._data0.replace(qpos=qpos))
+    feet_contact = jnp.zeros(len(self.feet))
+    robot = self.robot(data, data, feet_contact)
+    zero_terms = self.reward(robot, robot, jnp.zeros(self.action_size))
+    info = {"robot": robot, "feet_contact": feet_contact, "steps": jnp.zeros((), jnp.int32),
+            "truncation": jnp.zeros(())}
+    return State(pipeline_state=data, obs=self.observation(robot), reward=jnp.zeros(()),
+                 done=jnp.zeros(()), metrics=jax.tree.map(jnp.zeros_like, zero_terms),
+                 info=info)
+
+  def step(self, state: State, action: jax.Array) -> State:
+    """One control step of 0.0165 s: torques for 4 physics substeps, then observe and score.
+
+    `state.done` is 1 when the episode ended, by termination or by the time limit;
+    `state.info["truncation"]` is 1 when it ended by the time limit only, so that learners
+    bootstrap through it.
+    """
+    action = jnp.asarray(action)
+    if action.shape != (self.action_size,):
+      raise ValueError(
+          f"{type(self).__name__} takes an action of shape ({self.action_size},), got "
+          f"{action.shape}; for a batch of envs use jax.vmap(env.step)")
+    data = state.pipeline_state.replace(ctrl=action)  # MuJoCo clips ctrl to [-1, 1]
+    data = jax.lax.fori_loop(0, self.n_substeps,
+                             lambda _, d: mjx.step(self.mjx_model, d), data)
+    # Like PyBullet, observe joint angles and the torso speed after the last substep, but body
+    # poses and contacts as the last substep's kinematics left them, one substep (4 ms) earlier.
+    robot = self.robot(data, self._kinematics(data), state.info["feet_contact"])
+    obs = self.observation(robot)
+    terms = self.reward(state.info["robot"], robot, action)
+    reward = sum(terms.values())
+    finite = jnp.isfinite(obs).all() & jnp.isfinite(reward) & jnp.isfinite(data.qvel).all()
+    terminated = self.is_done(robot, terms) | ~finite
+    steps = state.info["steps"] + 1
+    truncation = (steps >= self.episode_steps) & ~terminated
+    info = {**state.info, "robot": robot, "feet_contact": self._feet_contact(data),
+            "steps": steps, "truncation": truncation.astype(jnp.float32)}
+    return state.replace(
+        pipeline_state=data,
+        obs=jnp.where(finite, obs, 0.0),
+        reward=jnp.where(finite, reward, 0.0),
+        done=(terminated | truncation).astype(jnp.float32),
+        metrics={k: jnp.where(finite, v, 0.0) for k, v in terms.items()},
+        info=info)
+
+  # ---- The task: override these for a custom one ---------------------------------------------
+
+  def alive_bonus(self, z: jax.Array, pitch: jax.Array, robot: Robot) -> jax.Array:
+    """+bonus while the robot is healthy, -1 when not (PyBullet's `alive_bonus`)."""
+    raise NotImplementedError(f"{type(self).__name__} must define alive_bonus")
+
+  def reward(self, before: Robot, after: Robot, action: jax.Array) -> dict[str, jax.Array]:
+    """The named reward terms of one step, from the robot before and after it.
+
+    Their sum is the reward; each is reported in `state.metrics`.
+    """
+    alive = self.alive_bonus(after.body_xyz[2], after.body_rpy[1], after)
+    electricity = (self.electricity_cost * jnp.mean(jnp.abs(action * after.joint_speeds))
+                   + self.stall_torque_cost * jnp.mean(jnp.square(action)))
+    at_limit = jnp.sum(jnp.abs(after.joint_pos) > 0.99)
+    return {
+        "alive": alive,
+        "progress": self.progress(before.body_xyz, after.body_xyz),
+        "electricity_cost": electricity,
+        "joints_at_limit_cost": self.joints_at_limit_cost * at_limit,
+        "feet_collision_cost": jnp.zeros(()),
+    }
+
+  def is_done(self, robot: Robot, terms: dict[str, jax.Array]) -> jax.Array:
+    """Whether the episode terminates (not truncates) here: PyBullet's `alive < 0`."""
+    return terms["alive"] < 0
+
+  def progress(self, xyz_before: jax.Array, xyz_after: jax.Array) -> jax.Array:
+    """Change of potential, -distance_to_target / dt: about the speed toward the target (m/s).
+
+    PyBullet differences two potentials of ~6e4, which float32 cannot; the change of distance
+    is computed directly instead: |o|-|n| = (n-o).(2T-o-n) / (|o|+|n|), o, n = positions.
+    """
+    target = jnp.asarray(self.walk_target)
+    old, new = xyz_before[:2], xyz_after[:2]
+    d_old = jnp.linalg.norm(target - old)
+    d_new = jnp.linalg.norm(target - new)
+    return jnp.dot(new - old, 2 * target - old - new) / (d_old + d_new) / self.control_dt
+
+  # ---- What the robot observes ---------------------------------------------------------------
+
+  def robot(self, data: mjx.Data, moving: mjx.Data, feet_contact: jax.Array) -> Robot:
+    """PyBullet's `calc_state` quantities: body poses from `data`'s kinematics, the torso speed
+    from `moving`'s, and the joints from the current qpos and qvel."""
+    parts_xy = (data.xanchor[self._after_joint_anchor, :2].sum(0)
+                + data.xpos[self._after_joint_body, :2].sum(0)
+                + data.xipos[self._part_bodies, :2].sum(0)) / self._n_parts
+    torso_pos = data.xipos[self._torso]
+    cvel = moving.cvel[self._torso]  # [angular, linear] at the subtree centre of mass
+    speed = cvel[3:] + jnp.cross(cvel[:3], moving.xipos[self._torso]
+                                 - moving.subtree_com[self._torso_root])
+    return Robot(
+        body_xyz=jnp.concatenate([parts_xy, torso_pos[2:]]),
+        body_rpy=quat_to_rpy(data.xquat[self._torso]),
+        speed=speed,
+        joint_pos=(data.qpos[self._qadr] - self._mid) / self._half_range,
+        joint_speeds=0.1 * data.qvel[self._dofadr],
+        feet_contact=feet_contact)
+
+  def observation(self, robot: Robot) -> jax.Array:
+    """PyBullet's observation, clipped to [-5, 5]: 8 + 2 * joints + feet float32 values."""
+    x, y, z = robot.body_xyz
+    roll, pitch, yaw = robot.body_rpy
+    angle_to_target = jnp.arctan2(self.walk_target[1] - y, self.walk_target[0] - x) - yaw
+    c, s = jnp.cos(yaw), jnp.sin(yaw)
+    vx = c * robot.speed[0] + s * robot.speed[1]
+    vy = -s * robot.speed[0] + c * robot.speed[1]
+    more = jnp.stack([z - self.initial_z, jnp.sin(angle_to_target), jnp.cos(angle_to_target),
+                      0.3 * vx, 0.3 * vy, 0.3 * robot.speed[2], roll, pitch])
+    joints = jnp.stack([robot.joint_pos, robot.joint_speeds], axis=-1).reshape(-1)
+    obs = jnp.concatenate([more, joints, robot.feet_contact])
+    return jnp.clip(obs, -5.0, 5.0).astype(jnp.float32)
+
+  def _feet_contact(self, data: mjx.Data) -> jax.Array:
+    """(F,) 1.0 where a foot's lowest point touches or penetrates the floor (z = 0)."""
+    axis_z = data.geom_xmat[self._foot_geom, 2, 2]  # z of each capsule's long axis
+    lowest = (data.geom_xpos[self._foot_geom, 2] - jnp.abs(axis_z) * self._foot_half_length
+              - self._foot_radius)
+    return jnp.any(self._foot_mask & (lowest <= 0.0), axis=1).astype(jnp.float32)
+
+  def _kinematics(self, data: mjx.Data) -> mjx.Data:
+    """Positions and velocities of every body for the current qpos, qvel."""
+    data = mjx.kinematics(self.mjx_model, data)
+    data = mjx.com_pos(self.mjx_model, data)
+    return mjx.com_vel(self.mjx_model, data)
+
+  # ---- What the seed inspects ----------------------------------------------------------------
+
+  def action_spec(self) -> specs.BoundedArray:
+    return specs.BoundedArray((self.action_size,), np.dtype(np.float32), "action",
+                              minimum=-np.ones(self.action_size, np.float32),
+                              maximum=np.ones(self.action_size, np.float32))
+
+  def observation_spec(self) -> specs.Array:
+    return specs.Array((self.observation_size,), np.dtype(np.float32), "observation")
+
+  def reward_spec(self) -> specs.Array:
+    return specs.Array((), np.dtype(np.float32), "reward")
+
+  def spec(self) -> specs.EnvironmentSpec:
+    return specs.EnvironmentSpec(self.observation_spec(), self.action_spec(), self.reward_spec())
+
+  def body_positions(self, state: State) -> dict[str, jax.Array]:
+    """World position (m) of each body part's centre of mass, by name."""
+    xipos = state.pipeline_state.xipos
+    return {self.mj_model.body(i).name: xipos[..., i, :] for i in self._part_bodies}
+
+  def torso_speed(self, state: State) -> jax.Array:
+    """(3,) world-frame linear velocity of the torso (m/s), PyBullet's `robot_body.speed()`."""
+    return state.info["robot"].speed
+
+  def render(self, qpos, width: int = 320, height: int = 240, camera: str = "track"):
+    """RGB frames (uint8, [T,] height, width, 3) of one or more stored qpos, on the host."""
+    from mjx_hopper.envs import render
+    return render.render_frames(self.mj_model, qpos, width=width, height=height, camera=camera)

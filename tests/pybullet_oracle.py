@@ -1,0 +1,86 @@
+"""PyBullet's own locomotion envs, the tests' reference oracle (a test-only dependency).
+
+`pybullet_envs/__init__.py` registers its envs into the old gym registry, which gym 0.26
+no longer has; the env modules themselves only need `gym.Env` and `gym.spaces`, so the package
+is entered without running its `__init__`.
+"""
+
+import contextlib
+import importlib.util
+import io
+import os
+import sys
+import types
+
+import numpy as np
+
+BULLET_IDS = {"Hopper": "HopperBulletEnv"}
+
+
+def _import_locomotion_envs():
+  if "pybullet_envs.gym_locomotion_envs" not in sys.modules:
+    spec = importlib.util.find_spec("pybullet_envs")
+    package = types.ModuleType("pybullet_envs")
+    package.__path__ = list(spec.submodule_search_locations)
+    sys.modules.setdefault("pybullet_envs", package)
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+      import gym  # noqa: F401  (prints a deprecation banner)
+  from pybullet_envs import gym_locomotion_envs
+  return gym_locomotion_envs
+
+
+def make(env_id: str, seed: int = 0):
+  """PyBullet's env for one of our ids, reset once with `seed`."""
+  module = _import_locomotion_envs()
+  env = getattr(module, BULLET_IDS[env_id])()
+  env.seed(seed)
+  with contextlib.redirect_stdout(io.StringIO()):
+    env.reset()
+  return env
+
+
+def link_masses(env) -> dict[str, float]:
+  """Bullet's mass of each robot part that has one (kg), by name."""
+  client = env._p
+  masses = {}
+  for name, part in env.robot.parts.items():
+    mass = client.getDynamicsInfo(part.bodies[part.bodyIndex], part.bodyPartIndex)[0]
+    if mass > 0:
+      masses[name] = mass
+  return masses
+
+
+def set_state(env, positions: dict[str, float], velocities: dict[str, float]) -> np.ndarray:
+  """Puts Bullet's joints (by name, root joints too) at the given positions and speeds, and
+  returns the observation PyBullet computes there."""
+  client, body = env._p, env.robot.objects[0]
+  index = {client.getJointInfo(body, j)[1].decode(): j for j in range(client.getNumJoints(body))}
+  for name, q in positions.items():
+    client.resetJointState(body, index[name], q, velocities[name])
+  return env.robot.calc_state()
+
+
+def run_episodes(env, n_episodes: int, policy: str, seed: int) -> dict[str, np.ndarray]:
+  """Runs whole episodes (up to the 1000-step limit) with 'random' or 'zero' actions.
+
+  Returns per-episode arrays: length, return, and the mean over steps of each reward term.
+  """
+  rng = np.random.default_rng(seed)
+  names = ("alive", "progress", "electricity_cost", "joints_at_limit_cost", "feet_collision_cost")
+  out = {"length": [], "return": [], **{n: [] for n in names}}
+  act_size = env.action_space.shape[0]
+  for _ in range(n_episodes):
+    with contextlib.redirect_stdout(io.StringIO()):
+      env.reset()
+    terms, total, done, t = [], 0.0, False, 0
+    while not done and t < 1000:
+      a = rng.uniform(-1, 1, act_size) if policy == "random" else np.zeros(act_size)
+      _, r, done, _ = env.step(a)
+      terms.append(env.rewards)
+      total += r
+      t += 1
+    out["length"].append(t)
+    out["return"].append(total)
+    for name, column in zip(names, np.array(terms).T):
+      out[name].append(column.mean())
+  return {k: np.array(v) for k, v in out.items()}
