@@ -48,6 +48,14 @@ class Robot(struct.PyTreeNode):
   feet_contact: jax.Array   # (F,) 1.0 where the foot touched the floor; one step old, as in obs
 
 
+def _quat_to_mat(q: jax.Array) -> jax.Array:
+  """(3, 3) rotation matrix of a (w, x, y, z) unit quaternion."""
+  w, x, y, z = q
+  return jnp.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                    [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                    [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+
+
 def quat_to_rpy(quat: jax.Array) -> jax.Array:
   """Roll, pitch, yaw (rad) of a (w, x, y, z) unit quaternion, as Bullet's
   getEulerFromQuaternion gives them (extrinsic x-y-z)."""
@@ -101,7 +109,7 @@ class LocomotionEnv(Env):
     lower, upper = model.jnt_range[joint_ids].T
     self._mid, self._half_range = (lower + upper) / 2, (upper - lower) / 2
     self._torso = model.body(self.torso).id
-    self._torso_root = model.body_rootid[self._torso]
+    self._root = self._root_kind(model)
     # Bullet averages the x, y of its "parts": a link placed after each joint, a link per body
     # with mass, and the floor, which stays at the origin. After a joint that is followed by
     # another joint of the same body sits that joint's anchor; after a body's last joint, the
@@ -114,6 +122,33 @@ class LocomotionEnv(Env):
     self._foot_geom, self._foot_half_length, self._foot_radius, self._foot_mask = (
         self._foot_geoms(model))
     self._data0 = mjx.make_data(self.mjx_model)
+
+  def _root_kind(self, model: mujoco.MjModel) -> str:
+    """'planar' (slide x, slide z, hinge y at the torso's origin) or 'free'."""
+    joints = np.flatnonzero(model.jnt_bodyid == self._torso)
+    types = [int(model.jnt_type[j]) for j in joints]
+    planar = [int(mujoco.mjtJoint.mjJNT_SLIDE)] * 2 + [int(mujoco.mjtJoint.mjJNT_HINGE)]
+    axes = model.jnt_axis[joints]
+    if types == [int(mujoco.mjtJoint.mjJNT_FREE)]:
+      return "free"
+    if (types == planar and np.allclose(axes, np.eye(3)[[0, 2, 1]])
+        and np.allclose(model.jnt_pos[joints], 0) and list(joints) == [0, 1, 2]):
+      return "planar"
+    raise ValueError(f"{self.xml_file}: the torso's root joints must be one free joint, or "
+                     "slide x, slide z and hinge y at its origin")
+
+  def _torso_speed(self, qpos: jax.Array, qvel: jax.Array) -> jax.Array:
+    """(3,) world-frame velocity of the torso's centre of mass for this qpos, qvel (m/s)."""
+    com = jnp.asarray(self.mj_model.body_ipos[self._torso])  # in the torso's frame
+    if self._root == "planar":
+      c, s = jnp.cos(qpos[2]), jnp.sin(qpos[2])
+      offset = jnp.array([c * com[0] + s * com[2], com[1], -s * com[0] + c * com[2]])
+      linear = jnp.array([qvel[0], 0.0, qvel[1]])
+      angular = jnp.array([0.0, qvel[2], 0.0])
+    else:
+      rot = _quat_to_mat(qpos[3:7])
+      offset, linear, angular = rot @ com, qvel[:3], rot @ qvel[3:6]
+    return linear + jnp.cross(angular, offset)
 
   def _foot_geoms(self, model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Each foot's capsule and sphere geoms: ids (G,), half-lengths (G,), radii (G,), and a
@@ -156,10 +191,14 @@ class LocomotionEnv(Env):
     """A new episode: every joint at uniform(-0.1, 0.1) rad, zero velocity, root at rest."""
     noise = jax.random.uniform(rng, (self.action_size,), minval=-self.reset_noise,
                                maxval=self.reset_noise)
-    qpos = self._data0.qpos.at[self._qadr].set(noise)
-    data = self._kinematics(self._data0.replace(qpos=qpos))
+    return self.init_state(self._data0.qpos.at[self._qadr].set(noise), self._data0.qvel)
+
+  def init_state(self, qpos: jax.Array, qvel: jax.Array) -> State:
+    """The first state of an episode that starts at `qpos` (nq,) and `qvel` (nv,)."""
+    data = self._kinematics(self._data0.replace(qpos=jnp.asarray(qpos, jnp.float32),
+                                                qvel=jnp.asarray(qvel, jnp.float32)))
     feet_contact = jnp.zeros(len(self.feet))
-    robot = self.robot(data, data, feet_contact)
+    robot = self.robot(data, feet_contact)
     zero_terms = self.reward(robot, robot, jnp.zeros(self.action_size))
     info = {"robot": robot, "feet_contact": feet_contact, "steps": jnp.zeros((), jnp.int32),
             "truncation": jnp.zeros(())}
@@ -184,7 +223,7 @@ class LocomotionEnv(Env):
                              lambda _, d: mjx.step(self.mjx_model, d), data)
     # Like PyBullet, observe joint angles and the torso speed after the last substep, but body
     # poses and contacts as the last substep's kinematics left them, one substep (4 ms) earlier.
-    robot = self.robot(data, self._kinematics(data), state.info["feet_contact"])
+    robot = self.robot(data, state.info["feet_contact"])
     obs = self.observation(robot)
     terms = self.reward(state.info["robot"], robot, action)
     reward = sum(terms.values())
@@ -243,16 +282,14 @@ class LocomotionEnv(Env):
 
   # ---- What the robot observes ---------------------------------------------------------------
 
-  def robot(self, data: mjx.Data, moving: mjx.Data, feet_contact: jax.Array) -> Robot:
+  def robot(self, data: mjx.Data, feet_contact: jax.Array) -> Robot:
     """PyBullet's `calc_state` quantities: body poses from `data`'s kinematics, the torso speed
-    from `moving`'s, and the joints from the current qpos and qvel."""
+    and the joints from its current qpos and qvel."""
     parts_xy = (data.xanchor[self._after_joint_anchor, :2].sum(0)
                 + data.xpos[self._after_joint_body, :2].sum(0)
                 + data.xipos[self._part_bodies, :2].sum(0)) / self._n_parts
     torso_pos = data.xipos[self._torso]
-    cvel = moving.cvel[self._torso]  # [angular, linear] at the subtree centre of mass
-    speed = cvel[3:] + jnp.cross(cvel[:3], moving.xipos[self._torso]
-                                 - moving.subtree_com[self._torso_root])
+    speed = self._torso_speed(data.qpos, data.qvel)
     return Robot(
         body_xyz=jnp.concatenate([parts_xy, torso_pos[2:]]),
         body_rpy=quat_to_rpy(data.xquat[self._torso]),
@@ -283,10 +320,8 @@ class LocomotionEnv(Env):
     return jnp.any(self._foot_mask & (lowest <= 0.0), axis=1).astype(jnp.float32)
 
   def _kinematics(self, data: mjx.Data) -> mjx.Data:
-    """Positions and velocities of every body for the current qpos, qvel."""
-    data = mjx.kinematics(self.mjx_model, data)
-    data = mjx.com_pos(self.mjx_model, data)
-    return mjx.com_vel(self.mjx_model, data)
+    """Poses of every body and geom for the current qpos."""
+    return mjx.kinematics(self.mjx_model, data)
 
   # ---- What the seed inspects ----------------------------------------------------------------
 

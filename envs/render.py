@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import mujoco
 import numpy as np
 
@@ -39,7 +41,10 @@ def write_mp4(path: str, frames: np.ndarray, fps: float) -> str:
   writer = imageio_ffmpeg.write_frames(path, (width, height), fps=fps, macro_block_size=1,
                                        codec="libx264", pix_fmt_out="yuv420p",
                                        output_params=["-loglevel", "error"])
-  writer.send(None)
+  with warnings.catch_warnings():
+    # JAX warns on any fork; this one only execs the ffmpeg binary.
+    warnings.filterwarnings("ignore", message="os.fork", category=RuntimeWarning)
+    writer.send(None)
   for frame in frames:
     writer.send(np.ascontiguousarray(frame))
   writer.close()

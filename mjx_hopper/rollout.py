@@ -13,43 +13,56 @@ from mjx_hopper.envs import AutoReset, LocomotionEnv
 Policy = Callable[[jax.Array, jax.Array], jax.Array]  # (obs (O,), key) -> action (A,)
 
 
-def random_policy(obs: jax.Array, key: jax.Array, action_size: int) -> jax.Array:
-  return jax.random.uniform(key, (action_size,), minval=-1.0, maxval=1.0)
+def random_policy(action_size: int) -> Policy:
+  """Uniform random actions in [-1, 1]."""
+  return lambda obs, key: jax.random.uniform(key, (action_size,), minval=-1.0, maxval=1.0)
+
+
+def zero_policy(action_size: int) -> Policy:
+  return lambda obs, key: jnp.zeros(action_size)
 
 
 def episodes(env: LocomotionEnv, policy: Policy, key: jax.Array, num_episodes: int,
              record_qpos: bool = False) -> dict[str, jax.Array]:
-  """Runs `num_episodes` episodes in parallel, each to its end (at most env.episode_steps).
+  """Runs `num_episodes` episodes in parallel, each to its end (at most env.episode_steps),
+  and stops once all have ended. Jit it with `env`, `policy` and `num_episodes` static.
 
   Returns per-episode arrays of shape (num_episodes,): "length", "return", and the mean per
-  step of each reward term, by name. With `record_qpos`, also "qpos" of the first episode,
-  shape (episode_steps + 1, nq), frozen after its last step.
+  step of each reward term, by name. With `record_qpos`, also "qpos" of episode 0, shape
+  (env.episode_steps + 1, nq), holding its last pose after it ends.
   """
-  reset_keys, policy_key = jax.random.split(key)
-  state = jax.vmap(env.reset)(jax.random.split(reset_keys, num_episodes))
-  state = parallel.shard(state)
+  reset_key, policy_key = jax.random.split(key)
+  state = parallel.shard(jax.vmap(env.reset)(jax.random.split(reset_key, num_episodes)))
+  zeros = jnp.zeros(num_episodes)
+  totals = {"length": zeros, "return": zeros, **{k: zeros for k in state.metrics}}
+  qpos = jnp.zeros((env.episode_steps + 1, env.mj_model.nq))
+  qpos = qpos + state.pipeline_state.qpos[0] if record_qpos else None
 
-  def one_step(carry, step_key):
-    state, running = carry
-    keys = jax.random.split(step_key, num_episodes)
-    action = jax.vmap(policy)(state.obs, keys)
+  def running(carry):
+    t, state, _, _, _ = carry
+    return (t < env.episode_steps) & (state.done == 0).any()
+
+  def one_step(carry):
+    t, state, totals, qpos, key = carry
+    key, step_key = jax.random.split(key)
+    action = jax.vmap(policy)(state.obs, jax.random.split(step_key, num_episodes))
+    live = state.done == 0
     nxt = jax.vmap(env.step)(state, action)
-    nxt = jax.tree.map(lambda new, old: _where_rows(running, new, old), nxt, state)
-    out = {"reward": nxt.reward * running, "running": running,
-           **{k: v * running for k, v in nxt.metrics.items()}}
-    if record_qpos:
-      out["qpos"] = nxt.pipeline_state.qpos[0]
-    return (nxt, running & (nxt.done == 0)), out
+    nxt = jax.tree.map(lambda new, old: _where_rows(live, new, old), nxt, state)
+    totals = {"length": totals["length"] + live, "return": totals["return"] + live * nxt.reward,
+              **{k: totals[k] + live * v for k, v in nxt.metrics.items()}}
+    if qpos is not None:
+      later = jnp.arange(qpos.shape[0])[:, None] > t
+      qpos = jnp.where(later, nxt.pipeline_state.qpos[0], qpos)
+    return t + 1, nxt, totals, qpos, key
 
-  running = jnp.ones(num_episodes, bool)
-  _, trace = jax.lax.scan(one_step, (state, running),
-                          jax.random.split(policy_key, env.episode_steps))
-  length = trace["running"].sum(0)
-  result = {"length": length, "return": trace["reward"].sum(0)}
+  _, _, totals, qpos, _ = jax.lax.while_loop(
+      running, one_step, (jnp.zeros((), jnp.int32), state, totals, qpos, policy_key))
+  result = {"length": totals["length"].astype(jnp.int32), "return": totals["return"]}
   for name in state.metrics:
-    result[name] = trace[name].sum(0) / jnp.maximum(length, 1)
+    result[name] = totals[name] / jnp.maximum(totals["length"], 1)
   if record_qpos:
-    result["qpos"] = jnp.concatenate([state.pipeline_state.qpos[:1], trace["qpos"]])
+    result["qpos"] = qpos
   return result
 
 
@@ -58,17 +71,20 @@ def _where_rows(rows: jax.Array, new: jax.Array, old: jax.Array) -> jax.Array:
 
 
 def make_stepper(env: LocomotionEnv, num_envs: int, steps: int):
-  """A compiled function that advances `num_envs` auto-resetting envs by `steps` random-action
-  steps: (state, key) -> (state, total reward). Start from `init(key)`."""
+  """Compiled functions that step `num_envs` auto-resetting envs with random actions.
+
+  Returns `init(key) -> state` and `run(state, key) -> (state, summed reward)`, where `run`
+  advances every env by `steps` steps in one call.
+  """
   env = AutoReset(env)
+  policy = random_policy(env.action_size)
 
   def init(key):
     return parallel.shard(jax.vmap(env.reset)(jax.random.split(key, num_envs)))
 
   def run(state, key):
     def one_step(state, step_key):
-      keys = jax.random.split(step_key, num_envs)
-      action = jax.vmap(random_policy, in_axes=(0, 0, None))(state.obs, keys, env.action_size)
+      action = jax.vmap(policy)(state.obs, jax.random.split(step_key, num_envs))
       state = jax.vmap(env.step)(state, action)
       return state, state.reward.sum()
     state, rewards = jax.lax.scan(one_step, state, jax.random.split(key, steps))

@@ -1,4 +1,6 @@
-"""PyBullet's own locomotion envs, the tests' reference oracle (a test-only dependency).
+"""PyBullet's own locomotion envs, the reference oracle of the tests and benchmarks.
+
+Needs the test extra (`pip install -e .[test]`: pybullet and gym); the runtime never imports it.
 
 `pybullet_envs/__init__.py` registers its envs into the old gym registry, which gym 0.26
 no longer has; the env modules themselves only need `gym.Env` and `gym.spaces`, so the package

@@ -1,0 +1,135 @@
+"""The env API: registry, errors, episodes' end flags, auto-reset, custom tasks, sharding."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from mjx_hopper import envs, parallel, rollout
+
+
+def test_list_and_make():
+  assert "Hopper" in envs.list_envs()
+  assert isinstance(envs.make("Hopper"), envs.Hopper)
+  with pytest.raises(ValueError, match=r"unknown env id 'Hoper'; valid ids are \['Hopper'"):
+    envs.make("Hoper")
+
+
+@pytest.mark.parametrize("bad", [0, -3, 2.5, "10"])
+def test_bad_episode_steps(bad):
+  with pytest.raises(ValueError, match=f"episode_steps must be an integer >= 1, got {bad!r}"):
+    envs.make("Hopper", episode_steps=bad)
+
+
+def test_wrong_action_shape(hopper, hopper_reset):
+  state = hopper_reset(jax.random.PRNGKey(0))
+  with pytest.raises(ValueError, match=r"action of shape \(3,\), got \(4,\)"):
+    hopper.step(state, jnp.zeros(4))
+  with pytest.raises(ValueError, match=r"got \(8, 3\); for a batch of envs use jax.vmap"):
+    hopper.step(state, jnp.zeros((8, 3)))
+
+
+def test_termination_and_truncation_are_separate(hopper_reset):
+  short = envs.make("Hopper", episode_steps=5)
+  state = jax.jit(short.reset)(jax.random.PRNGKey(0))
+  step = jax.jit(short.step)
+  for t in range(5):
+    state = step(state, jnp.zeros(3))
+    assert int(state.info["steps"]) == t + 1
+    assert float(state.done) == (1.0 if t == 4 else 0.0)
+  assert float(state.info["truncation"]) == 1.0  # time limit: learners bootstrap here
+  assert float(state.metrics["alive"]) == 1.0
+
+  long = envs.make("Hopper", episode_steps=1000)
+  state, step = jax.jit(long.reset)(jax.random.PRNGKey(0)), jax.jit(long.step)
+  while float(state.done) == 0.0:
+    state = step(state, jnp.zeros(3))
+  assert float(state.metrics["alive"]) == -1.0  # it fell: a termination
+  assert float(state.info["truncation"]) == 0.0
+  assert int(state.info["steps"]) < 1000
+
+
+def test_non_finite_state_terminates_with_finite_outputs(hopper, hopper_reset, hopper_step):
+  state = hopper_reset(jax.random.PRNGKey(0))
+  data = state.pipeline_state
+  state = state.replace(pipeline_state=data.replace(qvel=data.qvel.at[0].set(jnp.nan)))
+  state = hopper_step(state, jnp.zeros(3))
+  assert float(state.done) == 1.0 and float(state.info["truncation"]) == 0.0
+  assert np.isfinite(state.obs).all() and np.isfinite(float(state.reward))
+
+
+def test_auto_reset_keeps_final_observation(hopper):
+  env = envs.AutoReset(hopper)
+  reset, step = jax.jit(env.reset), jax.jit(env.step)
+  raw_step = jax.jit(hopper.step)
+  state = reset(jax.random.PRNGKey(3))
+  for _ in range(200):
+    expected = raw_step(state, jnp.zeros(3))
+    state = step(state, jnp.zeros(3))
+    np.testing.assert_array_equal(state.info["final_obs"], expected.obs)
+    assert float(state.reward) == float(expected.reward)
+    if float(state.done):
+      break
+  else:
+    pytest.fail("no episode ended in 200 zero-action steps")
+  assert int(state.info["steps"]) == 0  # a new episode has begun
+  assert not np.array_equal(state.obs, state.info["final_obs"])
+  np.testing.assert_array_equal(state.obs[-1], 0.0)  # feet contact zeroed, as at reset
+  assert np.abs(np.asarray(state.pipeline_state.qpos[3:])).max() <= 0.1
+  state = step(state, jnp.zeros(3))  # and it goes on
+  assert int(state.info["steps"]) == 1
+
+
+class SeedHopper(envs.Hopper):
+  """The seed notebook's custom Hopper: a fixed episode length, and its own reward and
+  termination."""
+
+  def reward(self, before, after, action):
+    terms = super().reward(before, after, action)
+    terms["progress"] = 2.0 * terms["progress"]
+    terms["height"] = after.body_xyz[2] - 1.0
+    return terms
+
+  def is_done(self, robot, terms):
+    return super().is_done(robot, terms) | (jnp.abs(robot.body_rpy[1]) > 0.3)
+
+
+def test_custom_task_by_subclassing_jits_and_vmaps(hopper):
+  env = SeedHopper(episode_steps=500)
+  assert env.episode_steps == 500
+  keys = jax.random.split(jax.random.PRNGKey(0), 8)
+  states = jax.jit(jax.vmap(env.reset))(keys)
+  step = jax.jit(jax.vmap(env.step))
+  base = jax.jit(jax.vmap(hopper.step))(jax.vmap(hopper.reset)(keys), jnp.zeros((8, 3)))
+  states = step(states, jnp.zeros((8, 3)))
+  assert set(states.metrics) == set(envs.REWARD_TERMS) | {"height"}
+  np.testing.assert_allclose(states.metrics["progress"], 2 * base.metrics["progress"], rtol=1e-5)
+  np.testing.assert_allclose(states.reward, base.reward + base.metrics["progress"]
+                             + states.metrics["height"], rtol=1e-5, atol=1e-6)
+  while not bool(states.done.all()):
+    states = step(states, jnp.zeros((8, 3)))
+  pitch = np.abs(np.asarray(states.info["robot"].body_rpy[:, 1]))
+  assert (pitch > 0.3).all() or (np.asarray(states.metrics["alive"]) < 0).all()
+  assert (np.asarray(states.info["steps"]) < 500).all()
+
+
+def test_batch_is_sharded_across_devices(hopper):
+  assert len(jax.devices()) == 2  # conftest splits the CPU in two
+  init, run = rollout.make_stepper(hopper, num_envs=8, steps=5)
+  state = init(jax.random.PRNGKey(0))
+  state, _ = run(state, jax.random.PRNGKey(1))
+  assert len(state.obs.sharding.device_set) == 2
+  assert state.obs.addressable_shards[0].data.shape == (4, hopper.observation_size)
+  # The same batch on one device gives the same numbers, up to float reassociation (XLA
+  # vectorises a batch of 4 and one of 8 differently).
+  single = jax.jit(jax.vmap(hopper.reset))(jax.random.split(jax.random.PRNGKey(5), 8))
+  sharded = parallel.shard(single)
+  step = jax.jit(jax.vmap(hopper.step))
+  actions = jnp.linspace(-1, 1, 24).reshape(8, 3)
+  np.testing.assert_allclose(step(sharded, actions).obs, step(single, actions).obs, atol=5e-4)
+
+
+def test_parallel_shard_leaves_uneven_batches_alone():
+  x = jnp.zeros((3, 2))
+  assert parallel.shard(x) is x
+  assert parallel.batch_sharding(4) is not None
