@@ -92,9 +92,6 @@ def pybullet_row(env_id: str, seconds: float = 5.0) -> dict | None:
     env = pybullet_oracle.make(env_id)
   except ImportError:
     return None
-  import contextlib
-  import io
-
   import numpy as np
   rng = np.random.default_rng(0)
   steps, t0 = 0, time.perf_counter()
@@ -102,7 +99,7 @@ def pybullet_row(env_id: str, seconds: float = 5.0) -> dict | None:
     _, _, done, _ = env.step(rng.uniform(-1, 1, env.action_space.shape))
     steps += 1
     if done:
-      with contextlib.redirect_stdout(io.StringIO()):
+      with pybullet_oracle._quiet():
         env.reset()
   return {"engine": "PyBullet", "platform": "cpu", "devices": 1, "batch": 1, "compile_s": 0.0,
           "env_steps_per_s": steps / (time.perf_counter() - t0)}
@@ -142,19 +139,24 @@ def main() -> None:
                       for r in mjx_rows(e, batches, args.steps_total)]))
     return
 
+  # This process measures the CPU references only; it must leave the accelerator to the workers.
+  worker_env = dict(os.environ)
+  os.environ["JAX_PLATFORMS"] = "cpu"
   rows = []
   for e in env_ids:
     row = pybullet_row(e)
     rows += [dict(row, env=e)] if row else []
     rows.append(dict(mujoco_c_row(e, threads=2), env=e))
   for d in [int(x) for x in args.devices.split(",")]:
-    env = dict(os.environ, XLA_FLAGS=f"--xla_force_host_platform_device_count={d}",
-               CUDA_VISIBLE_DEVICES=os.environ.get("CUDA_VISIBLE_DEVICES",
+    env = dict(worker_env, XLA_FLAGS=f"--xla_force_host_platform_device_count={d}",
+               CUDA_VISIBLE_DEVICES=worker_env.get("CUDA_VISIBLE_DEVICES",
                                                    ",".join(map(str, range(d)))))
     out = subprocess.run([sys.executable, __file__, "--worker", "--envs", args.envs,
                           "--batches", args.batches, "--steps-total", str(args.steps_total)],
-                         env=env, check=True, capture_output=True, text=True)
+                         env=env, capture_output=True, text=True)
     sys.stderr.write(out.stderr)
+    if out.returncode:
+      raise SystemExit(f"the MJX worker on {d} device(s) failed (exit {out.returncode})")
     rows += json.loads(out.stdout.strip().splitlines()[-1])
   rows.sort(key=lambda r: (env_ids.index(r["env"]), r["engine"] != "PyBullet",
                            not r["engine"].startswith("MuJoCo"), r["devices"], r["batch"]))

@@ -8,6 +8,7 @@ is entered without running its `__init__`.
 """
 
 import contextlib
+import ctypes
 import importlib.util
 import io
 import os
@@ -19,24 +20,46 @@ import numpy as np
 BULLET_IDS = {"Hopper": "HopperBulletEnv"}
 
 
+@contextlib.contextmanager
+def _quiet():
+  """Silences stdout and stderr, also what PyBullet's C code prints ("argv[0]=", its build)."""
+  sys.stdout.flush()
+  sys.stderr.flush()
+  saved = [os.dup(1), os.dup(2)]
+  devnull = os.open(os.devnull, os.O_WRONLY)
+  try:
+    os.dup2(devnull, 1)
+    os.dup2(devnull, 2)
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+      yield
+  finally:
+    ctypes.CDLL(None).fflush(None)  # C's buffered output, before the streams come back
+    os.dup2(saved[0], 1)
+    os.dup2(saved[1], 2)
+    for fd in saved + [devnull]:
+      os.close(fd)
+
+
 def _import_locomotion_envs():
   if "pybullet_envs.gym_locomotion_envs" not in sys.modules:
     spec = importlib.util.find_spec("pybullet_envs")
+    if spec is None:
+      raise ImportError("PyBullet is not installed: pip install -e '.[test]'")
     package = types.ModuleType("pybullet_envs")
     package.__path__ = list(spec.submodule_search_locations)
     sys.modules.setdefault("pybullet_envs", package)
-    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+    with _quiet():
       import gym  # noqa: F401  (prints a deprecation banner)
-  from pybullet_envs import gym_locomotion_envs
-  return gym_locomotion_envs
+      from pybullet_envs import gym_locomotion_envs  # noqa: F401  (pybullet prints its build)
+  return sys.modules["pybullet_envs.gym_locomotion_envs"]
 
 
 def make(env_id: str, seed: int = 0):
   """PyBullet's env for one of our ids, reset once with `seed`."""
   module = _import_locomotion_envs()
-  env = getattr(module, BULLET_IDS[env_id])()
-  env.seed(seed)
-  with contextlib.redirect_stdout(io.StringIO()):
+  with _quiet():
+    env = getattr(module, BULLET_IDS[env_id])()
+    env.seed(seed)
     env.reset()
   return env
 
@@ -72,7 +95,7 @@ def run_episodes(env, n_episodes: int, policy: str, seed: int) -> dict[str, np.n
   out = {"length": [], "return": [], **{n: [] for n in names}}
   act_size = env.action_space.shape[0]
   for _ in range(n_episodes):
-    with contextlib.redirect_stdout(io.StringIO()):
+    with _quiet():
       env.reset()
     terms, total, done, t = [], 0.0, False, 0
     while not done and t < 1000:

@@ -12,7 +12,7 @@ from mjx_hopper import rollout
 from mjx_hopper.envs import pybullet_oracle
 
 TOLERANCE = {  # (relative, absolute): |ours - bullet| <= max(rel * |bullet|, abs)
-    "length": (0.2, 1.0),
+    "length": (0.25, 1.0),
     "return": (0.1, 1.0),
     "alive": (0.0, 0.05),
     "progress": (0.0, 0.2),
