@@ -87,6 +87,7 @@ class LocomotionEnv(Env):
   control_dt: ClassVar[float] = 0.0165
   n_substeps: ClassVar[int] = 4
   reset_noise: ClassVar[float] = 0.1
+  contact_distance: ClassVar[float] = 0.005  # Bullet reports a contact within ~5 mm (measured)
 
   def __init__(self, episode_steps: int = 1000):
     if not isinstance(episode_steps, (int, np.integer)) or episode_steps < 1:
@@ -110,15 +111,18 @@ class LocomotionEnv(Env):
     self._mid, self._half_range = (lower + upper) / 2, (upper - lower) / 2
     self._torso = model.body(self.torso).id
     self._root = self._root_kind(model)
-    # Bullet averages the x, y of its "parts": a link placed after each joint, a link per body
-    # with mass, and the floor, which stays at the origin. After a joint that is followed by
-    # another joint of the same body sits that joint's anchor; after a body's last joint, the
-    # body's frame.
+    # Bullet averages the x, y of its "parts": the floor (fixed at the origin), a link per body,
+    # and a massless link placed after each joint but a free one. After a hinge that link sits
+    # at the hinge's anchor; after a slide, where the slide took it: at the next joint's anchor
+    # of the same body, or at the body's frame after its last joint.
     self._part_bodies = np.arange(1, model.nbody)
+    hinge, free = int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_FREE)
     last = np.append(model.jnt_bodyid[1:] != model.jnt_bodyid[:-1], True)
-    self._after_joint_anchor = np.flatnonzero(~last) + 1
-    self._after_joint_body = model.jnt_bodyid[last]
-    self._n_parts = model.njnt + len(self._part_bodies) + 1
+    kinds = np.asarray(model.jnt_type)
+    self._after_hinge = np.flatnonzero(kinds == hinge)
+    self._after_slide_anchor = np.flatnonzero((kinds != hinge) & (kinds != free) & ~last) + 1
+    self._after_slide_body = model.jnt_bodyid[(kinds != hinge) & (kinds != free) & last]
+    self._n_parts = int(np.sum(kinds != free)) + len(self._part_bodies) + 1
     self._foot_geom, self._foot_half_length, self._foot_radius, self._foot_mask = (
         self._foot_geoms(model))
     self._data0 = mjx.make_data(self.mjx_model)
@@ -285,8 +289,9 @@ class LocomotionEnv(Env):
   def robot(self, data: mjx.Data, feet_contact: jax.Array) -> Robot:
     """PyBullet's `calc_state` quantities: body poses from `data`'s kinematics, the torso speed
     and the joints from its current qpos and qvel."""
-    parts_xy = (data.xanchor[self._after_joint_anchor, :2].sum(0)
-                + data.xpos[self._after_joint_body, :2].sum(0)
+    parts_xy = (data.xanchor[self._after_hinge, :2].sum(0)
+                + data.xanchor[self._after_slide_anchor, :2].sum(0)
+                + data.xpos[self._after_slide_body, :2].sum(0)
                 + data.xipos[self._part_bodies, :2].sum(0)) / self._n_parts
     torso_pos = data.xipos[self._torso]
     speed = self._torso_speed(data.qpos, data.qvel)
@@ -313,11 +318,11 @@ class LocomotionEnv(Env):
     return jnp.clip(obs, -5.0, 5.0).astype(jnp.float32)
 
   def _feet_contact(self, data: mjx.Data) -> jax.Array:
-    """(F,) 1.0 where a foot's lowest point touches or penetrates the floor (z = 0)."""
+    """(F,) 1.0 where a foot's lowest point is within `contact_distance` of the floor (z = 0)."""
     axis_z = data.geom_xmat[self._foot_geom, 2, 2]  # z of each capsule's long axis
     lowest = (data.geom_xpos[self._foot_geom, 2] - jnp.abs(axis_z) * self._foot_half_length
               - self._foot_radius)
-    return jnp.any(self._foot_mask & (lowest <= 0.0), axis=1).astype(jnp.float32)
+    return jnp.any(self._foot_mask & (lowest <= self.contact_distance), axis=1).astype(jnp.float32)
 
   def _kinematics(self, data: mjx.Data) -> mjx.Data:
     """Poses of every body and geom for the current qpos."""

@@ -17,7 +17,9 @@ import types
 
 import numpy as np
 
-BULLET_IDS = {"Hopper": "HopperBulletEnv"}
+BULLET_IDS = {"Hopper": "HopperBulletEnv", "Walker2D": "Walker2DBulletEnv",
+              "HalfCheetah": "HalfCheetahBulletEnv", "Ant": "AntBulletEnv",
+              "Humanoid": "HumanoidBulletEnv"}
 
 
 @contextlib.contextmanager
@@ -75,13 +77,33 @@ def link_masses(env) -> dict[str, float]:
   return masses
 
 
-def set_state(env, positions: dict[str, float], velocities: dict[str, float]) -> np.ndarray:
-  """Puts Bullet's joints (by name, root joints too) at the given positions and speeds, and
-  returns the observation PyBullet computes there."""
+def set_state(env, ours, qpos, qvel) -> np.ndarray:
+  """Puts Bullet's robot in the state our env `ours` describes by `qpos` (nq,) and `qvel` (nv,),
+  and returns the observation PyBullet computes there.
+
+  A planar root maps to Bullet's first three joints (slide x, slide z, hinge y); a free root to
+  Bullet's base, whose pose is that of the torso's centre of mass; other joints go by name.
+  """
+  import mujoco
+  model = ours.mj_model
+  qpos, qvel = np.asarray(qpos, np.float64), np.asarray(qvel, np.float64)
   client, body = env._p, env.robot.objects[0]
   index = {client.getJointInfo(body, j)[1].decode(): j for j in range(client.getNumJoints(body))}
-  for name, q in positions.items():
-    client.resetJointState(body, index[name], q, velocities[name])
+  for j in range(model.njnt):
+    q, v = model.jnt_qposadr[j], model.jnt_dofadr[j]
+    if model.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE:
+      rot = np.zeros(9)
+      mujoco.mju_quat2Mat(rot, qpos[q + 3:q + 7])
+      rot = rot.reshape(3, 3)
+      com = rot @ model.body_ipos[model.jnt_bodyid[j]]
+      w, x, y, z = qpos[q + 3:q + 7]
+      client.resetBasePositionAndOrientation(body, qpos[q:q + 3] + com, [x, y, z, w])
+      angular = rot @ qvel[v + 3:v + 6]
+      client.resetBaseVelocity(body, qvel[v:v + 3] + np.cross(angular, com), angular)
+    else:
+      name = model.joint(j).name
+      bullet_joint = j if model.jnt_bodyid[j] == model.body(ours.torso).id else index[name]
+      client.resetJointState(body, bullet_joint, qpos[q], qvel[v])
   return env.robot.calc_state()
 
 

@@ -13,16 +13,33 @@ jax.config.update("jax_compilation_cache_dir",
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
 
 
+ROBOTS = ("Hopper", "Walker2D", "HalfCheetah", "Ant", "Humanoid")
+_ENVS, _BULLET = {}, {}
+
+
+def make_env(env_id):
+  """One env per id for the whole session, so compiled functions are shared."""
+  from mjx_hopper import envs
+  if env_id not in _ENVS:
+    _ENVS[env_id] = envs.make(env_id)
+  return _ENVS[env_id]
+
+
+def make_bullet(env_id):
+  from mjx_hopper.envs import pybullet_oracle
+  if env_id not in _BULLET:
+    _BULLET[env_id] = pybullet_oracle.make(env_id)
+  return _BULLET[env_id]
+
+
 @pytest.fixture(scope="session")
 def hopper():
-  from mjx_hopper import envs
-  return envs.make("Hopper")
+  return make_env("Hopper")
 
 
 @pytest.fixture(scope="session")
 def bullet_hopper():
-  from mjx_hopper.envs import pybullet_oracle
-  return pybullet_oracle.make("Hopper")
+  return make_bullet("Hopper")
 
 
 @pytest.fixture(scope="session")
@@ -33,3 +50,24 @@ def hopper_reset(hopper):
 @pytest.fixture(scope="session")
 def hopper_step(hopper):
   return jax.jit(hopper.step)
+
+
+_EPISODES = {}
+
+
+def mjx_episodes(env_id, num_episodes=128):
+  """Random- and zero-action episode statistics of `env_id`, with the qpos of episode 0, from
+  one compiled program per robot (`scale` 1 is random actions, 0 zero actions)."""
+  from mjx_hopper import rollout
+  if env_id not in _EPISODES:
+    env = make_env(env_id)
+
+    @jax.jit
+    def run(key, scale):
+      random = rollout.random_policy(env.action_size)
+      return rollout.episodes(env, lambda obs, k: scale * random(obs, k), key, num_episodes,
+                              record_qpos=True)
+
+    _EPISODES[env_id] = {policy: jax.device_get(run(jax.random.PRNGKey(1), scale))
+                         for policy, scale in (("random", 1.0), ("zero", 0.0))}
+  return _EPISODES[env_id]

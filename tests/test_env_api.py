@@ -5,13 +5,14 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from conftest import ROBOTS, make_env
 from mjx_hopper import envs, parallel, rollout
 
 
 def test_list_and_make():
-  assert "Hopper" in envs.list_envs()
+  assert envs.list_envs() == ["Ant", "HalfCheetah", "Hopper", "Humanoid", "Walker2D"]
   assert isinstance(envs.make("Hopper"), envs.Hopper)
-  with pytest.raises(ValueError, match=r"unknown env id 'Hoper'; valid ids are \['Hopper'"):
+  with pytest.raises(ValueError, match=r"unknown env id 'Hoper'; valid ids are \['Ant', "):
     envs.make("Hoper")
 
 
@@ -80,37 +81,48 @@ def test_auto_reset_keeps_final_observation(hopper):
   assert int(state.info["steps"]) == 1
 
 
-class SeedHopper(envs.Hopper):
-  """The seed notebook's custom Hopper: a fixed episode length, and its own reward and
-  termination."""
+def seed_style_task(base):
+  """The seed notebook's custom env, on any robot: a fixed episode length, and its own reward
+  and termination."""
 
-  def reward(self, before, after, action):
-    terms = super().reward(before, after, action)
-    terms["progress"] = 2.0 * terms["progress"]
-    terms["height"] = after.body_xyz[2] - 1.0
-    return terms
+  class Custom(base):
+    def reward(self, before, after, action):
+      terms = super().reward(before, after, action)
+      terms["progress"] = 2.0 * terms["progress"]
+      terms["height"] = after.body_xyz[2] - 1.0
+      return terms
 
-  def is_done(self, robot, terms):
-    return super().is_done(robot, terms) | (jnp.abs(robot.body_rpy[1]) > 0.3)
+    def is_done(self, robot, terms):
+      return super().is_done(robot, terms) | (jnp.abs(robot.body_rpy[1]) > 0.3)
+
+  return Custom(episode_steps=40)
 
 
-def test_custom_task_by_subclassing_jits_and_vmaps(hopper):
-  env = SeedHopper(episode_steps=500)
-  assert env.episode_steps == 500
+@pytest.mark.parametrize("robot", ROBOTS)
+def test_custom_task_by_subclassing_jits_and_vmaps(robot):
+  base_env = make_env(robot)
+  env = seed_style_task(type(base_env))
+  assert env.episode_steps == 40
   keys = jax.random.split(jax.random.PRNGKey(0), 8)
-  states = jax.jit(jax.vmap(env.reset))(keys)
   step = jax.jit(jax.vmap(env.step))
-  base = jax.jit(jax.vmap(hopper.step))(jax.vmap(hopper.reset)(keys), jnp.zeros((8, 3)))
-  states = step(states, jnp.zeros((8, 3)))
+  states = step(jax.jit(jax.vmap(env.reset))(keys), jnp.zeros((8, env.action_size)))
+  base = jax.vmap(base_env.step)(jax.vmap(base_env.reset)(keys), jnp.zeros((8, env.action_size)))
   assert set(states.metrics) == set(envs.REWARD_TERMS) | {"height"}
-  np.testing.assert_allclose(states.metrics["progress"], 2 * base.metrics["progress"], rtol=1e-5)
+  np.testing.assert_allclose(states.metrics["progress"], 2 * base.metrics["progress"], rtol=1e-4,
+                             atol=1e-6)
   np.testing.assert_allclose(states.reward, base.reward + base.metrics["progress"]
-                             + states.metrics["height"], rtol=1e-5, atol=1e-6)
-  while not bool(states.done.all()):
-    states = step(states, jnp.zeros((8, 3)))
-  pitch = np.abs(np.asarray(states.info["robot"].body_rpy[:, 1]))
-  assert (pitch > 0.3).all() or (np.asarray(states.metrics["alive"]) < 0).all()
-  assert (np.asarray(states.info["steps"]) < 500).all()
+                             + states.metrics["height"], rtol=1e-4, atol=1e-5)
+  ended = np.asarray(states.done) > 0
+  for _ in range(39):  # to the 40-step limit
+    states = step(states, jnp.zeros((8, env.action_size)))
+    now = (np.asarray(states.done) > 0) & ~ended
+    pitch = np.abs(np.asarray(states.info["robot"].body_rpy[:, 1]))
+    # An episode ends by the new rule, by the robot's own, or by the time limit.
+    why = (pitch > 0.3) | (np.asarray(states.metrics["alive"]) < 0) | (
+        np.asarray(states.info["truncation"]) > 0)
+    assert why[now].all()
+    ended |= now
+  assert ended.all()
 
 
 def test_batch_is_sharded_across_devices(hopper):

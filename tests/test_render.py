@@ -1,31 +1,34 @@
 """Headless frames and videos, and the demo that the README runs."""
 
-import jax
 import numpy as np
 import pytest
 
-from mjx_hopper import cli, rollout
+from conftest import ROBOTS, make_env, mjx_episodes
+from mjx_hopper import cli
 from mjx_hopper.envs import render
 
 
-def test_one_frame(hopper, hopper_reset):
-  state = hopper_reset(jax.random.PRNGKey(0))
-  frame = hopper.render(state.pipeline_state.qpos, width=160, height=120)
+@pytest.mark.parametrize("robot", ROBOTS)
+def test_one_frame(robot):
+  env = make_env(robot)
+  frame = env.render(env.mj_model.qpos0, width=160, height=120)
   assert frame.shape == (120, 160, 3) and frame.dtype == np.uint8
   assert frame.std() > 10  # not blank: a robot on a floor under a sky
-  with pytest.raises(ValueError, match=r"qpos must have shape \(nq,\) or \(T, nq\) with nq=6"):
-    hopper.render(np.zeros(5))
+  with pytest.raises(ValueError, match=rf"qpos must have shape \(nq,\) or \(T, nq\) with "
+                                       rf"nq={env.mj_model.nq}"):
+    env.render(np.zeros(5))
 
 
-def test_random_episode_video(hopper, tmp_path):
+@pytest.mark.parametrize("robot", ROBOTS)
+def test_random_episode_video(robot, tmp_path):
   import imageio_ffmpeg
-  stats = jax.jit(lambda k: rollout.episodes(hopper, rollout.random_policy(3), k, 2,
-                                             record_qpos=True))(jax.random.PRNGKey(0))
-  length = int(stats["length"][0])
-  frames = hopper.render(np.asarray(stats["qpos"][:length + 1]), width=96, height=64)
+  env = make_env(robot)
+  episode = mjx_episodes(robot)["random"]
+  length = min(int(episode["length"][0]), 150)
+  frames = env.render(episode["qpos"][:length + 1], width=96, height=64)
   assert frames.shape == (length + 1, 64, 96, 3)
   assert np.abs(frames[0].astype(int) - frames[-1]).max() > 0  # the robot moved
-  path = render.write_mp4(str(tmp_path / "episode.mp4"), frames, fps=1 / hopper.dt)
+  path = render.write_mp4(str(tmp_path / "episode.mp4"), frames, fps=1 / env.dt)
   reader = imageio_ffmpeg.read_frames(path)
   meta = next(reader)
   assert tuple(meta["size"]) == (96, 64)
@@ -45,4 +48,5 @@ def test_demo_prints_throughput_and_writes_video(tmp_path, capsys):
 def test_cli_rejects_bad_arguments(capsys):
   with pytest.raises(SystemExit):
     cli.main(["demo", "--env", "Hoper"])
-  assert "unknown --env 'Hoper'; choose from ['Hopper']" in capsys.readouterr().err
+  assert ("unknown --env 'Hoper'; choose from ['Ant', 'HalfCheetah', 'Hopper', 'Humanoid', "
+          "'Walker2D']") in capsys.readouterr().err

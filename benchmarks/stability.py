@@ -1,0 +1,65 @@
+"""Stability under random actions: N envs stepped T times with uniform random actions and
+auto-reset, counting steps whose physics state is not finite and the largest joint speed.
+
+    python benchmarks/stability.py --env Humanoid --num-envs 256 --steps 10000
+"""
+
+import argparse
+import time
+
+import jax
+import jax.numpy as jnp
+
+from mjx_hopper import envs, parallel
+
+
+def make_run(env, num_envs: int, chunk: int):
+  """A compiled call advancing the batch `chunk` steps, returning per-chunk counts."""
+
+  def one_step(state, key):
+    act_key, reset_key = jax.random.split(key)
+    action = jax.random.uniform(act_key, (num_envs, env.action_size), minval=-1, maxval=1)
+    stepped = jax.vmap(env.step)(state, action)
+    qvel = stepped.pipeline_state.qvel
+    bad = ~jnp.isfinite(qvel).all(axis=1) | ~jnp.isfinite(stepped.pipeline_state.qpos).all(axis=1)
+    fresh = jax.vmap(env.reset)(jax.random.split(reset_key, num_envs))
+    done = stepped.done > 0
+    state = jax.tree.map(
+        lambda f, s: jnp.where(done.reshape(done.shape + (1,) * (s.ndim - 1)), f, s),
+        fresh, stepped)
+    return state, (bad.sum(), jnp.where(jnp.isfinite(qvel), jnp.abs(qvel), 0).max(), done.sum())
+
+  def run(state, key):
+    state, (bad, top, done) = jax.lax.scan(one_step, state, jax.random.split(key, chunk))
+    return state, bad.sum(), top.max(), done.sum()
+
+  return jax.jit(run)
+
+
+def main() -> None:
+  parser = argparse.ArgumentParser(description=__doc__,
+                                   formatter_class=argparse.RawDescriptionHelpFormatter)
+  parser.add_argument("--env", default="Humanoid")
+  parser.add_argument("--num-envs", type=int, default=256)
+  parser.add_argument("--steps", type=int, default=10_000)
+  parser.add_argument("--chunk", type=int, default=500)
+  args = parser.parse_args()
+  env = envs.make(args.env)
+  key = jax.random.PRNGKey(0)
+  state = parallel.shard(jax.vmap(env.reset)(jax.random.split(key, args.num_envs)))
+  run = make_run(env, args.num_envs, args.chunk)
+  bad = episodes = 0
+  top = 0.0
+  t0 = time.perf_counter()
+  for i in range(args.steps // args.chunk):
+    state, b, t, d = run(state, jax.random.fold_in(key, i))
+    bad, top, episodes = bad + int(b), max(top, float(t)), episodes + int(d)
+  steps = args.steps // args.chunk * args.chunk
+  print(f"{args.env}: {args.num_envs} envs x {steps} random-action steps "
+        f"({args.num_envs * steps:,} env steps, {episodes:,} episodes ended) on "
+        f"{jax.devices()[0].platform} in {time.perf_counter() - t0:.0f} s: "
+        f"{bad} non-finite states, largest |qvel| {top:.1f}")
+
+
+if __name__ == "__main__":
+  main()

@@ -1,0 +1,58 @@
+"""Episode statistics under random and zero actions, against PyBullet's own envs.
+
+The contact models differ (Bullet's hard contacts, MuJoCo's soft ones), so episodes agree in
+distribution, not step for step. The tolerances follow the agreement recorded in
+docs/fidelity.md: |ours - bullet| <= max(rel * |bullet|, abs) on the means.
+"""
+
+import numpy as np
+import pytest
+
+from conftest import ROBOTS, make_bullet, mjx_episodes
+from mjx_hopper.envs import pybullet_oracle
+
+TOLERANCE = {  # statistic: (relative, absolute)
+    "length": (0.25, 1.0),
+    "return": (0.15, 2.0),
+    "alive": (0.0, 0.05),
+    "progress": (0.0, 0.2),
+    "electricity_cost": (0.15, 0.02),
+    "joints_at_limit_cost": (0.0, 0.05),
+    "feet_collision_cost": (0.0, 1e-9),
+}
+# Where a robot agrees less well, and why (docs/fidelity.md).
+LOOSER = {
+    ("HalfCheetah", "random"): {"return": (0.3, 2.0), "alive": (0.0, 0.3),
+                                "joints_at_limit_cost": (0.0, 0.06)},
+    ("Ant", "random"): {"length": (0.3, 1.0), "return": (0.3, 2.0)},
+    ("Humanoid", "random"): {"return": (0.5, 2.0), "electricity_cost": (0.25, 0.02),
+                             "joints_at_limit_cost": (0.0, 0.16)},
+    ("Humanoid", "zero"): {"joints_at_limit_cost": (0.0, 0.08)},
+}
+BULLET_EPISODES = {"random": 30, "zero": 10}
+
+
+@pytest.mark.parametrize("policy", ["random", "zero"])
+@pytest.mark.parametrize("robot", ROBOTS)
+def test_episode_statistics_match_bullet(robot, policy):
+  bullet = pybullet_oracle.run_episodes(make_bullet(robot), BULLET_EPISODES[policy], policy,
+                                        seed=0)
+  ours = {k: v for k, v in mjx_episodes(robot)[policy].items() if k != "qpos"}
+  assert set(ours) == set(TOLERANCE)
+  tolerance = dict(TOLERANCE, **LOOSER.get((robot, policy), {}))
+  for name, (rel, atol) in tolerance.items():
+    b, m = bullet[name].mean(), ours[name].mean()
+    assert abs(m - b) <= max(rel * abs(b), atol), f"{robot} {policy} {name}: ours {m:.4f}, " \
+                                                  f"bullet {b:.4f}"
+
+
+@pytest.mark.parametrize("robot", ROBOTS)
+def test_return_is_sum_of_terms(robot):
+  ours = mjx_episodes(robot)["random"]
+  terms = sum(ours[k] for k in TOLERANCE if k not in ("length", "return"))
+  np.testing.assert_allclose(ours["return"], terms * ours["length"], rtol=1e-4, atol=1e-2)
+
+
+def test_half_cheetah_never_terminates_early():
+  for policy in ("random", "zero"):
+    assert (mjx_episodes("HalfCheetah")[policy]["length"] == 1000).all()

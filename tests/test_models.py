@@ -1,0 +1,120 @@
+"""Each robot's model against PyBullet's: masses, inertias, torques, limits, timing, specs."""
+
+import mujoco
+import numpy as np
+import pytest
+
+from conftest import ROBOTS, make_bullet, make_env
+from mjx_hopper.envs import pybullet_oracle
+
+TOTAL_MASS = {"Hopper": 15.82, "Walker2D": 23.6772, "HalfCheetah": 38.1878, "Ant": 182.176,
+              "Humanoid": 42.116}  # kg, read from PyBullet 3.2.7
+SIZES = {"Hopper": (15, 3), "Walker2D": (22, 6), "HalfCheetah": (26, 6), "Ant": (28, 8),
+         "Humanoid": (44, 17)}
+
+
+@pytest.mark.parametrize("robot", ROBOTS)
+def test_link_masses_within_one_percent(robot):
+  env, bullet = make_env(robot), make_bullet(robot)
+  theirs = pybullet_oracle.link_masses(bullet)
+  ours = {env.mj_model.body(i).name: env.mj_model.body_mass[i]
+          for i in range(1, env.mj_model.nbody)}
+  assert sorted(ours) == sorted(theirs)
+  for name, mass in theirs.items():
+    assert ours[name] == pytest.approx(mass, rel=0.01), name
+  assert sum(ours.values()) == pytest.approx(TOTAL_MASS[robot], rel=0.01)
+
+
+@pytest.mark.parametrize("robot", ROBOTS)
+def test_inertias_are_bullets(robot):
+  env, bullet = make_env(robot), make_bullet(robot)
+  client = bullet._p
+  for name, part in bullet.robot.parts.items():
+    info = client.getDynamicsInfo(part.bodies[part.bodyIndex], part.bodyPartIndex)
+    if info[0] > 0:
+      np.testing.assert_allclose(env.mj_model.body(name).inertia, info[2], rtol=1e-4,
+                                 err_msg=name)  # where it sits: the mass-matrix test
+
+
+@pytest.mark.parametrize("robot", ROBOTS)
+def test_joint_space_mass_matrix_matches_bullet(robot):
+  """At random joint angles (the root at rest pose): the whole matrix for planar robots, the
+  joints' block for free-floating ones (Bullet orders its base coordinates differently)."""
+  env, bullet = make_env(robot), make_bullet(robot)
+  model, data = env.mj_model, mujoco.MjData(env.mj_model)
+  rng = np.random.default_rng(0)
+  pybullet_oracle.set_state(bullet, env, model.qpos0, np.zeros(model.nv))
+  free = env._root == "free"
+  for _ in range(3):
+    data.qpos[:] = model.qpos0
+    data.qpos[env._qadr] = rng.uniform(-0.5, 0.5, env.action_size)
+    if not free:
+      data.qpos[:3] = rng.uniform(-0.5, 0.5, 3)
+    mujoco.mj_forward(model, data)
+    ours = np.zeros((model.nv, model.nv))
+    mujoco.mj_fullM(model, data, ours)
+    joint_angles = data.qpos[7:] if free else data.qpos  # Bullet takes no base coordinates
+    theirs = np.array(bullet._p.calculateMassMatrix(bullet.robot.objects[0], list(joint_angles)))
+    if free:
+      ours, theirs = ours[6:, 6:], theirs[6:, 6:]
+    np.testing.assert_allclose(ours, theirs, rtol=1e-4, atol=1e-5)
+
+
+@pytest.mark.parametrize("robot", ROBOTS)
+def test_torques_are_power_times_power_coef(robot):
+  env, bullet = make_env(robot), make_bullet(robot)
+  robot_b = bullet.robot
+  # What apply_action multiplies by: the Humanoid's own motor_power list, else power_coef.
+  coefs = getattr(robot_b, "motor_power", [j.power_coef for j in robot_b.ordered_joints])
+  expected = robot_b.power * np.array(coefs)
+  model, data = env.mj_model, mujoco.MjData(env.mj_model)
+  data.ctrl[:] = np.where(np.arange(model.nu) % 2, -1.0, 3.0)  # 3 is clipped to 1
+  mujoco.mj_forward(model, data)
+  signs = np.where(np.arange(model.nu) % 2, -1.0, 1.0)
+  np.testing.assert_allclose(data.qfrc_actuator[env._dofadr], signs * expected, rtol=1e-6)
+
+
+@pytest.mark.parametrize("robot", ROBOTS)
+def test_joints_and_limits_in_action_order(robot):
+  env, bullet = make_env(robot), make_bullet(robot)
+  joints = bullet.robot.ordered_joints
+  assert env.joints == tuple(j.joint_name for j in joints)
+  for j in joints:
+    lower, upper = env.mj_model.joint(j.joint_name).range
+    assert (lower, upper) == pytest.approx((j.lowerLimit, j.upperLimit), abs=1e-5)
+
+
+@pytest.mark.parametrize("robot", ROBOTS)
+def test_timing_root_and_feet(robot):
+  env, bullet = make_env(robot), make_bullet(robot)
+  assert env.dt == pytest.approx(bullet.scene.dt)
+  assert env.n_substeps == bullet.scene.frame_skip == 4
+  assert env.mj_model.opt.timestep == pytest.approx(0.0165 / 4)
+  assert env._root == ("free" if robot in ("Ant", "Humanoid") else "planar")
+  assert env.feet == tuple(bullet.robot.foot_list)
+  assert env.initial_z == pytest.approx(bullet.robot.initial_z, abs=1e-6)
+  assert env.electricity_cost == bullet.electricity_cost
+  assert env.stall_torque_cost == pytest.approx(bullet.stall_torque_cost)
+  assert env._n_parts == len(bullet.robot.parts)
+
+
+@pytest.mark.parametrize("robot", ROBOTS)
+def test_specs(robot):
+  env, bullet = make_env(robot), make_bullet(robot)
+  obs_size, act_size = SIZES[robot]
+  action, obs, reward = env.action_spec(), env.observation_spec(), env.reward_spec()
+  assert action.shape == bullet.action_space.shape == (act_size,)
+  assert obs.shape == bullet.observation_space.shape == (obs_size,)
+  assert reward.shape == ()
+  assert {np.dtype(s.dtype) for s in (action, obs, reward)} == {np.dtype(np.float32)}
+  np.testing.assert_array_equal(action.minimum, -1.0)
+  np.testing.assert_array_equal(action.maximum, 1.0)
+  assert repr(obs) == f"Array(shape=({obs_size},), dtype=float32, name='observation')"
+  spec = env.spec()
+  assert repr((spec.actions, spec.observations, spec.rewards)) == repr((action, obs, reward))
+
+
+def test_hopper_action_spec_reads_well(hopper):
+  assert repr(hopper.action_spec()) == (
+      "BoundedArray(shape=(3,), dtype=float32, name='action', "
+      "minimum=[-1. -1. -1.], maximum=[1. 1. 1.])")
