@@ -106,11 +106,15 @@ def pybullet_row(env_id: str, seconds: float = 5.0) -> dict | None:
 
 
 def table(rows: list[dict]) -> str:
-  bullet = next((r["env_steps_per_s"] for r in rows if r["engine"] == "PyBullet"), None)
-  c = next((r["env_steps_per_s"] for r in rows if r["engine"].startswith("MuJoCo C")), None)
+  """Markdown, with each row's rate against PyBullet's and MuJoCo C's on the same robot."""
+  def reference(env_id, engine):
+    return next((r["env_steps_per_s"] for r in rows
+                 if r["env"] == env_id and r["engine"].startswith(engine)), None)
+
   lines = ["| env | engine | platform | devices | batch | compile (s) | env steps/s "
            "| × PyBullet | ÷ MuJoCo C |", "|---|---|---|---|---|---|---|---|---|"]
   for r in rows:
+    bullet, c = reference(r["env"], "PyBullet"), reference(r["env"], "MuJoCo C")
     ratio_b = f"{r['env_steps_per_s'] / bullet:.1f}" if bullet else "-"
     ratio_c = f"{r['env_steps_per_s'] / c:.2f}" if c else "-"
     lines.append(f"| {r['env']} | {r['engine']} | {r['platform']} | {r['devices']} "
@@ -153,8 +157,7 @@ def main() -> None:
                                                    ",".join(map(str, range(d)))))
     out = subprocess.run([sys.executable, __file__, "--worker", "--envs", args.envs,
                           "--batches", args.batches, "--steps-total", str(args.steps_total)],
-                         env=env, capture_output=True, text=True)
-    sys.stderr.write(out.stderr)
+                         env=env, stdout=subprocess.PIPE, text=True)
     if out.returncode:
       raise SystemExit(f"the MJX worker on {d} device(s) failed (exit {out.returncode})")
     rows += json.loads(out.stdout.strip().splitlines()[-1])
