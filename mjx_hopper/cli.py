@@ -1,5 +1,7 @@
 """The `mjx-hopper` command line.
 
+    mjx-hopper train [--env Hopper] [--agent d4pg] [--preset cpu] [--steps 1000000] [--out DIR]
+    mjx-hopper eval --checkpoint DIR [--episodes 16] [--video out.mp4]
     mjx-hopper demo [--env Hopper] [--num-envs 1024] [--steps 500] [--out runs/demo]
 """
 
@@ -69,12 +71,100 @@ def demo(args: argparse.Namespace) -> None:
         f"video: {path}")
 
 
+def _overrides(pairs: list[str]) -> dict:
+  """--set name=value pairs as a dict; values are parsed as Python literals when they can be."""
+  import ast
+  out = {}
+  for pair in pairs:
+    name, sep, value = pair.partition("=")
+    if not sep:
+      raise SystemExit(f"--set takes name=value, got {pair!r}")
+    try:
+      out[name] = ast.literal_eval(value)
+    except (ValueError, SyntaxError):
+      out[name] = value
+  return out
+
+
+def train(args: argparse.Namespace) -> None:
+  """Trains an agent, with progress, a CSV log, checkpoints and a final evaluation."""
+  from mjx_hopper import loop, train as train_lib
+  try:
+    cfg = loop.RunConfig(
+        env=args.env, agent=args.agent, preset=args.preset,
+        agent_overrides=_overrides(args.set),
+        train=train_lib.TrainConfig(
+            num_envs=args.num_envs, unroll_length=args.unroll_length,
+            batch_size=args.batch_size, replay_ratio=args.replay_ratio,
+            replay_size=args.replay_size, min_replay=args.min_replay,
+            iterations_per_chunk=args.chunk),
+        total_env_steps=args.steps, eval_every=args.eval_every,
+        eval_episodes=args.eval_episodes, seed=args.seed, out_dir=args.out,
+        time_delta=args.log_every, checkpoint_minutes=args.checkpoint_minutes)
+    loop.run(cfg, checkpoint_dir=args.checkpoint_dir, progress=not args.no_progress)
+  except ValueError as error:
+    raise SystemExit(f"mjx-hopper train: {error}")
+
+
+def evaluate(args: argparse.Namespace) -> None:
+  """Loads the policy of a checkpoint, evaluates it and writes an mp4 of one episode."""
+  import jax
+  import numpy as np
+
+  from mjx_hopper import loop, train as train_lib
+  from mjx_hopper.envs import render
+  try:
+    cfg, agent_state, trainer = loop.load_policy(args.checkpoint)
+  except (ValueError, FileNotFoundError) as error:
+    raise SystemExit(f"mjx-hopper eval: {error}")
+  result = jax.device_get(jax.jit(
+      lambda s, k: train_lib.evaluate(trainer.env, trainer.agent, s, k, args.episodes,
+                                      record_qpos=True))(agent_state,
+                                                         jax.random.PRNGKey(args.seed)))
+  returns = np.asarray(result["return"])
+  print(f"{cfg.env} / {cfg.agent}: return {returns.mean():.1f} +- {returns.std():.1f}, length "
+        f"{np.mean(result['length']):.0f} over {args.episodes} episodes")
+  length = int(result["length"][0])
+  frames = render.render_frames(trainer.env.mj_model, np.asarray(result["qpos"][:length + 1]))
+  path = render.write_mp4(args.video, frames, fps=1 / trainer.env.dt)
+  print(f"video of episode 0 ({length} steps, return {returns[0]:.1f}): {path}")
+
+
 def build_parser() -> argparse.ArgumentParser:
   parser = argparse.ArgumentParser(prog="mjx-hopper", description=__doc__,
                                    formatter_class=argparse.RawDescriptionHelpFormatter)
   parser.add_argument("--cpu-devices", type=int, default=os.cpu_count() or 1,
                       help="XLA CPU devices to split the env batch over (default: all cores)")
   sub = parser.add_subparsers(dest="command", required=True)
+  t = sub.add_parser("train", help="train an agent (progress, CSV log, checkpoints, evaluation)")
+  t.add_argument("--env", default="Hopper")
+  t.add_argument("--agent", default="d4pg")
+  t.add_argument("--preset", default="cpu", help="the agent's named settings: seed, cpu, ...")
+  t.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                 help="override one agent setting, e.g. --set sigma=0.2 (repeatable)")
+  t.add_argument("--steps", type=int, default=1_000_000, help="total env steps")
+  t.add_argument("--num-envs", type=int, default=64)
+  t.add_argument("--unroll-length", type=int, default=4, help="env steps per env per iteration")
+  t.add_argument("--batch-size", type=int, default=256)
+  t.add_argument("--replay-ratio", type=float, default=8.0,
+                 help="samples drawn per transition inserted")
+  t.add_argument("--replay-size", type=int, default=1_000_000)
+  t.add_argument("--min-replay", type=int, default=10_000)
+  t.add_argument("--chunk", type=int, default=50, help="iterations per compiled chunk")
+  t.add_argument("--eval-every", type=int, default=100_000, help="env steps between evaluations")
+  t.add_argument("--eval-episodes", type=int, default=16)
+  t.add_argument("--seed", type=int, default=0)
+  t.add_argument("--out", default="runs/train", help="folder for log.csv and config.json")
+  t.add_argument("--checkpoint-dir", default=None,
+                 help="checkpoints (default OUT/checkpoints); resumes when it holds one")
+  t.add_argument("--checkpoint-minutes", type=float, default=10.0)
+  t.add_argument("--log-every", type=float, default=10.0, help="seconds between log lines")
+  t.add_argument("--no-progress", action="store_true", help="no progress bar")
+  e = sub.add_parser("eval", help="evaluate a checkpoint's policy and write an mp4")
+  e.add_argument("--checkpoint", required=True, help="a checkpoint directory")
+  e.add_argument("--episodes", type=int, default=16)
+  e.add_argument("--seed", type=int, default=0)
+  e.add_argument("--video", default="runs/eval/policy.mp4")
   p = sub.add_parser("demo", help="batched random rollout, env steps/s, and a video")
   p.add_argument("--env", default="Hopper")
   p.add_argument("--num-envs", type=int, default=1024)
@@ -88,7 +178,11 @@ def main(argv: list[str] | None = None) -> None:
   parser = build_parser()
   args = parser.parse_args(argv)
   _setup_jax(args.cpu_devices)
-  if args.command == "demo":
+  if args.command == "train":
+    train(args)
+  elif args.command == "eval":
+    evaluate(args)
+  elif args.command == "demo":
     from mjx_hopper import envs
     if args.env not in envs.list_envs():
       parser.error(f"unknown --env {args.env!r}; choose from {envs.list_envs()}")

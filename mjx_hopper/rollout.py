@@ -24,45 +24,59 @@ def zero_policy(action_size: int) -> Policy:
 
 def episodes(env: LocomotionEnv, policy: Policy, key: jax.Array, num_episodes: int,
              record_qpos: bool = False) -> dict[str, jax.Array]:
-  """Runs `num_episodes` episodes in parallel, each to its end (at most env.episode_steps),
-  and stops once all have ended. Jit it with `env`, `policy` and `num_episodes` static.
+  """Runs `num_episodes` episodes in parallel, each to its end (at most env.episode_steps).
+  Jit it with `env`, `policy` and `num_episodes` static.
+
+  The episodes are spread over the local devices, and each device stops once all of its own
+  episodes have ended. Episode i's randomness depends only on `key` and i, so the results do not
+  depend on the number of devices.
 
   Returns per-episode arrays of shape (num_episodes,): "length", "return", and the mean per
   step of each reward term, by name. With `record_qpos`, also "qpos" of episode 0, shape
   (env.episode_steps + 1, nq), holding its last pose after it ends.
   """
   reset_key, policy_key = jax.random.split(key)
-  state = parallel.shard(jax.vmap(env.reset)(jax.random.split(reset_key, num_episodes)))
-  zeros = jnp.zeros(num_episodes)
+  keys = (jax.random.split(reset_key, num_episodes), jax.random.split(policy_key, num_episodes))
+  result = parallel.per_device(lambda keys: _local_episodes(env, policy, keys, record_qpos),
+                               num_episodes)(keys)
+  if record_qpos:
+    result["qpos"] = result["qpos"][0]
+  return result
+
+
+def _local_episodes(env, policy, keys, record_qpos):
+  """`episodes` on one device's share, given (reset keys, policy keys), one pair per episode."""
+  reset_keys, policy_keys = keys
+  state = jax.vmap(env.reset)(reset_keys)
+  zeros = jnp.zeros(reset_keys.shape[0])
   totals = {"length": zeros, "return": zeros, **{k: zeros for k in state.metrics}}
-  qpos = jnp.zeros((env.episode_steps + 1, env.mj_model.nq))
-  qpos = qpos + state.pipeline_state.qpos[0] if record_qpos else None
+  qpos = jnp.zeros((env.episode_steps + 1, env.mj_model.nq)) + state.pipeline_state.qpos[0]
 
   def running(carry):
-    t, state, _, _, _ = carry
+    t, state, _, _ = carry
     return (t < env.episode_steps) & (state.done == 0).any()
 
   def one_step(carry):
-    t, state, totals, qpos, key = carry
-    key, step_key = jax.random.split(key)
-    action = jax.vmap(policy)(state.obs, jax.random.split(step_key, num_episodes))
+    t, state, totals, qpos = carry
+    step_keys = jax.vmap(jax.random.fold_in, (0, None))(policy_keys, t)
+    action = jax.vmap(policy)(state.obs, step_keys)
     live = state.done == 0
     nxt = jax.vmap(env.step)(state, action)
     nxt = jax.tree.map(lambda new, old: _where_rows(live, new, old), nxt, state)
     totals = {"length": totals["length"] + live, "return": totals["return"] + live * nxt.reward,
               **{k: totals[k] + live * v for k, v in nxt.metrics.items()}}
-    if qpos is not None:
+    if record_qpos:
       later = jnp.arange(qpos.shape[0])[:, None] > t
       qpos = jnp.where(later, nxt.pipeline_state.qpos[0], qpos)
-    return t + 1, nxt, totals, qpos, key
+    return t + 1, nxt, totals, qpos
 
-  _, _, totals, qpos, _ = jax.lax.while_loop(
-      running, one_step, (jnp.zeros((), jnp.int32), state, totals, qpos, policy_key))
+  _, _, totals, qpos = jax.lax.while_loop(
+      running, one_step, (jnp.zeros((), jnp.int32), state, totals, qpos))
   result = {"length": totals["length"].astype(jnp.int32), "return": totals["return"]}
   for name in state.metrics:
     result[name] = totals[name] / jnp.maximum(totals["length"], 1)
   if record_qpos:
-    result["qpos"] = qpos
+    result["qpos"] = qpos[None]  # one per device; `episodes` keeps the first
   return result
 
 
@@ -71,7 +85,8 @@ def _where_rows(rows: jax.Array, new: jax.Array, old: jax.Array) -> jax.Array:
 
 
 def make_stepper(env: LocomotionEnv, num_envs: int, steps: int):
-  """Compiled functions that step `num_envs` auto-resetting envs with random actions.
+  """Compiled functions that step `num_envs` auto-resetting envs with random actions, spread
+  over the local devices.
 
   Returns `init(key) -> state` and `run(state, key) -> (state, summed reward)`, where `run`
   advances every env by `steps` steps in one call.
@@ -82,12 +97,17 @@ def make_stepper(env: LocomotionEnv, num_envs: int, steps: int):
   def init(key):
     return parallel.shard(jax.vmap(env.reset)(jax.random.split(key, num_envs)))
 
+  def local_run(state, env_keys):
+    def one_step(state, t):
+      step_keys = jax.vmap(jax.random.fold_in, (0, None))(env_keys, t)
+      state = jax.vmap(env.step)(state, jax.vmap(policy)(state.obs, step_keys))
+      return state, state.reward
+    state, rewards = jax.lax.scan(one_step, state, jnp.arange(steps))
+    return state, rewards.sum(0)
+
   def run(state, key):
-    def one_step(state, step_key):
-      action = jax.vmap(policy)(state.obs, jax.random.split(step_key, num_envs))
-      state = jax.vmap(env.step)(state, action)
-      return state, state.reward.sum()
-    state, rewards = jax.lax.scan(one_step, state, jax.random.split(key, steps))
+    state, rewards = parallel.per_device(local_run, num_envs)(
+        state, jax.random.split(key, num_envs))
     return state, rewards.sum()
 
   return jax.jit(init), jax.jit(run, donate_argnums=0)

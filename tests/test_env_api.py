@@ -103,26 +103,37 @@ def test_custom_task_by_subclassing_jits_and_vmaps(robot):
   base_env = make_env(robot)
   env = seed_style_task(type(base_env))
   assert env.episode_steps == 40
-  keys = jax.random.split(jax.random.PRNGKey(0), 8)
-  step = jax.jit(jax.vmap(env.step))
-  states = step(jax.jit(jax.vmap(env.reset))(keys), jnp.zeros((8, env.action_size)))
-  base = jax.vmap(base_env.step)(jax.vmap(base_env.reset)(keys), jnp.zeros((8, env.action_size)))
-  assert set(states.metrics) == set(envs.REWARD_TERMS) | {"height"}
-  np.testing.assert_allclose(states.metrics["progress"], 2 * base.metrics["progress"], rtol=1e-4,
-                             atol=1e-4)
-  np.testing.assert_allclose(states.reward, base.reward + base.metrics["progress"]
-                             + states.metrics["height"], rtol=1e-4, atol=1e-5)
-  ended = np.asarray(states.done) > 0
-  for _ in range(39):  # to the 40-step limit
-    states = step(states, jnp.zeros((8, env.action_size)))
-    now = (np.asarray(states.done) > 0) & ~ended
-    pitch = np.abs(np.asarray(states.info["robot"].body_rpy[:, 1]))
-    # An episode ends by the new rule, by the robot's own, or by the time limit.
-    why = (pitch > 0.3) | (np.asarray(states.metrics["alive"]) < 0) | (
-        np.asarray(states.info["truncation"]) > 0)
-    assert why[now].all()
-    ended |= now
-  assert ended.all()
+  actions = 0.3 * jnp.sin(jnp.arange(8 * env.action_size)).reshape(8, env.action_size)
+
+  @jax.jit
+  def forty_steps(keys):
+    def one(state, _):
+      nxt = jax.vmap(env.step)(state, actions)
+      return nxt, (state.info["robot"], nxt.info["robot"], nxt.metrics, nxt.reward, nxt.done,
+                   nxt.info["truncation"])
+    return jax.lax.scan(one, jax.vmap(env.reset)(keys), None, length=40)[1]
+
+  before, after, terms, reward, done, truncation = jax.device_get(
+      forty_steps(jax.random.split(jax.random.PRNGKey(0), 8)))
+  assert set(terms) == set(envs.REWARD_TERMS) | {"height"}
+  # The new terms are what the subclass says, and the others are the robot's own.
+  base_terms = jax.vmap(jax.vmap(base_env.reward), (0, 0, None))(before, after, actions)
+  np.testing.assert_allclose(terms["progress"], 2 * base_terms["progress"], rtol=1e-5, atol=1e-5)
+  np.testing.assert_allclose(terms["height"], after.body_xyz[..., 2] - 1.0, atol=1e-6)
+  for name in set(envs.REWARD_TERMS) - {"progress"}:
+    np.testing.assert_allclose(terms[name], base_terms[name], atol=1e-6)
+  np.testing.assert_allclose(reward, sum(terms.values()), rtol=1e-5, atol=1e-5)
+  # Every episode ends, by the 40-step limit at the latest, and only for a reason.
+  ended = np.argmax(done > 0, axis=0)
+  assert (done > 0).any(0).all()
+  pitch = np.abs(after.body_rpy[..., 1])
+  own_rule = np.asarray(jax.vmap(jax.vmap(base_env.is_done))(after, base_terms))  # robot's own
+  why = (pitch > 0.3) | own_rule | (truncation > 0)
+  assert why[ended, np.arange(8)].all()
+  for env_index, t in enumerate(ended):
+    assert not why[:t, env_index].any()
+    assert (truncation[t, env_index] > 0) == (t == 39 and pitch[t, env_index] <= 0.3
+                                               and not own_rule[t, env_index])
 
 
 def test_batch_is_sharded_across_devices(hopper):

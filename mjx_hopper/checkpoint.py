@@ -1,0 +1,172 @@
+"""Orbax checkpoints of the whole TrainState, beside a JSON item with the run's config.
+
+A checkpoint step holds three items: "agent" (the agent's pytree: params, targets, optimizer
+states), "trainer" (replay, env states, keys, counters) and "config" (JSON: the RunConfig, env,
+agent and package versions). Keeping the agent apart lets `restore_agent` load a policy
+without reading the replay.
+"""
+
+from __future__ import annotations
+
+import importlib.metadata
+import json
+import os
+import signal
+
+import jax
+import jax.numpy as jnp
+import orbax.checkpoint as ocp
+
+from mjx_hopper import train
+
+ITEMS = ("agent", "trainer", "config")
+PACKAGES = ("mjx_hopper", "jax", "jaxlib", "mujoco", "mujoco-mjx", "flax", "optax",
+            "orbax-checkpoint", "brax")
+
+
+def versions() -> dict[str, str]:
+  out = {}
+  for name in PACKAGES:
+    try:
+      out[name] = importlib.metadata.version(name)
+    except importlib.metadata.PackageNotFoundError:
+      out[name] = "not installed"
+  return out
+
+
+def manager(directory: str, max_to_keep: int = 3) -> ocp.CheckpointManager:
+  """A CheckpointManager over `directory` (created if missing), saving asynchronously."""
+  options = ocp.CheckpointManagerOptions(max_to_keep=max_to_keep,
+                                         enable_async_checkpointing=True)
+  return ocp.CheckpointManager(os.path.abspath(directory), options=options, item_names=ITEMS)
+
+
+def _split(state: train.TrainState) -> tuple:
+  trainer = {k: v for k, v in state._asdict().items() if k != "agent"}
+  return state.agent, trainer
+
+
+def _nonempty(tree) -> dict:
+  """The leaves of `tree` by index, leaving out zero-size ones (orbax cannot write them; MJX's
+  Data has some, such as `act` for models without actuator states)."""
+  return {str(i): x for i, x in enumerate(jax.tree.leaves(tree)) if x.size}
+
+
+def _rebuild(like, saved: dict):
+  """`like`'s structure with the saved leaves, and its zero-size leaves as empty arrays."""
+  leaves, treedef = jax.tree.flatten(like)
+  return treedef.unflatten([saved[str(i)] if str(i) in saved
+                            else jax.device_put(jnp.zeros(x.shape, x.dtype), x.sharding)
+                            for i, x in enumerate(leaves)])
+
+
+def save(mngr: ocp.CheckpointManager, state: train.TrainState, config: dict) -> int:
+  """Starts saving `state` as step = its iteration count; returns the step. Call
+  `mngr.wait_until_finished()` before relying on it."""
+  step = int(state.iteration)
+  agent, trainer = _split(state)
+  mngr.save(step, args=ocp.args.Composite(
+      agent=ocp.args.StandardSave(_nonempty(agent)),
+      trainer=ocp.args.StandardSave(_nonempty(trainer)),
+      config=ocp.args.JsonSave({**config, "versions": versions()})))
+  return step
+
+
+def _abstract(tree):
+  """Shapes, dtypes and placements to restore into (replicated where none is set)."""
+  replicated = jax.sharding.NamedSharding(jax.sharding.Mesh(jax.local_devices(), ("d",)),
+                                          jax.sharding.PartitionSpec())
+
+  def one(x):
+    sharding = getattr(x, "sharding", None) or replicated
+    return jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sharding)
+  return jax.tree.map(one, tree)
+
+
+def restore(mngr: ocp.CheckpointManager, step: int, like: train.TrainState) -> train.TrainState:
+  """The TrainState saved at `step`, placed like `like` (a state or its abstract shapes)."""
+  agent, trainer = _abstract(_split(like))
+  out = mngr.restore(step, args=ocp.args.Composite(
+      agent=ocp.args.StandardRestore(_nonempty(agent)),
+      trainer=ocp.args.StandardRestore(_nonempty(trainer))))
+  return train.TrainState(agent=_rebuild(agent, out.agent), **_rebuild(trainer, out.trainer))
+
+
+def read_config(mngr: ocp.CheckpointManager, step: int) -> dict:
+  return mngr.restore(step, args=ocp.args.Composite(config=ocp.args.JsonRestore())).config
+
+
+def restore_agent(mngr: ocp.CheckpointManager, step: int, like_agent):
+  """Only the agent's pytree saved at `step` (no replay is read)."""
+  like_agent = _abstract(like_agent)
+  saved = mngr.restore(step, args=ocp.args.Composite(
+      agent=ocp.args.StandardRestore(_nonempty(like_agent)))).agent
+  return _rebuild(like_agent, saved)
+
+
+# The settings a checkpoint's state depends on; the others (run length, logging, evaluation)
+# may change between a run and its resumption.
+MUST_MATCH = ("env", "agent", "agent_config", "train", "episode_steps", "seed")
+
+
+def resume(mngr: ocp.CheckpointManager, fresh: train.TrainState, config: dict,
+           print_fn=print) -> train.TrainState:
+  """The latest readable checkpoint's state, or `fresh` when there is none.
+
+  Falls back to older steps, with a warning naming the error, when the newest cannot be read.
+  A checkpoint of another config is a ValueError naming the settings that differ.
+  """
+  config = json.loads(json.dumps(config))  # as saved: tuples become lists
+  steps = sorted(mngr.all_steps(), reverse=True)
+  if not steps:
+    print_fn(f"no checkpoint in {mngr.directory}: starting a fresh run")
+    return fresh
+  for step in steps:
+    try:
+      saved = read_config(mngr, step)
+    except Exception as error:  # noqa: BLE001 - any unreadable step falls back to the previous
+      print_fn(f"WARNING: checkpoint step {step} in {mngr.directory} is unreadable "
+               f"({type(error).__name__}: {error}); trying an older one")
+      continue
+    differ = [k for k in MUST_MATCH if saved.get(k) != config.get(k)]
+    if differ:
+      details = "; ".join(f"{k}: saved {saved.get(k)!r}, now {config.get(k)!r}" for k in differ)
+      raise ValueError(f"the checkpoint in {mngr.directory} is from another config ({details}); "
+                       "use another checkpoint directory, or the saved settings")
+    try:
+      state = restore(mngr, step, fresh)
+    except Exception as error:  # noqa: BLE001
+      print_fn(f"WARNING: checkpoint step {step} in {mngr.directory} is unreadable "
+               f"({type(error).__name__}: {error}); trying an older one")
+      continue
+    print_fn(f"resumed from {mngr.directory}, step {step}")
+    return state
+  raise ValueError(f"no readable checkpoint in {mngr.directory} (steps {steps}); nothing was "
+                   "overwritten: move it aside to start afresh")
+
+
+class StopRequest:
+  """Within `with`, Ctrl-C and SIGTERM set `requested` instead of stopping the process, so the
+  loop can finish its chunk and save; a second Ctrl-C stops at once."""
+
+  def __enter__(self):
+    self.requested = False
+    self._previous = {}
+    for sig in (signal.SIGINT, signal.SIGTERM):
+      try:
+        self._previous[sig] = signal.signal(sig, self._handle)
+      except ValueError:  # not the main thread: signals stay as they are
+        pass
+    return self
+
+  def _handle(self, signum, frame):
+    if self.requested and signum == signal.SIGINT:
+      raise KeyboardInterrupt
+    self.requested = True
+    print(f"\n{signal.Signals(signum).name}: saving a checkpoint after this chunk",
+          flush=True)
+
+  def __exit__(self, *exc):
+    for sig, handler in self._previous.items():
+      signal.signal(sig, handler)
+    return False

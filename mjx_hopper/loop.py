@@ -1,0 +1,173 @@
+"""The host loop: compiled chunks, with logging, progress and evaluation in between.
+
+    from mjx_hopper import loop
+    result = loop.run(loop.RunConfig(env="Hopper", agent="d4pg", total_env_steps=200_000))
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import time
+from typing import Any
+
+import jax
+import numpy as np
+
+from mjx_hopper import agents, checkpoint, envs, train
+from mjx_hopper.logger import Logger
+
+
+@dataclasses.dataclass(frozen=True)
+class RunConfig:
+  """A whole training run: what to train, how, for how long, and where its files go."""
+
+  env: str = "Hopper"
+  agent: str = "d4pg"
+  preset: str = "cpu"
+  agent_overrides: dict = dataclasses.field(default_factory=dict)
+  train: train.TrainConfig = train.TrainConfig()
+  total_env_steps: int = 1_000_000
+  episode_steps: int = 1000
+  eval_every: int = 100_000      # env steps between evaluations
+  eval_episodes: int = 16
+  seed: int = 0
+  out_dir: str = "runs/train"     # log.csv, config.json and (by default) checkpoints/
+  time_delta: float = 10.0       # seconds between terminal log lines
+  checkpoint_minutes: float = 10.0
+  keep_checkpoints: int = 3
+
+  def __post_init__(self):
+    if self.env not in envs.list_envs():
+      raise ValueError(f"unknown env {self.env!r}; valid envs are {envs.list_envs()}")
+    agents.config(self.agent, self.preset, **self.agent_overrides)  # raises on bad names
+    for name in ("total_env_steps", "eval_every", "eval_episodes"):
+      if getattr(self, name) < 1:
+        raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+
+  def agent_config(self):
+    return agents.config(self.agent, self.preset, **self.agent_overrides)
+
+  def to_json(self) -> dict:
+    out = dataclasses.asdict(self)
+    out["agent_config"] = dataclasses.asdict(self.agent_config())
+    return out
+
+  @classmethod
+  def from_json(cls, saved: dict) -> "RunConfig":
+    fields = {f.name for f in dataclasses.fields(cls)}
+    kwargs = {k: v for k, v in saved.items() if k in fields}
+    kwargs["train"] = train.TrainConfig(**saved["train"])
+    return cls(**kwargs)
+
+
+@dataclasses.dataclass
+class Result:
+  state: train.TrainState
+  trainer: train.Trainer
+  history: list[dict]            # every logged row (train and eval)
+  evaluation: dict[str, Any]     # the final evaluation's per-episode arrays
+
+
+def build(cfg: RunConfig) -> train.Trainer:
+  env = envs.make(cfg.env, episode_steps=cfg.episode_steps)
+  agent = agents.make(cfg.agent, env.observation_size, env.action_size, cfg.agent_config())
+  return train.make_trainer(env, agent, cfg.train, eval_episodes=cfg.eval_episodes)
+
+
+def run(cfg: RunConfig, checkpoint_dir: str | None = None, progress: bool = True,
+        print_fn=print) -> Result:
+  """Trains until `total_env_steps`, evaluating every `eval_every` env steps and at the end.
+
+  Writes `out_dir`/log.csv (every chunk's and every evaluation's metrics) and config.json.
+  Checkpoints go to `checkpoint_dir` (default `out_dir`/checkpoints) every
+  `checkpoint_minutes`, at the end, and on Ctrl-C or SIGTERM (after the chunk in flight); a
+  run whose checkpoint_dir already holds one resumes from it.
+  """
+  t_start = time.perf_counter()
+  os.makedirs(cfg.out_dir, exist_ok=True)
+  checkpoint_dir = checkpoint_dir or os.path.join(cfg.out_dir, "checkpoints")
+  with open(os.path.join(cfg.out_dir, "config.json"), "w") as f:
+    json.dump(cfg.to_json(), f, indent=1)
+  trainer = build(cfg)
+  mngr = checkpoint.manager(checkpoint_dir, cfg.keep_checkpoints)
+  key = jax.random.PRNGKey(cfg.seed)
+  state = checkpoint.resume(mngr, trainer.init(key), cfg.to_json(), print_fn)
+  logger = Logger(os.path.join(cfg.out_dir, "log.csv"), cfg.time_delta, print_fn)
+  per_chunk = cfg.train.steps_per_iteration * cfg.train.iterations_per_chunk
+  print_fn(f"{cfg.env} with {cfg.agent} ({cfg.preset}): {cfg.train.num_envs} envs on "
+           f"{len(jax.local_devices())} {jax.local_devices()[0].platform} device(s), "
+           f"{per_chunk:,} env steps and "
+           f"{cfg.train.updates_per_iteration * cfg.train.iterations_per_chunk:,} updates "
+           "per chunk")
+  env_steps = int(state.iteration) * cfg.train.steps_per_iteration
+  bar = _progress_bar(cfg.total_env_steps, env_steps) if progress else None
+  next_eval = (env_steps // cfg.eval_every + 1) * cfg.eval_every
+  latest_eval, evaluation, last_save = float("nan"), None, time.monotonic()
+
+  def evaluate():
+    result = jax.device_get(trainer.evaluate(state.agent, jax.random.fold_in(key, env_steps)))
+    logger.write({"kind": "eval", "env_steps": env_steps, "wall_s": time.perf_counter() - t_start,
+                  "eval_return": float(np.mean(result["return"])),
+                  "eval_return_std": float(np.std(result["return"])),
+                  "eval_length": float(np.mean(result["length"]))}, force=True)
+    return result, float(np.mean(result["return"]))
+
+  with checkpoint.StopRequest() as stop:
+    while env_steps < cfg.total_env_steps and not stop.requested:
+      t0 = time.perf_counter()
+      state, metrics = trainer.train_chunk(state)
+      metrics = jax.device_get(metrics)
+      env_steps = int(state.iteration) * cfg.train.steps_per_iteration
+      row = {"kind": "train", "env_steps": env_steps, "updates": int(state.updates),
+             "wall_s": time.perf_counter() - t_start,
+             "steps_per_s": per_chunk / (time.perf_counter() - t0),
+             **{k: float(v) for k, v in metrics.items()}}
+      logger.write(row)
+      if env_steps >= next_eval or env_steps >= cfg.total_env_steps:
+        evaluation, latest_eval = evaluate()
+        next_eval += cfg.eval_every
+      if time.monotonic() - last_save >= 60 * cfg.checkpoint_minutes:
+        checkpoint.save(mngr, state, cfg.to_json())
+        last_save = time.monotonic()
+      if bar is not None:
+        bar.update(min(env_steps, cfg.total_env_steps) - bar.n)
+        bar.set_postfix_str(f"{row['steps_per_s']:,.0f} steps/s, train return "
+                            f"{row['episode_return']:.1f}, eval return {latest_eval:.1f}")
+    if bar is not None:
+      bar.close()
+    checkpoint.save(mngr, state, cfg.to_json())
+    mngr.wait_until_finished()
+  why = "stopped by a signal" if stop.requested else "done"
+  print_fn(f"{why}: {env_steps:,} env steps in {time.perf_counter() - t_start:.0f} s; "
+           f"evaluation return {latest_eval:.1f} over {cfg.eval_episodes} episodes; "
+           f"log: {logger.csv_path}; checkpoint: {checkpoint_dir}")
+  return Result(state, trainer, logger.rows, evaluation)
+
+
+def load_policy(directory: str):
+  """(RunConfig, agent state, Trainer) of the newest readable checkpoint in `directory`; reads
+  only the agent's item, not the replay."""
+  if not os.path.isdir(directory):
+    raise FileNotFoundError(f"no checkpoint directory {directory!r}")
+  mngr = checkpoint.manager(directory)
+  steps = sorted(mngr.all_steps(), reverse=True)
+  if not steps:
+    raise FileNotFoundError(f"no checkpoint in {directory!r}")
+  for step in steps:
+    try:
+      cfg = RunConfig.from_json(checkpoint.read_config(mngr, step))
+      trainer = build(cfg)
+      like = jax.eval_shape(trainer.agent.init, jax.random.PRNGKey(0))
+      return cfg, checkpoint.restore_agent(mngr, step, like), trainer
+    except (OSError, ValueError, KeyError) as error:
+      print(f"WARNING: checkpoint step {step} in {directory} is unreadable "
+            f"({type(error).__name__}: {error}); trying an older one")
+  raise ValueError(f"no readable checkpoint in {directory!r} (steps {steps})")
+
+
+def _progress_bar(total: int, initial: int):
+  from tqdm.auto import tqdm
+  return tqdm(total=total, initial=min(initial, total), unit=" env steps", unit_scale=True,
+              dynamic_ncols=True)

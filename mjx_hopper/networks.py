@@ -1,0 +1,65 @@
+"""The seed's networks (acme's), in flax linen: LayerNormMLP, a tanh policy, and critics.
+
+Every module works on any leading batch shape: observations (..., O), actions (..., A).
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+
+_INIT = nn.initializers.variance_scaling(1.0, "fan_in", "uniform")
+
+
+class LayerNormMLP(nn.Module):
+  """acme's LayerNormMLP: Dense, LayerNorm, tanh, then an ELU MLP over the other sizes.
+
+  The last layer has no activation unless `activate_final`.
+  """
+
+  layer_sizes: Sequence[int]
+  activate_final: bool = False
+
+  @nn.compact
+  def __call__(self, x: jax.Array) -> jax.Array:
+    x = nn.Dense(self.layer_sizes[0], kernel_init=_INIT)(x)
+    x = jnp.tanh(nn.LayerNorm()(x))
+    for i, size in enumerate(self.layer_sizes[1:]):
+      x = nn.Dense(size, kernel_init=_INIT)(x)
+      if i < len(self.layer_sizes) - 2 or self.activate_final:
+        x = nn.elu(x)
+    return x
+
+
+class TanhPolicy(nn.Module):
+  """A deterministic policy: LayerNormMLP(hidden + (A,)) squashed by tanh to the action
+  spec [-1, 1] (acme's TanhToSpec)."""
+
+  hidden: Sequence[int]
+  action_size: int
+
+  @nn.compact
+  def __call__(self, obs: jax.Array) -> jax.Array:
+    return jnp.tanh(LayerNormMLP(tuple(self.hidden) + (self.action_size,))(obs))
+
+
+class Critic(nn.Module):
+  """Q(obs, action) from [obs, clip(action, -1, 1)] (acme's CriticMultiplexer + ClipToSpec).
+
+  With `num_atoms` = 1 it returns a scalar Q of shape (...,); otherwise the (..., num_atoms)
+  logits of a categorical distribution over fixed atoms (acme's DiscreteValuedHead).
+  """
+
+  hidden: Sequence[int]
+  num_atoms: int = 1
+
+  @nn.compact
+  def __call__(self, obs: jax.Array, action: jax.Array) -> jax.Array:
+    x = jnp.concatenate([obs, jnp.clip(action, -1.0, 1.0)], axis=-1)
+    if self.num_atoms == 1:
+      return LayerNormMLP(tuple(self.hidden) + (1,))(x)[..., 0]
+    x = LayerNormMLP(tuple(self.hidden), activate_final=True)(x)
+    return nn.Dense(self.num_atoms, kernel_init=_INIT)(x)

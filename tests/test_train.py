@@ -1,0 +1,137 @@
+"""The compiled trainer and the host loop, on a tiny Hopper run over two CPU devices."""
+
+import csv
+import json
+import os
+
+import jax
+import numpy as np
+import pytest
+
+from mjx_hopper import cli, loop, train
+
+TINY = loop.RunConfig(
+    env="Hopper", agent="d4pg", preset="cpu", episode_steps=30,
+    agent_overrides={"policy_layers": (16,), "critic_layers": (16,), "num_atoms": 11,
+                     "n_step": 3},
+    train=train.TrainConfig(num_envs=4, unroll_length=2, batch_size=8, replay_ratio=2.0,
+                            replay_size=64, min_replay=24, iterations_per_chunk=5),
+    total_env_steps=80, eval_every=40, eval_episodes=4, time_delta=0.0)
+
+
+@pytest.fixture(scope="module")
+def trainer():
+  return loop.build(TINY)
+
+
+@pytest.fixture(scope="module")
+def two_chunks(trainer):
+  """Host copies of the state after one and two chunks, and the second chunk's metrics."""
+  first, _ = trainer.train_chunk(trainer.init(jax.random.PRNGKey(0)))
+  first_host = jax.device_get(first)
+  second, metrics = trainer.train_chunk(first)  # donates `first`
+  return first_host, jax.device_get(second), jax.device_get(metrics)
+
+
+def test_counters_and_replay_fill(two_chunks):
+  first, second, metrics = two_chunks
+  assert int(first.iteration) == 5 and int(second.iteration) == 10
+  rows = TINY.train.replay_rows()
+  assert rows == 16  # 64 transitions / 4 envs
+  assert int(second.replay.filled) == min(20, rows)
+  assert int(second.replay.position) == 20 % rows
+  # Learning starts once 24 transitions (6 rows) are in: iteration 3 of the first chunk.
+  assert int(first.updates) == 3 * TINY.train.updates_per_iteration
+  assert int(second.updates) == 8 * TINY.train.updates_per_iteration
+  assert float(metrics["learning"]) == 1.0
+  assert np.isfinite([float(v) for v in metrics.values() if np.ndim(v) == 0]).all()
+
+
+def test_stored_steps_chain_within_episodes(two_chunks):
+  _, state, _ = two_chunks
+  steps = state.replay.steps
+  order = (state.replay.position + np.arange(16)) % 16        # oldest row first
+  obs, next_obs = steps.obs[order], steps.next_obs[order]
+  done, discount = steps.done[order], steps.discount[order]
+  running = done[:-1] == 0
+  # Within an episode, the next observation is the next row's observation.
+  np.testing.assert_array_equal(next_obs[:-1][running], obs[1:][running])
+  # Only an ended episode may have env discount 0 (a termination).
+  assert (discount[done == 0] == 1).all()
+  assert set(np.unique(discount)) <= {0.0, 1.0}
+
+
+def test_state_is_sharded_and_params_replicated(trainer):
+  state = trainer.init(jax.random.PRNGKey(0))
+  state, _ = trainer.train_chunk(state)
+  assert len(jax.devices()) == 2
+  assert state.env.obs.addressable_shards[0].data.shape == (2, 15)
+  assert state.replay.steps.obs.addressable_shards[0].data.shape == (16, 2, 15)
+  kernel = jax.tree.leaves(state.agent.policy)[0]
+  a, b = (np.asarray(s.data) for s in kernel.addressable_shards)
+  np.testing.assert_array_equal(a, b)  # data-parallel learner: identical copies
+
+
+def test_same_seed_same_run(trainer, two_chunks):
+  first, _, _ = two_chunks
+  again, _ = trainer.train_chunk(trainer.init(jax.random.PRNGKey(0)))
+  jax.tree.map(np.testing.assert_array_equal, jax.device_get(again), first)
+
+
+def test_evaluate_runs_whole_episodes(trainer):
+  state = trainer.init(jax.random.PRNGKey(0))
+  result = jax.device_get(trainer.evaluate(state.agent, jax.random.PRNGKey(1)))
+  assert result["return"].shape == (4,)
+  assert ((result["length"] >= 1) & (result["length"] <= 30)).all()
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"replay_size": 4}, r"replay_size \(4\) must be at least batch_size \(8\)"),
+    ({"replay_ratio": 1.5}, "must be a whole number of updates >= 1, got 1.5 \\* 4 \\* 2 / 8"),
+    ({"num_envs": 3, "replay_ratio": 8 / 6}, r"num_envs \(3\) must divide evenly over the 2"),
+    ({"unroll_length": 0}, "unroll_length must be an integer >= 1, got 0"),
+])
+def test_bad_train_config(change, message):
+  import dataclasses
+  with pytest.raises(ValueError, match=message):
+    dataclasses.replace(TINY.train, **change).check(num_devices=2)
+
+
+def test_bad_run_config():
+  with pytest.raises(ValueError, match=r"unknown env 'Hoppr'; valid envs are \['Ant'"):
+    loop.RunConfig(env="Hoppr")
+  with pytest.raises(ValueError, match=r"unknown agent 'sac'; valid agents are \['d4pg'"):
+    loop.RunConfig(agent="sac")
+  with pytest.raises(ValueError, match="n_step must be an integer >= 1, got 0"):
+    loop.RunConfig(agent_overrides={"n_step": 0})
+
+
+def test_run_logs_checkpoints_and_resumes(tmp_path, capsys):
+  import dataclasses
+  cfg = dataclasses.replace(TINY, out_dir=str(tmp_path / "run"))
+  result = loop.run(cfg, progress=False)
+  assert int(result.state.iteration) * cfg.train.steps_per_iteration >= 80
+  with open(tmp_path / "run" / "log.csv") as f:
+    rows = list(csv.DictReader(f))
+  assert {"env_steps", "steps_per_s", "episode_return", "critic_loss", "eval_return"} <= set(
+      rows[0])
+  assert [r["kind"] for r in rows].count("eval") == 2  # at 40 and at 80 env steps
+  steps = sorted(int(p) for p in os.listdir(tmp_path / "run" / "checkpoints") if p.isdigit())
+  assert steps == [int(result.state.iteration)]
+  assert json.load(open(tmp_path / "run" / "config.json"))["agent_config"]["n_step"] == 3
+  # A longer run from the same folder continues from the checkpoint.
+  longer = loop.run(dataclasses.replace(cfg, total_env_steps=160), progress=False)
+  assert "resumed from" in capsys.readouterr().out
+  assert int(longer.state.iteration) == 2 * int(result.state.iteration)
+  # Another config is refused, naming what differs, and the checkpoint is left alone.
+  with pytest.raises(ValueError, match="from another config .*agent_config"):
+    loop.run(dataclasses.replace(cfg, agent_overrides={**cfg.agent_overrides, "n_step": 2}),
+             progress=False)
+  assert sorted(os.listdir(tmp_path / "run" / "checkpoints"))[-1] == str(
+      int(longer.state.iteration))
+  # The CLI's eval loads just the policy and writes a video.
+  video = tmp_path / "policy.mp4"
+  cli.main(["--cpu-devices", "2", "eval", "--checkpoint", str(tmp_path / "run" / "checkpoints"),
+            "--episodes", "2", "--video", str(video)])
+  assert "over 2 episodes" in capsys.readouterr().out
+  assert video.stat().st_size > 1000
