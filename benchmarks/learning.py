@@ -1,0 +1,114 @@
+"""Learning curves: evaluation return against env steps and wall-clock seconds (compile
+included), for several seeds, with time-to-score.
+
+    python benchmarks/learning.py --minutes 30 --seeds 0,1,2                  # 2-core CPU
+    python benchmarks/learning.py --minutes 10 --num-envs 256 --batch-size 1024 ...  # GPU
+
+Each seed is a `mjx_hopper.loop.run` in its own process (seeds given together run at the same
+time, sharing the machine). Writes OUT/seed_N/log.csv, OUT/summary.json and OUT/curves.png.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import os
+import subprocess
+import sys
+
+
+def one_seed(args, seed: int) -> None:
+  from mjx_hopper import cli
+  cli.main(["--cpu-devices", str(args.cpu_devices), "train", "--env", args.env,
+            "--agent", args.agent, "--preset", args.preset, "--steps", str(args.max_steps),
+            "--max-minutes", str(args.minutes), "--num-envs", str(args.num_envs),
+            "--unroll-length", str(args.unroll_length), "--batch-size", str(args.batch_size),
+            "--replay-ratio", str(args.replay_ratio), "--min-replay", str(args.min_replay),
+            "--chunk", str(args.chunk), "--eval-every", str(args.eval_every),
+            "--seed", str(seed), "--out", os.path.join(args.out, f"seed_{seed}"),
+            "--no-progress", "--log-every", "60", "--checkpoint-minutes", "1000"]
+           + sum((["--set", s] for s in args.set), []))
+
+
+def summarise(args, seeds: list[int]) -> dict:
+  summary = {"env": args.env, "agent": args.agent, "preset": args.preset, "target": args.target,
+             "seeds": {}}
+  curves = {}
+  for seed in seeds:
+    with open(os.path.join(args.out, f"seed_{seed}", "log.csv")) as f:
+      evals = [r for r in csv.DictReader(f) if r["kind"] == "eval"]
+    points = [(int(r["env_steps"]), float(r["wall_s"]), float(r["eval_return"])) for r in evals]
+    curves[seed] = points
+    hit = next((p for p in points if p[2] >= args.target), None)
+    summary["seeds"][seed] = {
+        "best_return": max(p[2] for p in points), "final_return": points[-1][2],
+        "env_steps": points[-1][0], "wall_s": points[-1][1],
+        "target_env_steps": hit[0] if hit else None, "target_wall_s": hit[1] if hit else None}
+  import matplotlib
+  matplotlib.use("Agg")
+  import matplotlib.pyplot as plt
+  fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+  for seed, points in curves.items():
+    steps, wall, ret = zip(*points)
+    axes[0].plot(steps, ret, label=f"seed {seed}")
+    axes[1].plot(wall, ret, label=f"seed {seed}")
+  for ax, label in zip(axes, ("env steps", "wall-clock seconds (compile included)")):
+    ax.axhline(args.target, color="grey", ls="--", lw=1)
+    ax.set_xlabel(label)
+    ax.set_ylabel("evaluation return")
+    ax.grid(alpha=0.3)
+  axes[0].legend()
+  fig.suptitle(f"{args.env} / {args.agent} ({args.preset}): {args.label}")
+  fig.tight_layout()
+  fig.savefig(os.path.join(args.out, "curves.png"), dpi=100)
+  with open(os.path.join(args.out, "summary.json"), "w") as f:
+    json.dump(summary, f, indent=1)
+  return summary
+
+
+def main() -> None:
+  p = argparse.ArgumentParser(description=__doc__,
+                              formatter_class=argparse.RawDescriptionHelpFormatter)
+  p.add_argument("--env", default="Hopper")
+  p.add_argument("--agent", default="d4pg")
+  p.add_argument("--preset", default="cpu")
+  p.add_argument("--set", action="append", default=[])
+  p.add_argument("--seeds", default="0,1,2")
+  p.add_argument("--minutes", type=float, default=30.0, help="wall-clock budget of each seed")
+  p.add_argument("--max-steps", type=int, default=10**9)
+  p.add_argument("--num-envs", type=int, default=64)
+  p.add_argument("--unroll-length", type=int, default=4)
+  p.add_argument("--batch-size", type=int, default=256)
+  p.add_argument("--replay-ratio", type=float, default=8.0)
+  p.add_argument("--min-replay", type=int, default=10_000)
+  p.add_argument("--chunk", type=int, default=50)
+  p.add_argument("--eval-every", type=int, default=50_000)
+  p.add_argument("--cpu-devices", type=int, default=os.cpu_count() or 1)
+  p.add_argument("--target", type=float, default=2000.0)
+  p.add_argument("--label", default="")
+  p.add_argument("--out", default="runs/learning")
+  p.add_argument("--one-seed", type=int, default=None, help=argparse.SUPPRESS)
+  args = p.parse_args()
+  if args.one_seed is not None:
+    return one_seed(args, args.one_seed)
+  seeds = [int(s) for s in args.seeds.split(",")]
+  os.makedirs(args.out, exist_ok=True)
+  argv = [a for a in sys.argv[1:]]
+  procs = [subprocess.Popen([sys.executable, __file__, *argv, "--one-seed", str(s)])
+           for s in seeds]
+  codes = [proc.wait() for proc in procs]
+  if any(codes):
+    raise SystemExit(f"a seed failed: exit codes {codes}")
+  summary = summarise(args, seeds)
+  print("| seed | best eval return | final | env steps | wall s | target reached at (env steps, s) |")
+  print("|---|---|---|---|---|---|")
+  for seed, s in summary["seeds"].items():
+    hit = (f"{s['target_env_steps']:,}, {s['target_wall_s']:.0f}" if s["target_env_steps"]
+           else "not reached")
+    print(f"| {seed} | {s['best_return']:.0f} | {s['final_return']:.0f} | {s['env_steps']:,} | "
+          f"{s['wall_s']:.0f} | {hit} |")
+
+
+if __name__ == "__main__":
+  main()
