@@ -109,40 +109,52 @@ def restore_agent(mngr: ocp.CheckpointManager, step: int, like_agent):
 MUST_MATCH = ("env", "agent", "agent_config", "train", "episode_steps", "seed")
 
 
+class ConfigMismatch(ValueError):
+  """A checkpoint saved by another config."""
+
+
+def load_newest(mngr: ocp.CheckpointManager, load, print_fn=print):
+  """(step, load(step)) for the newest step that `load` succeeds on. Each newer step that
+  fails is skipped with a warning naming its error; a ConfigMismatch is raised at once."""
+  steps = sorted(mngr.all_steps(), reverse=True)
+  for step in steps:
+    try:
+      return step, load(step)
+    except ConfigMismatch:
+      raise
+    except Exception as error:  # noqa: BLE001 - any unreadable step falls back to the previous
+      print_fn(f"WARNING: checkpoint step {step} in {mngr.directory} is unreadable "
+               f"({type(error).__name__}: {error}); trying an older one")
+  raise ValueError(f"no readable checkpoint in {mngr.directory} (steps {steps}); nothing was "
+                   "overwritten: move it aside to start afresh")
+
+
 def resume(mngr: ocp.CheckpointManager, fresh: train.TrainState, config: dict,
            print_fn=print) -> train.TrainState:
   """The latest readable checkpoint's state, or `fresh` when there is none.
 
   Falls back to older steps, with a warning naming the error, when the newest cannot be read.
-  A checkpoint of another config is a ValueError naming the settings that differ.
+  A checkpoint of another config is a ConfigMismatch (a ValueError) naming the settings that
+  differ.
   """
   config = json.loads(json.dumps(config))  # as saved: tuples become lists
-  steps = sorted(mngr.all_steps(), reverse=True)
-  if not steps:
+  if not mngr.all_steps():
     print_fn(f"no checkpoint in {mngr.directory}: starting a fresh run")
     return fresh
-  for step in steps:
-    try:
-      saved = read_config(mngr, step)
-    except Exception as error:  # noqa: BLE001 - any unreadable step falls back to the previous
-      print_fn(f"WARNING: checkpoint step {step} in {mngr.directory} is unreadable "
-               f"({type(error).__name__}: {error}); trying an older one")
-      continue
+
+  def load(step):
+    saved = read_config(mngr, step)
     differ = [k for k in MUST_MATCH if saved.get(k) != config.get(k)]
     if differ:
       details = "; ".join(f"{k}: saved {saved.get(k)!r}, now {config.get(k)!r}" for k in differ)
-      raise ValueError(f"the checkpoint in {mngr.directory} is from another config ({details}); "
-                       "use another checkpoint directory, or the saved settings")
-    try:
-      state = restore(mngr, step, fresh)
-    except Exception as error:  # noqa: BLE001
-      print_fn(f"WARNING: checkpoint step {step} in {mngr.directory} is unreadable "
-               f"({type(error).__name__}: {error}); trying an older one")
-      continue
-    print_fn(f"resumed from {mngr.directory}, step {step}")
-    return state
-  raise ValueError(f"no readable checkpoint in {mngr.directory} (steps {steps}); nothing was "
-                   "overwritten: move it aside to start afresh")
+      raise ConfigMismatch(f"the checkpoint in {mngr.directory} is from another config "
+                           f"({details}); use another checkpoint directory, or the saved "
+                           "settings")
+    return restore(mngr, step, fresh)
+
+  step, state = load_newest(mngr, load, print_fn)
+  print_fn(f"resumed from {mngr.directory}, step {step}")
+  return state
 
 
 class StopRequest:

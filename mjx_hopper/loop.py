@@ -156,19 +156,16 @@ def load_policy(directory: str):
   if not os.path.isdir(directory):
     raise FileNotFoundError(f"no checkpoint directory {directory!r}")
   mngr = checkpoint.manager(directory)
-  steps = sorted(mngr.all_steps(), reverse=True)
-  if not steps:
+  if not mngr.all_steps():
     raise FileNotFoundError(f"no checkpoint in {directory!r}")
-  for step in steps:
-    try:
-      cfg = RunConfig.from_json(checkpoint.read_config(mngr, step))
-      trainer = build(cfg)
-      like = jax.eval_shape(trainer.agent.init, jax.random.PRNGKey(0))
-      return cfg, checkpoint.restore_agent(mngr, step, like), trainer
-    except (OSError, ValueError, KeyError) as error:
-      print(f"WARNING: checkpoint step {step} in {directory} is unreadable "
-            f"({type(error).__name__}: {error}); trying an older one")
-  raise ValueError(f"no readable checkpoint in {directory!r} (steps {steps})")
+
+  def load(step):
+    cfg = RunConfig.from_json(checkpoint.read_config(mngr, step))
+    trainer = build(cfg)
+    like = jax.eval_shape(trainer.agent.init, jax.random.PRNGKey(0))
+    return cfg, checkpoint.restore_agent(mngr, step, like), trainer
+
+  return checkpoint.load_newest(mngr, load)[1]
 
 
 def _progress_bar(total: int, initial: int):

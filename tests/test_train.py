@@ -1,6 +1,7 @@
 """The compiled trainer and the host loop, on a tiny Hopper run over two CPU devices."""
 
 import csv
+import dataclasses
 import json
 import os
 
@@ -92,7 +93,6 @@ def test_evaluate_runs_whole_episodes(trainer):
     ({"unroll_length": 0}, "unroll_length must be an integer >= 1, got 0"),
 ])
 def test_bad_train_config(change, message):
-  import dataclasses
   with pytest.raises(ValueError, match=message):
     dataclasses.replace(TINY.train, **change).check(num_devices=2)
 
@@ -107,7 +107,6 @@ def test_bad_run_config():
 
 
 def test_run_logs_checkpoints_and_resumes(tmp_path, capsys):
-  import dataclasses
   cfg = dataclasses.replace(TINY, out_dir=str(tmp_path / "run"))
   result = loop.run(cfg, progress=False)
   assert int(result.state.iteration) * cfg.train.steps_per_iteration >= 80
