@@ -1,4 +1,5 @@
-"""Functional RL agents (JAX, flax, optax) for the MJX locomotion envs.
+"""Functional RL agents (JAX, flax, optax) for the MJX locomotion envs: D4PG, DDPG, MPO and
+DMPO (MPO with D4PG's categorical critic).
 
     from mjx_hopper import agents
     cfg = agents.config("d4pg", preset="cpu", sigma=0.2)
@@ -9,30 +10,36 @@ from __future__ import annotations
 
 import dataclasses
 
-from mjx_hopper.agents import d4pg
+from mjx_hopper.agents import d4pg, ddpg, mpo
 from mjx_hopper.agents.base import Agent
 
-_MODULES = {"d4pg": d4pg}
+# name -> (make, presets)
+_AGENTS = {
+    "d4pg": (d4pg.make, d4pg.PRESETS),
+    "ddpg": (ddpg.make, ddpg.PRESETS),
+    "mpo": (mpo.make, mpo.PRESETS),
+    "dmpo": (mpo.make, mpo.DMPO_PRESETS),
+}
 
 
 def list_agents() -> list[str]:
   """The names `config` and `make` accept."""
-  return sorted(_MODULES)
+  return sorted(_AGENTS)
 
 
-def _module(name: str):
-  if name not in _MODULES:
+def _lookup(name: str):
+  if name not in _AGENTS:
     raise ValueError(f"unknown agent {name!r}; valid agents are {list_agents()}")
-  return _MODULES[name]
+  return _AGENTS[name]
 
 
 def config(name: str, preset: str = "seed", **overrides):
   """The named preset's config for agent `name`, with fields replaced by `overrides`."""
-  module = _module(name)
-  if preset not in module.PRESETS:
+  presets = _lookup(name)[1]
+  if preset not in presets:
     raise ValueError(f"unknown preset {preset!r} for {name}; valid presets are "
-                     f"{sorted(module.PRESETS)}")
-  cfg = module.PRESETS[preset]
+                     f"{sorted(presets)}")
+  cfg = presets[preset]
   fields = {f.name for f in dataclasses.fields(cfg)}
   unknown = sorted(set(overrides) - fields)
   if unknown:
@@ -42,8 +49,8 @@ def config(name: str, preset: str = "seed", **overrides):
 
 def make(name: str, obs_size: int, action_size: int, cfg=None) -> Agent:
   """Builds agent `name` for these sizes, with `cfg` (default: its "seed" preset)."""
-  module = _module(name)
-  return module.make(obs_size, action_size, module.PRESETS["seed"] if cfg is None else cfg)
+  make_fn, presets = _lookup(name)
+  return make_fn(obs_size, action_size, presets["seed"] if cfg is None else cfg)
 
 
-__all__ = ["Agent", "config", "d4pg", "list_agents", "make"]
+__all__ = ["Agent", "config", "d4pg", "ddpg", "list_agents", "make", "mpo"]

@@ -1,4 +1,5 @@
-"""The agent interface: a small container of pure functions, in the style of optax.
+"""The agent interface, a small container of pure functions in the style of optax, and the
+pieces every agent shares: common settings, the optimizer, and target-network updates.
 
 The trainer knows nothing agent-specific: it calls `init` once, `act` to collect, `update` on
 sampled n-step transitions, and `policy` to evaluate. Agent state is any pytree.
@@ -6,9 +7,12 @@ sampled n-step transitions, and `policy` to evaluate. Agent state is any pytree.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any, Callable, NamedTuple
 
 import jax
+import jax.numpy as jnp
+import optax
 
 AgentState = Any
 
@@ -30,6 +34,48 @@ class Agent(NamedTuple):
   update: Callable[..., tuple[AgentState, dict[str, jax.Array]]]
   n_step: int
   discount: float
+
+
+@dataclasses.dataclass(frozen=True)
+class CommonConfig:
+  """Settings every agent has. The defaults are the seed notebook's networks and acme's
+  hyperparameters."""
+
+  policy_layers: tuple[int, ...] = (256, 256, 256)
+  critic_layers: tuple[int, ...] = (512, 512, 256)
+  learning_rate: float = 1e-4
+  discount: float = 0.99
+  n_step: int = 5
+  target_update_period: int = 100    # updates between copies into the target networks
+  max_grad_norm: float = 40.0        # acme's gradient clipping (by global norm)
+
+  def __post_init__(self):
+    if not isinstance(self.n_step, int) or self.n_step < 1:
+      raise ValueError(f"n_step must be an integer >= 1, got {self.n_step!r}")
+    if not 0.0 <= self.discount <= 1.0:
+      raise ValueError(f"discount must be in [0, 1], got {self.discount}")
+    if self.learning_rate <= 0:
+      raise ValueError(f"learning_rate must be > 0, got {self.learning_rate}")
+    if not isinstance(self.target_update_period, int) or self.target_update_period < 1:
+      raise ValueError(f"target_update_period must be an integer >= 1, got "
+                       f"{self.target_update_period!r}")
+    for name in ("policy_layers", "critic_layers"):
+      layers = getattr(self, name)
+      if not layers or any(not isinstance(n, int) or n < 1 for n in layers):
+        raise ValueError(f"{name} must be a non-empty tuple of positive integers, got "
+                         f"{layers!r}")
+
+
+def optimizer(cfg: CommonConfig) -> optax.GradientTransformation:
+  """Adam at the config's learning rate, after clipping the gradients' global norm."""
+  return optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm), optax.adam(cfg.learning_rate))
+
+
+def update_targets(steps: jax.Array, period: int, online, target):
+  """The online params when `steps` is a multiple of `period`, else the target params (acme's
+  periodic hard update)."""
+  copy = steps % period == 0
+  return jax.tree.map(lambda o, t: jnp.where(copy, o, t), online, target)
 
 
 def pmean(tree, axis_name: str | None):

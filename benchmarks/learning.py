@@ -4,8 +4,8 @@ included), for several seeds, with time-to-score.
     python benchmarks/learning.py --minutes 30 --seeds 0,1,2                  # 2-core CPU
     python benchmarks/learning.py --minutes 10 --num-envs 256 --batch-size 1024 ...  # GPU
 
-Each seed is a `mjx_hopper.loop.run` in its own process (seeds given together run at the same
-time, sharing the machine). Writes OUT/seed_N/log.csv, OUT/summary.json and OUT/curves.png.
+Each seed is a `mjx_hopper.loop.run` in its own process; the seeds run at the same time, sharing
+the machine, or with --sequential one after another. Writes OUT/seed_N/log.csv, OUT/summary.json and OUT/curves.png.
 """
 
 from __future__ import annotations
@@ -42,6 +42,7 @@ def summarise(args, seeds: list[int]) -> dict:
     curves[seed] = points
     hit = next((p for p in points if p[2] >= args.target), None)
     summary["seeds"][seed] = {
+        "curve": [{"env_steps": p[0], "wall_s": p[1], "eval_return": p[2]} for p in points],
         "best_return": max(p[2] for p in points), "final_return": points[-1][2],
         "env_steps": points[-1][0], "wall_s": points[-1][1],
         "target_env_steps": hit[0] if hit else None, "target_wall_s": hit[1] if hit else None}
@@ -85,6 +86,8 @@ def main() -> None:
   p.add_argument("--chunk", type=int, default=50)
   p.add_argument("--eval-every", type=int, default=50_000)
   p.add_argument("--cpu-devices", type=int, default=os.cpu_count() or 1)
+  p.add_argument("--sequential", action="store_true",
+                 help="run the seeds one after another, each with the machine to itself")
   p.add_argument("--target", type=float, default=2000.0)
   p.add_argument("--label", default="")
   p.add_argument("--out", default="runs/learning")
@@ -95,9 +98,12 @@ def main() -> None:
   seeds = [int(s) for s in args.seeds.split(",")]
   os.makedirs(args.out, exist_ok=True)
   argv = [a for a in sys.argv[1:]]
-  procs = [subprocess.Popen([sys.executable, __file__, *argv, "--one-seed", str(s)])
-           for s in seeds]
-  codes = [proc.wait() for proc in procs]
+  def start(seed):
+    return subprocess.Popen([sys.executable, __file__, *argv, "--one-seed", str(seed)])
+  if args.sequential:
+    codes = [start(seed).wait() for seed in seeds]
+  else:
+    codes = [proc.wait() for proc in [start(seed) for seed in seeds]]
   if any(codes):
     raise SystemExit(f"a seed failed: exit codes {codes}")
   summary = summarise(args, seeds)

@@ -6,11 +6,16 @@ import jax
 import jax.numpy as jnp
 
 
+def check_support(vmin: float, vmax: float, num_atoms: int) -> None:
+  """Raises ValueError unless vmin < vmax and num_atoms is an integer >= 2."""
+  if not vmin < vmax or not isinstance(num_atoms, int) or num_atoms < 2:
+    raise ValueError(f"need vmin < vmax and an integer num_atoms >= 2, got vmin={vmin}, "
+                     f"vmax={vmax}, num_atoms={num_atoms!r}")
+
+
 def atoms(vmin: float, vmax: float, num_atoms: int) -> jax.Array:
   """(num_atoms,) evenly spaced support from vmin to vmax."""
-  if not vmin < vmax or num_atoms < 2:
-    raise ValueError(f"need vmin < vmax and num_atoms >= 2, got vmin={vmin}, vmax={vmax}, "
-                     f"num_atoms={num_atoms}")
+  check_support(vmin, vmax, num_atoms)
   return jnp.linspace(vmin, vmax, num_atoms)
 
 

@@ -63,3 +63,22 @@ class Critic(nn.Module):
       return LayerNormMLP(tuple(self.hidden) + (1,))(x)[..., 0]
     x = LayerNormMLP(tuple(self.hidden), activate_final=True)(x)
     return nn.Dense(self.num_atoms, kernel_init=_INIT)(x)
+
+
+class GaussianPolicy(nn.Module):
+  """A diagonal Gaussian policy (acme's MultivariateNormalDiagHead after an activated
+  LayerNormMLP). Returns (mean, std), each (..., A): the mean is linear, and the std is
+  softplus(linear) scaled so that it starts near `init_scale`, plus `min_scale`."""
+
+  hidden: Sequence[int]
+  action_size: int
+  init_scale: float = 0.7
+  min_scale: float = 1e-6
+
+  @nn.compact
+  def __call__(self, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
+    x = LayerNormMLP(tuple(self.hidden), activate_final=True)(obs)
+    mean = nn.Dense(self.action_size, kernel_init=_INIT)(x)
+    raw = nn.Dense(self.action_size, kernel_init=_INIT)(x)
+    std = nn.softplus(raw) * (self.init_scale / jnp.log(2.0)) + self.min_scale
+    return mean, std

@@ -1,0 +1,28 @@
+"""DDPG: a deterministic policy with a scalar critic, n-step returns, target networks and
+Gaussian exploration, with acme's learner semantics.
+
+    agent = ddpg.make(obs_size, action_size, ddpg.Config())
+"""
+
+from __future__ import annotations
+
+from mjx_hopper.agents import critics, dpg
+from mjx_hopper.agents.base import Agent
+
+
+# The defaults are the seed notebook's networks and acme's DDPG hyperparameters.
+Config = dpg.Config
+
+# "seed": the seed notebook's settings; "gpu" and "cpu" learn at 3e-4 as D4PG's presets do, and
+# "cpu" has D4PG's cpu networks. BENCHMARKS.md has the runs.
+PRESETS = {
+    "seed": Config(),
+    "gpu": Config(learning_rate=3e-4),
+    "cpu": Config(policy_layers=(256, 256), critic_layers=(256, 256), learning_rate=3e-4),
+}
+
+State = dpg.State
+
+
+def make(obs_size: int, action_size: int, cfg: Config = Config()) -> Agent:
+  return dpg.make(obs_size, action_size, cfg, critics.scalar())

@@ -1,0 +1,95 @@
+"""Deterministic policy-gradient agents (DDPG and D4PG): a tanh policy, a critic with a scalar or
+categorical head, n-step TD targets from target networks, Gaussian exploration, with acme's
+learner semantics. `ddpg.py` and `d4pg.py` choose the head and the presets.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import optax
+
+from mjx_hopper import networks
+from mjx_hopper.agents import critics
+from mjx_hopper.agents.base import Agent, CommonConfig, optimizer, pmean, update_targets
+
+
+@dataclasses.dataclass(frozen=True)
+class Config(CommonConfig):
+  sigma: float = 0.3                 # std of the Gaussian exploration noise
+
+  def __post_init__(self):
+    super().__post_init__()
+    if not self.sigma >= 0:
+      raise ValueError(f"sigma must be >= 0, got {self.sigma}")
+
+
+class State(NamedTuple):
+  policy: dict
+  critic: dict
+  target_policy: dict
+  target_critic: dict
+  policy_opt: optax.OptState
+  critic_opt: optax.OptState
+  steps: jax.Array  # () int32 updates done
+
+
+def make(obs_size: int, action_size: int, cfg: Config, head: critics.Head) -> Agent:
+  policy_net = networks.TanhPolicy(cfg.policy_layers, action_size)
+  critic_net = networks.Critic(cfg.critic_layers, head.num_outputs)
+  opt = optimizer(cfg)
+
+  def init(key):
+    policy_key, critic_key = jax.random.split(key)
+    obs, action = jnp.zeros((1, obs_size)), jnp.zeros((1, action_size))
+    policy = policy_net.init(policy_key, obs)
+    critic = critic_net.init(critic_key, obs, action)
+    return State(policy, critic, policy, critic, opt.init(policy), opt.init(critic),
+                 jnp.zeros((), jnp.int32))
+
+  def policy(state, obs):
+    return policy_net.apply(state.policy, obs)
+
+  def act(state, obs, key):
+    action = policy(state, obs)
+    return jnp.clip(action + cfg.sigma * jax.random.normal(key, action.shape), -1.0, 1.0)
+
+  def critic_loss(critic_params, state, batch):
+    next_action = policy_net.apply(state.target_policy, batch.next_obs)
+    next_out = critic_net.apply(state.target_critic, batch.next_obs, next_action)
+    target = head.target(next_out[None], batch.reward, batch.discount)
+    out = critic_net.apply(critic_params, batch.obs, batch.action)
+    return head.loss(out, jax.lax.stop_gradient(target)).mean(), head.value(out)
+
+  def policy_loss(policy_params, state, batch):
+    # As acme's learners, the deterministic policy gradient is taken at the next observations.
+    action = policy_net.apply(policy_params, batch.next_obs)
+    return -head.value(critic_net.apply(state.critic, batch.next_obs, action)).mean()
+
+  def update(state, batch, key, axis_name=None):
+    del key  # the update is deterministic given the batch
+    (c_loss, q), c_grads = jax.value_and_grad(critic_loss, has_aux=True)(state.critic, state,
+                                                                        batch)
+    p_loss, p_grads = jax.value_and_grad(policy_loss)(state.policy, state, batch)
+    c_grads, p_grads = pmean((c_grads, p_grads), axis_name)
+    c_updates, critic_opt = opt.update(c_grads, state.critic_opt)
+    p_updates, policy_opt = opt.update(p_grads, state.policy_opt)
+    critic = optax.apply_updates(state.critic, c_updates)
+    policy_params = optax.apply_updates(state.policy, p_updates)
+    steps = state.steps + 1
+    target_policy, target_critic = update_targets(
+        steps, cfg.target_update_period, (policy_params, critic),
+        (state.target_policy, state.target_critic))
+    new = State(policy_params, critic, target_policy, target_critic, policy_opt, critic_opt,
+                steps)
+    metrics = {"critic_loss": c_loss, "policy_loss": p_loss, "q_mean": q.mean(),
+               "q_min": q.min(), "q_max": q.max(),
+               "critic_grad_norm": optax.tree.norm(c_grads),
+               "policy_grad_norm": optax.tree.norm(p_grads)}
+    return new, pmean(metrics, axis_name)
+
+  return Agent(init=init, act=act, policy=policy, update=update, n_step=cfg.n_step,
+               discount=cfg.discount)

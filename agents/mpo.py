@@ -1,0 +1,267 @@
+"""MPO (maximum a posteriori policy optimisation), and with `distributional=True` DMPO, with
+acme's learner semantics.
+
+E-step: N actions per next state are sampled from the target policy and weighted by
+softmax(Q / temperature) over the samples; the temperature is a dual variable trained so that
+the KL of these weights from uniform stays near `epsilon`. M-step: the online Gaussian is fitted
+to the weighted samples under decoupled, per-dimension KL constraints from the target policy,
+one on the mean (std held at the target's) and one on the std (mean held at the target's), each
+with its own dual. Duals are softplus'd and their raw values clipped from below.
+
+Action bounds (`action_bounds`): "penalize" (acme's default) keeps the Gaussian unbounded, clips
+actions to [-1, 1] for the env and critic, and adds a second E-step that weights samples by how
+little they leave the bounds (MO-MPO's action penalisation, its own dual on `epsilon_penalty`);
+"squash" instead passes the Gaussian's samples through tanh, so the Gaussian lives in pre-tanh
+space and needs no penalty.
+
+DMPO uses D4PG's categorical critic; its target is the projection of the next-state value
+distributions averaged over the sampled actions.
+
+    agent = mpo.make(obs_size, action_size, mpo.Config(distributional=True))
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import optax
+
+from mjx_hopper import distributional, networks
+from mjx_hopper.agents import critics
+from mjx_hopper.agents.base import Agent, CommonConfig, optimizer, pmean, update_targets
+
+MIN_LOG_DUAL = -18.0   # raw dual values are clipped from below at this (as acme)
+DUAL_FLOOR = 1e-8      # added after softplus, so that every dual is > 0
+ACTION_BOUNDS = ("penalize", "squash")
+
+
+@dataclasses.dataclass(frozen=True)
+class Config(CommonConfig):
+  """Defaults are the seed notebook's DMPO networks and acme's (D)MPO hyperparameters, with a
+  scalar critic; `distributional=True` is DMPO."""
+
+  num_samples: int = 20              # actions sampled per state in the E-step
+  epsilon: float = 0.1               # KL bound of the E-step's weights
+  epsilon_mean: float = 2.5e-3       # per-dimension KL bound on the mean
+  epsilon_stddev: float = 1e-6       # per-dimension KL bound on the std
+  epsilon_penalty: float = 1e-3      # KL bound of the action-penalty E-step ("penalize")
+  init_log_temperature: float = 10.0
+  init_log_alpha_mean: float = 10.0
+  init_log_alpha_stddev: float = 1000.0
+  dual_learning_rate: float = 1e-2
+  init_scale: float = 0.7            # the policy's initial std
+  min_scale: float = 1e-6            # the policy's smallest std
+  action_bounds: str = "penalize"    # or "squash"; see the module's docstring
+  distributional: bool = False       # DMPO: a categorical critic over these atoms
+  vmin: float = -150.0
+  vmax: float = 150.0
+  num_atoms: int = 51
+
+  def __post_init__(self):
+    super().__post_init__()
+    if not isinstance(self.num_samples, int) or self.num_samples < 1:
+      raise ValueError(f"num_samples must be an integer >= 1, got {self.num_samples!r}")
+    for name in ("epsilon", "epsilon_mean", "epsilon_stddev", "epsilon_penalty",
+                 "dual_learning_rate", "init_scale"):
+      if not getattr(self, name) > 0:
+        raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
+    if not self.min_scale >= 0:
+      raise ValueError(f"min_scale must be >= 0, got {self.min_scale}")
+    if self.action_bounds not in ACTION_BOUNDS:
+      raise ValueError(f"action_bounds must be one of {list(ACTION_BOUNDS)}, got "
+                       f"{self.action_bounds!r}")
+    if self.distributional:
+      distributional.check_support(self.vmin, self.vmax, self.num_atoms)
+
+
+# As D4PG's: "gpu" and "cpu" learn at 3e-4 with the critic's support widened to [-150, 450]
+# (DMPO), and "cpu" has (256, 256) networks. BENCHMARKS.md has the runs.
+PRESETS = {
+    "seed": Config(),
+    "gpu": Config(learning_rate=3e-4),
+    "cpu": Config(policy_layers=(256, 256), critic_layers=(256, 256), learning_rate=3e-4),
+}
+DMPO_PRESETS = {
+    "seed": Config(distributional=True),
+    "gpu": Config(distributional=True, vmax=450.0, learning_rate=3e-4),
+    "cpu": Config(distributional=True, vmax=450.0, learning_rate=3e-4,
+                  policy_layers=(256, 256), critic_layers=(256, 256)),
+}
+
+
+class Duals(NamedTuple):
+  """Raw dual variables; the duals themselves are softplus(raw) + DUAL_FLOOR."""
+
+  log_temperature: jax.Array          # ()
+  log_alpha_mean: jax.Array           # (A,)
+  log_alpha_stddev: jax.Array         # (A,)
+  log_penalty_temperature: jax.Array  # ()
+
+
+class State(NamedTuple):
+  policy: dict
+  critic: dict
+  target_policy: dict
+  target_critic: dict
+  duals: Duals
+  policy_opt: optax.OptState
+  critic_opt: optax.OptState
+  dual_opt: optax.OptState
+  steps: jax.Array  # () int32 updates done
+
+
+def positive(raw: jax.Array) -> jax.Array:
+  """A dual's value from its raw parameter: softplus, plus a floor."""
+  return jax.nn.softplus(raw) + DUAL_FLOOR
+
+
+def e_step(q: jax.Array, temperature: jax.Array, epsilon: float):
+  """The nonparametric E-step over N samples of B states.
+
+  q: (N, B) values of the sampled actions. Returns the weights softmax(q / temperature) over
+  the N samples (no gradient) and the temperature's dual loss,
+  temperature * (epsilon + mean_B log mean_N exp(q / temperature)), whose gradient drives the
+  KL of the weights from uniform towards epsilon.
+  """
+  tempered = jax.lax.stop_gradient(q) / temperature
+  weights = jax.lax.stop_gradient(jax.nn.softmax(tempered, axis=0))
+  log_mean_exp = jax.nn.logsumexp(tempered, axis=0) - math.log(q.shape[0])
+  return weights, temperature * (epsilon + jnp.mean(log_mean_exp))
+
+
+def decoupled_kl(target_mean, target_std, online_mean, online_std):
+  """Per-dimension KLs of the target Gaussian from the online one, decoupled: (..., A) each.
+
+  kl_mean: KL(N(target_mean, target_std) || N(online_mean, target_std)), the mean's move;
+  kl_stddev: KL(N(target_mean, target_std) || N(target_mean, online_std)), the std's.
+  """
+  kl_mean = 0.5 * jnp.square((online_mean - target_mean) / target_std)
+  ratio = target_std / online_std
+  kl_stddev = 0.5 * jnp.square(ratio) - jnp.log(ratio) - 0.5
+  return kl_mean, kl_stddev
+
+
+def kl_losses(kl: jax.Array, alpha: jax.Array, epsilon: float):
+  """The M-step's constraint terms for KLs (B, A) and per-dimension duals alpha (A,).
+
+  Returns (penalty, dual_loss, mean_kl): the policy's penalty sum_a alpha_a * mean_B kl (alpha
+  held fixed), alpha's dual loss sum_a alpha_a * (epsilon - mean_B kl) (the KL held fixed), and
+  the (A,) mean KL itself.
+  """
+  mean_kl = kl.mean(axis=0)
+  penalty = jnp.sum(jax.lax.stop_gradient(alpha) * mean_kl)
+  dual_loss = jnp.sum(alpha * (epsilon - jax.lax.stop_gradient(mean_kl)))
+  return penalty, dual_loss, mean_kl
+
+
+def gaussian_log_prob(x, mean, std):
+  """(...,) log-density of x (..., A) under the diagonal Gaussian N(mean, std)."""
+  z = (x - mean) / std
+  return jnp.sum(-0.5 * jnp.square(z) - jnp.log(std) - 0.5 * math.log(2 * math.pi), axis=-1)
+
+
+def make(obs_size: int, action_size: int, cfg: Config = Config()) -> Agent:
+  policy_net = networks.GaussianPolicy(cfg.policy_layers, action_size, cfg.init_scale,
+                                       cfg.min_scale)
+  head = (critics.categorical(cfg.vmin, cfg.vmax, cfg.num_atoms) if cfg.distributional
+          else critics.scalar())
+  critic_net = networks.Critic(cfg.critic_layers, head.num_outputs)
+  opt = optimizer(cfg)
+  dual_opt = optax.adam(cfg.dual_learning_rate)
+  squash = cfg.action_bounds == "squash"
+
+  def to_action(u):
+    """Env actions from Gaussian samples: tanh-squashed, or clipped to the bounds."""
+    return jnp.tanh(u) if squash else jnp.clip(u, -1.0, 1.0)
+
+  def init(key):
+    policy_key, critic_key = jax.random.split(key)
+    obs, action = jnp.zeros((1, obs_size)), jnp.zeros((1, action_size))
+    policy = policy_net.init(policy_key, obs)
+    critic = critic_net.init(critic_key, obs, action)
+    duals = Duals(jnp.asarray(cfg.init_log_temperature),
+                  jnp.full(action_size, cfg.init_log_alpha_mean),
+                  jnp.full(action_size, cfg.init_log_alpha_stddev),
+                  jnp.asarray(cfg.init_log_temperature))
+    return State(policy, critic, policy, critic, duals, opt.init(policy), opt.init(critic),
+                 dual_opt.init(duals), jnp.zeros((), jnp.int32))
+
+  def policy(state, obs):
+    return to_action(policy_net.apply(state.policy, obs)[0])
+
+  def act(state, obs, key):
+    mean, std = policy_net.apply(state.policy, obs)
+    return to_action(mean + std * jax.random.normal(key, mean.shape))
+
+  def critic_loss(critic_params, batch, next_out):
+    target = head.target(next_out, batch.reward, batch.discount)
+    out = critic_net.apply(critic_params, batch.obs, batch.action)
+    return head.loss(out, jax.lax.stop_gradient(target)).mean(), head.value(out)
+
+  def policy_loss(policy_params, duals, next_obs, target_mean, target_std, samples, q):
+    # As acme's learners, the policy is improved at the next observations.
+    mean, std = policy_net.apply(policy_params, next_obs)
+    temperature = positive(duals.log_temperature)
+    weights, loss_temperature = e_step(q, temperature, cfg.epsilon)
+    kl_q = jnp.sum(weights * jnp.log(q.shape[0] * weights + 1e-30), axis=0).mean()
+    stats = {"temperature": temperature, "kl_q_rel": kl_q / cfg.epsilon}
+    if not squash:
+      penalty_temperature = positive(duals.log_penalty_temperature)
+      cost = -jnp.linalg.norm(samples - jnp.clip(samples, -1.0, 1.0), axis=-1)
+      penalty_weights, loss_penalty = e_step(cost, penalty_temperature, cfg.epsilon_penalty)
+      weights = weights + penalty_weights
+      loss_temperature = loss_temperature + loss_penalty
+      stats["penalty_temperature"] = penalty_temperature
+    # Decoupled M-step: the mean's fit with the target's std, and the std's with its mean.
+    fit_mean = -jnp.sum(weights * gaussian_log_prob(samples, mean, target_std), axis=0).mean()
+    fit_std = -jnp.sum(weights * gaussian_log_prob(samples, target_mean, std), axis=0).mean()
+    kl_mean, kl_std = decoupled_kl(target_mean, target_std, mean, std)
+    alpha_mean, alpha_std = positive(duals.log_alpha_mean), positive(duals.log_alpha_stddev)
+    penalty_mean, dual_mean, mean_kl_mean = kl_losses(kl_mean, alpha_mean, cfg.epsilon_mean)
+    penalty_std, dual_std, mean_kl_std = kl_losses(kl_std, alpha_std, cfg.epsilon_stddev)
+    loss = (fit_mean + fit_std + penalty_mean + penalty_std + dual_mean + dual_std
+            + loss_temperature)
+    stats.update(policy_loss=fit_mean + fit_std, alpha_mean=alpha_mean.mean(),
+                 alpha_stddev=alpha_std.mean(),
+                 kl_mean_rel=mean_kl_mean.mean() / cfg.epsilon_mean,
+                 kl_stddev_rel=mean_kl_std.mean() / cfg.epsilon_stddev,
+                 policy_std=std.mean(), policy_std_min=std.min(), policy_std_max=std.max())
+    return loss, stats
+
+  def update(state, batch, key, axis_name=None):
+    target_mean, target_std = policy_net.apply(state.target_policy, batch.next_obs)
+    samples = target_mean + target_std * jax.random.normal(
+        key, (cfg.num_samples,) + target_mean.shape)                       # (N, B, A)
+    next_obs = jnp.broadcast_to(batch.next_obs, (cfg.num_samples,) + batch.next_obs.shape)
+    next_out = critic_net.apply(state.target_critic, next_obs, to_action(samples))
+    (c_loss, q), c_grads = jax.value_and_grad(critic_loss, has_aux=True)(
+        state.critic, batch, next_out)
+    (_, stats), (p_grads, d_grads) = jax.value_and_grad(policy_loss, argnums=(0, 1),
+                                                        has_aux=True)(
+        state.policy, state.duals, batch.next_obs, target_mean, target_std, samples,
+        head.value(next_out))
+    c_grads, p_grads, d_grads = pmean((c_grads, p_grads, d_grads), axis_name)
+    c_updates, critic_opt = opt.update(c_grads, state.critic_opt)
+    p_updates, policy_opt = opt.update(p_grads, state.policy_opt)
+    d_updates, dual_state = dual_opt.update(d_grads, state.dual_opt)
+    critic = optax.apply_updates(state.critic, c_updates)
+    policy_params = optax.apply_updates(state.policy, p_updates)
+    duals = jax.tree.map(lambda d: jnp.maximum(d, MIN_LOG_DUAL),
+                         optax.apply_updates(state.duals, d_updates))
+    steps = state.steps + 1
+    target_policy, target_critic = update_targets(
+        steps, cfg.target_update_period, (policy_params, critic),
+        (state.target_policy, state.target_critic))
+    new = State(policy_params, critic, target_policy, target_critic, duals, policy_opt,
+                critic_opt, dual_state, steps)
+    metrics = dict(stats, critic_loss=c_loss, q_mean=q.mean(), q_min=q.min(), q_max=q.max(),
+                   critic_grad_norm=optax.tree.norm(c_grads),
+                   policy_grad_norm=optax.tree.norm(p_grads))
+    return new, pmean(metrics, axis_name)
+
+  return Agent(init=init, act=act, policy=policy, update=update, n_step=cfg.n_step,
+               discount=cfg.discount)

@@ -1,0 +1,67 @@
+#!/usr/bin/env bash
+# The GPU runs behind BENCHMARKS.md, in the batches the device tool runs them (each call is at
+# most 10 minutes). On the device machine, from the repository root, with the wheels that
+# cannot be downloaded there carried in .whl/:
+#   bash benchmarks/gpu_session.sh install-and-tune   # learner throughput, agent tests, tuning
+#   bash benchmarks/gpu_session.sh ddpg mpo           # learning, 3 seeds of each, all at once
+#   bash benchmarks/gpu_session.sh dmpo cpu-tune      # ... and D4PG settings for the 2-core CPU
+# Every run of a call shares the one GPU (XLA_PYTHON_CLIENT_MEM_FRACTION=0.1 each).
+# The runs write to $WORK; $OUT (default runs/gpu) gets the printed tables and results.tgz (every
+# run's summary, curves and log, without checkpoints).
+set -uo pipefail
+OUT=${OUT:-runs/gpu}
+WORK=${WORK:-/tmp/gpu_runs}
+mkdir -p "$OUT" "$WORK"
+python3 -m pip install -q --no-deps .whl/*.whl >/dev/null 2>&1
+python3 -m pip install -q --no-deps --no-build-isolation -e . >/dev/null 2>&1
+nvidia-smi -L
+export XLA_PYTHON_CLIENT_MEM_FRACTION=0.1
+learn() {  # learn NAME ARGS...: one learning benchmark in the background, logged to $WORK/NAME.txt
+  local name=$1; shift
+  python3 benchmarks/learning.py --env Hopper --cpu-devices 1 --out "$WORK/$name" "$@" \
+    > "$WORK/$name.txt" 2>&1 &
+}
+GPU_TRAIN=(--num-envs 512 --unroll-length 4 --batch-size 1024 --replay-ratio 4 --min-replay 20000
+           --chunk 25 --eval-every 200000)
+
+for phase in "$@"; do
+  case $phase in
+    install-and-tune)
+      timeout 200 python3 benchmarks/learner_throughput.py --devices 1 --agents d4pg,ddpg,mpo,dmpo \
+        --json "$WORK/learner_gpu.json" > "$WORK/learner_gpu.md" 2> "$WORK/learner_gpu.err"
+      cat "$WORK/learner_gpu.md"
+      export XLA_PYTHON_CLIENT_MEM_FRACTION=0.12
+      # D4PG's cpu preset with the CPU's candidate batch layouts, 5 minutes each.
+      T=(--agent d4pg --preset cpu --seeds 0 --minutes 5 --chunk 25 --min-replay 20000 --target 2000)
+      learn tune_e64_b256_r8 "${T[@]}" --num-envs 64 --batch-size 256 --replay-ratio 8 --eval-every 50000
+      learn tune_e256_b256_r4 "${T[@]}" --num-envs 256 --batch-size 256 --replay-ratio 4 --eval-every 100000
+      learn tune_e512_b512_r4 "${T[@]}" --num-envs 512 --batch-size 512 --replay-ratio 4 --eval-every 100000
+      # The new agents, one seed each, to catch a learner that does not learn.
+      for agent in ddpg mpo dmpo; do
+        learn check_$agent --agent $agent --preset gpu --seeds 0 --minutes 5 --target 2500 "${GPU_TRAIN[@]}"
+      done
+      JAX_PLATFORMS=cpu timeout 400 python3 -m pytest -q -x -p no:cacheprovider tests/test_mpo.py \
+        tests/test_dpg.py > "$WORK/pytest.txt" 2>&1
+      tail -3 "$WORK/pytest.txt"
+      ;;
+    ddpg|mpo|dmpo|d4pg)  # 3 seeds of this agent's gpu preset, 8.5 minutes each
+      learn learning_$phase --agent $phase --preset gpu --seeds 0,1,2 --minutes 8.5 --target 2500 \
+        "${GPU_TRAIN[@]}"
+      ;;
+    cpu-tune)
+      # Return against env steps of D4PG settings the 2-core CPU could afford (its cost per env
+      # step and per update comes from benchmarks/env_throughput.py and learner_throughput.py).
+      T=(--agent d4pg --seeds 0 --minutes 8.5 --chunk 25 --min-replay 20000 --target 2000
+         --eval-every 200000)
+      learn tune_cpu_e512_b512_r4 "${T[@]}" --preset cpu --num-envs 512 --batch-size 512 --replay-ratio 4
+      learn tune_cpu_e512_b256_r4 "${T[@]}" --preset cpu --num-envs 512 --batch-size 256 --replay-ratio 4
+      learn tune_cpu_e1024_b1024_r4 "${T[@]}" --preset cpu --num-envs 1024 --batch-size 1024 --replay-ratio 4
+      learn tune_gpu_e512_b512_r2 "${T[@]}" --preset gpu --num-envs 512 --batch-size 512 --replay-ratio 2
+      ;;
+    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune" >&2
+       exit 2 ;;
+  esac
+done
+wait
+for f in "$WORK"/*.txt; do echo "== $f"; tail -6 "$f"; done
+tar czf "$OUT/results.tgz" --exclude checkpoints -C "$WORK" .

@@ -1,0 +1,168 @@
+"""D4PG's and DDPG's maths: each critic loss against a slow reference, target updates, the policy
+gradient's sign, exploration, determinism, the seed's networks, and config errors."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from mjx_hopper import agents, networks, replay
+from mjx_hopper.agents import d4pg, ddpg
+from test_distributional import reference_projection
+
+OBS, ACT, BATCH = 5, 2, 32
+COMMON = dict(policy_layers=(16, 16), critic_layers=(32, 16), learning_rate=1e-3,
+              target_update_period=3)
+SMALL = {"d4pg": d4pg.Config(num_atoms=11, vmin=-10.0, vmax=10.0, **COMMON),
+         "ddpg": ddpg.Config(**COMMON)}
+
+
+def random_batch(key, batch=BATCH):
+  k = jax.random.split(key, 5)
+  return replay.Transition(
+      obs=jax.random.normal(k[0], (batch, OBS)),
+      action=jax.random.uniform(k[1], (batch, ACT), minval=-1, maxval=1),
+      reward=jax.random.normal(k[2], (batch,)) * 3,
+      discount=jax.random.choice(k[3], jnp.array([0.0, 0.9, 0.99 ** 5]), (batch,)),
+      next_obs=jax.random.normal(k[4], (batch, OBS)))
+
+
+@pytest.fixture(scope="module", params=["d4pg", "ddpg"])
+def name(request):
+  return request.param
+
+
+@pytest.fixture(scope="module")
+def agent(name):
+  return agents.make(name, OBS, ACT, SMALL[name])
+
+
+@pytest.fixture(scope="module")
+def update(agent):
+  return jax.jit(agent.update)
+
+
+def critic_net(name):
+  cfg = SMALL[name]
+  return networks.Critic(cfg.critic_layers, cfg.num_atoms if name == "d4pg" else 1)
+
+
+def reference_critic_loss(name, state, batch):
+  """The TD loss and mean Q in float64 NumPy, from the networks' raw outputs."""
+  cfg, net = SMALL[name], critic_net(name)
+  policy_net = networks.TanhPolicy(cfg.policy_layers, ACT)
+  next_out = np.asarray(net.apply(state.target_critic, batch.next_obs,
+                                  policy_net.apply(state.target_policy, batch.next_obs)),
+                        np.float64)
+  out = np.asarray(net.apply(state.critic, batch.obs, batch.action), np.float64)
+  reward, discount = np.asarray(batch.reward), np.asarray(batch.discount)
+  if name == "ddpg":
+    return np.mean(0.5 * (out - (reward + discount * next_out)) ** 2), out.mean()
+  support = np.linspace(cfg.vmin, cfg.vmax, cfg.num_atoms)
+  next_probs = np.exp(next_out) / np.exp(next_out).sum(-1, keepdims=True)
+  target = reference_projection(support, next_probs, reward, discount)
+  log_probs = out - np.log(np.exp(out).sum(-1, keepdims=True))
+  return -(target * log_probs).sum(-1).mean(), (np.exp(log_probs) * support).sum(-1).mean()
+
+
+def test_critic_loss_matches_reference(name, agent, update):
+  state = agent.init(jax.random.PRNGKey(0))
+  batch = random_batch(jax.random.PRNGKey(1))
+  _, metrics = update(state, batch, jax.random.PRNGKey(2))
+  loss, q = reference_critic_loss(name, state, batch)
+  assert float(metrics["critic_loss"]) == pytest.approx(loss, rel=1e-4)
+  assert float(metrics["q_mean"]) == pytest.approx(q, rel=1e-4, abs=1e-5)
+
+
+def test_targets_are_copied_every_period(name, agent, update):
+  state = agent.init(jax.random.PRNGKey(0))
+  initial = (state.target_policy, state.target_critic)
+  for i in range(1, 7):
+    state, _ = update(state, random_batch(jax.random.PRNGKey(i)), jax.random.PRNGKey(0))
+    targets = (state.target_policy, state.target_critic)
+    if i % SMALL[name].target_update_period == 0:
+      jax.tree.map(np.testing.assert_array_equal, targets, (state.policy, state.critic))
+      initial = targets
+    else:
+      jax.tree.map(np.testing.assert_array_equal, targets, initial)
+      assert not np.array_equal(state.policy["params"]["LayerNormMLP_0"]["Dense_0"]["kernel"],
+                                targets[0]["params"]["LayerNormMLP_0"]["Dense_0"]["kernel"])
+
+
+def test_policy_step_raises_q_under_the_critic(name, agent, update):
+  state = agent.init(jax.random.PRNGKey(3))
+  batch = random_batch(jax.random.PRNGKey(4), batch=256)
+  new, _ = update(state, batch, jax.random.PRNGKey(0))
+  net = critic_net(name)
+  cfg = SMALL[name]
+
+  def q(policy_state):  # under the critic the step was taken against
+    out = net.apply(state.critic, batch.next_obs, agent.policy(policy_state, batch.next_obs))
+    if name == "ddpg":
+      return float(out.mean())
+    return float(jnp.mean(jax.nn.softmax(out) @ jnp.linspace(cfg.vmin, cfg.vmax, cfg.num_atoms)))
+  assert q(new) > q(state)
+
+
+def test_exploration_is_noisy_and_bounded(name, agent):
+  state = agent.init(jax.random.PRNGKey(0))
+  obs = jax.random.normal(jax.random.PRNGKey(1), (4096, OBS))
+  noise = agent.act(state, obs, jax.random.PRNGKey(2)) - agent.policy(state, obs)
+  assert float(jnp.abs(agent.act(state, obs, jax.random.PRNGKey(2))).max()) <= 1.0
+  inside = jnp.abs(agent.policy(state, obs)) < 0.5  # where clipping rarely bites
+  assert float(jnp.std(noise[inside])) == pytest.approx(SMALL[name].sigma, rel=0.05)
+
+
+def test_same_seed_same_params(agent, update):
+  def run(seed):
+    state = agent.init(jax.random.PRNGKey(seed))
+    for i in range(3):
+      state, _ = update(state, random_batch(jax.random.PRNGKey(10 + i)), jax.random.PRNGKey(i))
+    return state
+  jax.tree.map(np.testing.assert_array_equal, run(0), run(0))
+  assert not np.array_equal(run(0).policy["params"]["LayerNormMLP_0"]["Dense_0"]["kernel"],
+                            run(1).policy["params"]["LayerNormMLP_0"]["Dense_0"]["kernel"])
+
+
+def kernels(params):
+  return sorted(leaf.shape for path, leaf in jax.tree_util.tree_leaves_with_path(params)
+                if path[-1].key == "kernel")
+
+
+@pytest.mark.parametrize("name, head", [("d4pg", 51), ("ddpg", 1)])
+def test_default_networks_are_the_seeds(name, head):
+  state = agents.make(name, 15, 3).init(jax.random.PRNGKey(0))
+  assert kernels(state.policy) == sorted([(15, 256), (256, 256), (256, 256), (256, 3)])
+  assert kernels(state.critic) == sorted([(18, 512), (512, 512), (512, 256), (256, head)])
+
+
+@pytest.mark.parametrize("name", ["d4pg", "ddpg", "mpo", "dmpo"])
+@pytest.mark.parametrize("bad, message", [
+    ({"n_step": 0}, "n_step must be an integer >= 1, got 0"),
+    ({"discount": 1.5}, r"discount must be in \[0, 1\], got 1.5"),
+    ({"learning_rate": 0.0}, "learning_rate must be > 0, got 0.0"),
+    ({"critic_layers": ()}, r"critic_layers must be a non-empty tuple of positive integers"),
+])
+def test_bad_common_config(name, bad, message):
+  with pytest.raises(ValueError, match=message):
+    agents.config(name, **bad)
+
+
+@pytest.mark.parametrize("name, bad, message", [
+    ("d4pg", {"num_atoms": 1}, "need vmin < vmax and an integer num_atoms >= 2"),
+    ("d4pg", {"vmin": 5.0, "vmax": 5.0}, "need vmin < vmax"),
+    ("ddpg", {"sigma": -0.1}, "sigma must be >= 0, got -0.1"),
+])
+def test_bad_agent_config(name, bad, message):
+  with pytest.raises(ValueError, match=message):
+    agents.config(name, **bad)
+
+
+def test_unknown_agent_and_settings():
+  with pytest.raises(ValueError, match=r"unknown agent 'd5pg'; valid agents are "
+                                       r"\['d4pg', 'ddpg', 'dmpo', 'mpo'\]"):
+    agents.config("d5pg")
+  with pytest.raises(ValueError, match=r"unknown d4pg settings \['sgima'\]"):
+    agents.config("d4pg", sgima=0.2)
+  with pytest.raises(ValueError, match=r"unknown preset 'gpu2' for d4pg"):
+    agents.config("d4pg", preset="gpu2")
