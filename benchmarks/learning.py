@@ -78,24 +78,28 @@ def main() -> None:
   p.add_argument("--seeds", default="0,1,2")
   p.add_argument("--minutes", type=float, default=30.0, help="wall-clock budget of each seed")
   p.add_argument("--max-steps", type=int, default=10**9)
-  p.add_argument("--num-envs", type=int, default=64)
+  p.add_argument("--num-envs", type=int, default=512)
   p.add_argument("--unroll-length", type=int, default=4)
   p.add_argument("--batch-size", type=int, default=256)
-  p.add_argument("--replay-ratio", type=float, default=8.0)
-  p.add_argument("--min-replay", type=int, default=10_000)
-  p.add_argument("--chunk", type=int, default=50)
-  p.add_argument("--eval-every", type=int, default=50_000)
+  p.add_argument("--replay-ratio", type=float, default=4.0)
+  p.add_argument("--min-replay", type=int, default=20_000)
+  p.add_argument("--chunk", type=int, default=25)
+  p.add_argument("--eval-every", type=int, default=200_000)
   p.add_argument("--cpu-devices", type=int, default=os.cpu_count() or 1)
   p.add_argument("--sequential", action="store_true",
                  help="run the seeds one after another, each with the machine to itself")
   p.add_argument("--target", type=float, default=2000.0)
   p.add_argument("--label", default="")
   p.add_argument("--out", default="runs/learning")
+  p.add_argument("--summarise-only", action="store_true",
+                 help="only redo summary.json, curves.png and the table from OUT's logs")
   p.add_argument("--one-seed", type=int, default=None, help=argparse.SUPPRESS)
   args = p.parse_args()
   if args.one_seed is not None:
     return one_seed(args, args.one_seed)
   seeds = [int(s) for s in args.seeds.split(",")]
+  if args.summarise_only:
+    return report(summarise(args, seeds))
   os.makedirs(args.out, exist_ok=True)
   argv = [a for a in sys.argv[1:]]
   def start(seed):
@@ -106,7 +110,10 @@ def main() -> None:
     codes = [proc.wait() for proc in [start(seed) for seed in seeds]]
   if any(codes):
     raise SystemExit(f"a seed failed: exit codes {codes}")
-  summary = summarise(args, seeds)
+  report(summarise(args, seeds))
+
+
+def report(summary: dict) -> None:
   print("| seed | best eval return | final | env steps | wall s | target reached at (env steps, s) |")
   print("|---|---|---|---|---|---|")
   for seed, s in summary["seeds"].items():

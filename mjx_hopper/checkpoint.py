@@ -12,6 +12,7 @@ import importlib.metadata
 import json
 import os
 import signal
+import zlib
 
 import jax
 import jax.numpy as jnp
@@ -60,9 +61,64 @@ def _rebuild(like, saved: dict):
                             for i, x in enumerate(leaves)])
 
 
+MANIFESTS = "manifests"  # beside the steps: the files of each finished step, with sizes and CRCs
+
+
+def _files(step_dir: str) -> dict[str, tuple[int, int]]:
+  """{relative path: (size, crc32)} of every file under `step_dir`."""
+  out = {}
+  for root, _, names in os.walk(step_dir):
+    for name in names:
+      path = os.path.join(root, name)
+      with open(path, "rb") as f:
+        out[os.path.relpath(path, step_dir)] = (os.path.getsize(path), zlib.crc32(f.read()))
+  return out
+
+
+def finish(mngr: ocp.CheckpointManager) -> None:
+  """Waits for the save in flight, then records the files of every finished step that has no
+  manifest yet (and drops the manifests of steps that are gone), so that a damaged step can be
+  told apart file by file later."""
+  mngr.wait_until_finished()
+  folder = os.path.join(mngr.directory, MANIFESTS)
+  os.makedirs(folder, exist_ok=True)
+  steps = {str(step) for step in mngr.all_steps()}
+  for name in os.listdir(folder):
+    if name.removesuffix(".json") not in steps:
+      os.remove(os.path.join(folder, name))
+  for step in steps - {n.removesuffix(".json") for n in os.listdir(folder)}:
+    path = os.path.join(folder, f"{step}.json")
+    with open(path + ".tmp", "w") as f:
+      json.dump(_files(os.path.join(mngr.directory, step)), f)
+    os.replace(path + ".tmp", path)
+
+
+def damage(mngr: ocp.CheckpointManager, step: int) -> list[str]:
+  """How `step`'s files differ from its manifest: one line per missing, truncated or changed
+  file (empty when they match, or when the step has no manifest)."""
+  path = os.path.join(mngr.directory, MANIFESTS, f"{step}.json")
+  if not os.path.exists(path):
+    return []
+  with open(path) as f:
+    saved = json.load(f)
+  step_dir = os.path.join(mngr.directory, str(step))
+  now = _files(step_dir)
+  out = []
+  for name, (size, crc) in sorted(saved.items()):
+    file = os.path.join(step_dir, name)
+    if name not in now:
+      out.append(f"{file} is missing")
+    elif now[name][0] != size:
+      out.append(f"{file} has {now[name][0]:,} bytes, {size:,} when saved")
+    elif now[name][1] != crc:
+      out.append(f"{file} has changed since it was saved (CRC32)")
+  return out
+
+
 def save(mngr: ocp.CheckpointManager, state: train.TrainState, config: dict) -> int:
-  """Starts saving `state` as step = its iteration count; returns the step. Call
-  `mngr.wait_until_finished()` before relying on it."""
+  """Starts saving `state` as step = its iteration count, after finishing the previous save
+  (see `finish`); returns the step. Call `finish(mngr)` before relying on it."""
+  finish(mngr)
   step = int(state.iteration)
   agent, trainer = _split(state)
   mngr.save(step, args=ocp.args.Composite(
@@ -123,10 +179,16 @@ def load_newest(mngr: ocp.CheckpointManager, load, print_fn=print):
     except ConfigMismatch:
       raise
     except Exception as error:  # noqa: BLE001 - any unreadable step falls back to the previous
-      print_fn(f"WARNING: checkpoint step {step} in {mngr.directory} is unreadable "
-               f"({type(error).__name__}: {error}); trying an older one")
+      why = "; ".join(damage(mngr, step)) or f"{type(error).__name__}: {_first_line(error)}"
+      print_fn(f"WARNING: checkpoint step {step} in {mngr.directory} is unreadable ({why}); "
+               "trying an older one")
   raise ValueError(f"no readable checkpoint in {mngr.directory} (steps {steps}); nothing was "
                    "overwritten: move it aside to start afresh")
+
+
+def _first_line(error: Exception, limit: int = 300) -> str:
+  text = str(error).strip().splitlines()[0] if str(error).strip() else ""
+  return text[:limit]
 
 
 def resume(mngr: ocp.CheckpointManager, fresh: train.TrainState, config: dict,

@@ -1,6 +1,6 @@
 """The `mjx-hopper` command line.
 
-    mjx-hopper train [--env Hopper] [--agent d4pg] [--preset cpu] [--steps 1000000] [--out DIR]
+    mjx-hopper train [--env Hopper] [--agent d4pg|ddpg|mpo|dmpo] [--preset cpu] [--out DIR]
     mjx-hopper eval --checkpoint DIR [--episodes 16] [--video out.mp4]
     mjx-hopper demo [--env Hopper] [--num-envs 1024] [--steps 500] [--out runs/demo]
 """
@@ -99,8 +99,8 @@ def train(args: argparse.Namespace) -> None:
             replay_size=args.replay_size, min_replay=args.min_replay,
             iterations_per_chunk=args.chunk),
         total_env_steps=args.steps, max_minutes=args.max_minutes, eval_every=args.eval_every,
-        eval_episodes=args.eval_episodes, seed=args.seed, out_dir=args.out,
-        time_delta=args.log_every, checkpoint_minutes=args.checkpoint_minutes)
+        eval_episodes=args.eval_episodes, episode_steps=args.episode_steps, seed=args.seed,
+        out_dir=args.out, time_delta=args.log_every, checkpoint_minutes=args.checkpoint_minutes)
     loop.run(cfg, checkpoint_dir=args.checkpoint_dir, progress=not args.no_progress)
   except ValueError as error:
     raise SystemExit(f"mjx-hopper train: {error}")
@@ -138,23 +138,25 @@ def build_parser() -> argparse.ArgumentParser:
   sub = parser.add_subparsers(dest="command", required=True)
   t = sub.add_parser("train", help="train an agent (progress, CSV log, checkpoints, evaluation)")
   t.add_argument("--env", default="Hopper")
-  t.add_argument("--agent", default="d4pg")
+  t.add_argument("--agent", default="d4pg", help="d4pg, ddpg, mpo or dmpo")
   t.add_argument("--preset", default="cpu", help="the agent's named settings: seed, cpu, ...")
   t.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                  help="override one agent setting, e.g. --set sigma=0.2 (repeatable)")
   t.add_argument("--steps", type=int, default=1_000_000, help="total env steps")
   t.add_argument("--max-minutes", type=float, default=None,
                  help="also stop (and save) after this much wall-clock time")
-  t.add_argument("--num-envs", type=int, default=64)
+  t.add_argument("--num-envs", type=int, default=512)
   t.add_argument("--unroll-length", type=int, default=4, help="env steps per env per iteration")
   t.add_argument("--batch-size", type=int, default=256)
-  t.add_argument("--replay-ratio", type=float, default=8.0,
+  t.add_argument("--replay-ratio", type=float, default=4.0,
                  help="samples drawn per transition inserted")
   t.add_argument("--replay-size", type=int, default=1_000_000)
-  t.add_argument("--min-replay", type=int, default=10_000)
-  t.add_argument("--chunk", type=int, default=50, help="iterations per compiled chunk")
-  t.add_argument("--eval-every", type=int, default=100_000, help="env steps between evaluations")
+  t.add_argument("--min-replay", type=int, default=20_000)
+  t.add_argument("--chunk", type=int, default=25, help="iterations per compiled chunk")
+  t.add_argument("--eval-every", type=int, default=200_000, help="env steps between evaluations")
   t.add_argument("--eval-episodes", type=int, default=16)
+  t.add_argument("--episode-steps", type=int, default=1000,
+                 help="steps before an episode is truncated (PyBullet's 1000)")
   t.add_argument("--seed", type=int, default=0)
   t.add_argument("--out", default="runs/train", help="folder for log.csv and config.json")
   t.add_argument("--checkpoint-dir", default=None,

@@ -31,7 +31,7 @@ class RunConfig:
   total_env_steps: int = 1_000_000
   max_minutes: float | None = None  # also stop (and save) after this much wall-clock time
   episode_steps: int = 1000
-  eval_every: int = 100_000      # env steps between evaluations
+  eval_every: int = 200_000      # env steps between evaluations
   eval_episodes: int = 16
   seed: int = 0
   out_dir: str = "runs/train"     # log.csv, config.json and (by default) checkpoints/
@@ -89,12 +89,12 @@ def run(cfg: RunConfig, checkpoint_dir: str | None = None, progress: bool = True
   t_start = time.perf_counter()
   os.makedirs(cfg.out_dir, exist_ok=True)
   checkpoint_dir = checkpoint_dir or os.path.join(cfg.out_dir, "checkpoints")
-  with open(os.path.join(cfg.out_dir, "config.json"), "w") as f:
-    json.dump(cfg.to_json(), f, indent=1)
   trainer = build(cfg)
   mngr = checkpoint.manager(checkpoint_dir, cfg.keep_checkpoints)
   key = jax.random.PRNGKey(cfg.seed)
   state = checkpoint.resume(mngr, trainer.init(key), cfg.to_json(), print_fn)
+  with open(os.path.join(cfg.out_dir, "config.json"), "w") as f:  # once resuming is agreed
+    json.dump(cfg.to_json(), f, indent=1)
   logger = Logger(os.path.join(cfg.out_dir, "log.csv"), cfg.time_delta, print_fn)
   per_chunk = cfg.train.steps_per_iteration * cfg.train.iterations_per_chunk
   print_fn(f"{cfg.env} with {cfg.agent} ({cfg.preset}): {cfg.train.num_envs} envs on "
@@ -142,7 +142,7 @@ def run(cfg: RunConfig, checkpoint_dir: str | None = None, progress: bool = True
     if bar is not None:
       bar.close()
     checkpoint.save(mngr, state, cfg.to_json())
-    mngr.wait_until_finished()
+    checkpoint.finish(mngr)
   why = "stopped by a signal" if stop.requested else "done"
   print_fn(f"{why}: {env_steps:,} env steps in {time.perf_counter() - t_start:.0f} s; "
            f"evaluation return {latest_eval:.1f} over {cfg.eval_episodes} episodes; "
@@ -150,14 +150,37 @@ def run(cfg: RunConfig, checkpoint_dir: str | None = None, progress: bool = True
   return Result(state, trainer, logger.rows, evaluation)
 
 
-def load_policy(directory: str):
-  """(RunConfig, agent state, Trainer) of the newest readable checkpoint in `directory`; reads
-  only the agent's item, not the replay."""
+def restore(directory: str, print_fn=print):
+  """(RunConfig, TrainState, Trainer) of the newest readable checkpoint in `directory`: the
+  whole run as saved, replay included, rebuilt from the config saved beside it. After a Colab
+  restart this is the one call that gets a run back; `run(cfg, checkpoint_dir=directory)`
+  continues it."""
+  mngr = _existing_manager(directory)
+
+  def load(step):
+    cfg = RunConfig.from_json(checkpoint.read_config(mngr, step))
+    trainer = build(cfg)
+    fresh = trainer.init(jax.random.PRNGKey(cfg.seed))
+    return cfg, checkpoint.restore(mngr, step, fresh), trainer
+
+  step, out = checkpoint.load_newest(mngr, load, print_fn)
+  print_fn(f"restored {directory}, step {step}")
+  return out
+
+
+def _existing_manager(directory: str):
   if not os.path.isdir(directory):
     raise FileNotFoundError(f"no checkpoint directory {directory!r}")
   mngr = checkpoint.manager(directory)
   if not mngr.all_steps():
     raise FileNotFoundError(f"no checkpoint in {directory!r}")
+  return mngr
+
+
+def load_policy(directory: str):
+  """(RunConfig, agent state, Trainer) of the newest readable checkpoint in `directory`; reads
+  only the agent's item, not the replay."""
+  mngr = _existing_manager(directory)
 
   def load(step):
     cfg = RunConfig.from_json(checkpoint.read_config(mngr, step))

@@ -20,6 +20,15 @@ TINY = loop.RunConfig(
     total_env_steps=80, eval_every=40, eval_episodes=4, time_delta=0.0)
 
 
+# TINY's settings on the command line, for a given agent.
+TINY_ARGS = ["--cpu-devices", "2", "train", "--env", "Hopper", "--preset", "cpu",
+             "--set", "policy_layers=(16,)", "--set", "critic_layers=(16,)", "--set", "n_step=3",
+             "--num-envs", "4", "--unroll-length", "2", "--batch-size", "8", "--replay-ratio",
+             "2", "--replay-size", "64", "--min-replay", "24", "--chunk", "5",
+             "--episode-steps", "30", "--eval-episodes", "2", "--eval-every", "40",
+             "--no-progress", "--log-every", "0"]
+
+
 @pytest.fixture(scope="module")
 def trainer():
   return loop.build(TINY)
@@ -134,3 +143,34 @@ def test_run_logs_checkpoints_and_resumes(tmp_path, capsys):
             "--episodes", "2", "--video", str(video)])
   assert "over 2 episodes" in capsys.readouterr().out
   assert video.stat().st_size > 1000
+
+
+def test_cli_defaults_are_the_train_config_defaults():
+  args = cli.build_parser().parse_args(["train"])
+  got = train.TrainConfig(num_envs=args.num_envs, unroll_length=args.unroll_length,
+                          batch_size=args.batch_size, replay_ratio=args.replay_ratio,
+                          replay_size=args.replay_size, min_replay=args.min_replay,
+                          iterations_per_chunk=args.chunk)
+  assert got == train.TrainConfig()
+
+
+@pytest.mark.parametrize("agent, extra", [
+    ("d4pg", ["--set", "num_atoms=11"]),
+    ("ddpg", []),
+    ("mpo", ["--set", "num_samples=4"]),
+    ("dmpo", ["--set", "num_samples=4", "--set", "num_atoms=11"]),
+])
+def test_every_agent_trains_from_the_same_cli(tmp_path, agent, extra):
+  cli.main([*TINY_ARGS, "--agent", agent, *extra, "--steps", "80", "--out", str(tmp_path)])
+  with open(tmp_path / "log.csv") as f:
+    rows = list(csv.DictReader(f))
+  train_rows = [r for r in rows if r["kind"] == "train"]
+  assert int(train_rows[-1]["updates"]) == 8 * TINY.train.updates_per_iteration
+  assert [r["kind"] for r in rows].count("eval") == 2
+  names = {"critic_loss", "q_mean", "policy_grad_norm"}
+  if agent in ("mpo", "dmpo"):
+    names |= {"temperature", "alpha_mean", "alpha_stddev", "kl_q_rel", "kl_mean_rel",
+              "policy_std"}
+  for name in names:
+    assert np.isfinite(float(train_rows[-1][name])), name
+  assert json.load(open(tmp_path / "config.json"))["agent"] == agent

@@ -1,0 +1,37 @@
+"""A process for the checkpoint fault tests: saves step 1 in full, then starts saving a large
+step 2 and waits to be killed while it writes.
+
+    python checkpoint_worker.py DIR
+"""
+
+import sys
+import time
+
+import jax
+import jax.numpy as jnp
+
+from mjx_hopper import checkpoint, train
+
+CONFIG = {"env": "Hopper", "agent": "d4pg", "seed": 0}
+
+
+def state(step: int, rows: int = 256) -> train.TrainState:
+  """A TrainState-shaped pytree whose every leaf depends on `step`."""
+  return train.TrainState(
+      agent={"w": jnp.full((64, 64), step, jnp.float32)},
+      replay=jnp.arange(rows * 64, dtype=jnp.float32).reshape(rows, 64) + step,
+      env={"qpos": jnp.full((4, 7), step, jnp.float32)},
+      episode_return=jnp.full(4, step, jnp.float32), key=jax.random.PRNGKey(step),
+      iteration=jnp.asarray(step, jnp.int32), updates=jnp.asarray(10 * step, jnp.int32))
+
+
+if __name__ == "__main__":
+  mngr = checkpoint.manager(sys.argv[1])
+  checkpoint.save(mngr, state(1), CONFIG)
+  checkpoint.finish(mngr)
+  # About 1 GB of random floats (zstd cannot shrink them): seconds of writing.
+  big = state(2, rows=4_000_000)._replace(
+      replay=jax.random.normal(jax.random.PRNGKey(0), (4_000_000, 64)))
+  checkpoint.save(mngr, big, CONFIG)
+  print("saving step 2", flush=True)
+  time.sleep(600)

@@ -1,0 +1,142 @@
+"""Checkpoints lose nothing: a kill -9 mid-save, a truncated or deleted file, a wrong config,
+a missing or empty directory; and a resumed run continues bit for bit, in fresh processes."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import jax
+import numpy as np
+import pytest
+
+from mjx_hopper import checkpoint, loop
+from checkpoint_worker import CONFIG, state
+from test_train import TINY_ARGS
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+
+
+def saved_steps(directory, *steps):
+  mngr = checkpoint.manager(str(directory))
+  for step in steps:
+    checkpoint.save(mngr, state(step), CONFIG)
+  checkpoint.finish(mngr)
+  return mngr
+
+
+def assert_same(a, b):
+  jax.tree.map(lambda x, y: np.testing.assert_array_equal(np.asarray(x), np.asarray(y)), a, b)
+
+
+def test_killed_mid_save_keeps_the_previous_checkpoint(tmp_path):
+  directory = tmp_path / "ckpt"
+  proc = subprocess.Popen([sys.executable, os.path.join(HERE, "checkpoint_worker.py"),
+                           str(directory)], stdout=subprocess.PIPE, text=True)
+  try:
+    assert proc.stdout.readline().strip() == "saving step 2"
+    deadline = time.monotonic() + 60
+    while not any("tmp" in name for name in os.listdir(directory)):
+      assert time.monotonic() < deadline, "step 2 never started writing"
+      time.sleep(0.001)
+    proc.send_signal(signal.SIGKILL)
+  finally:
+    proc.kill()
+    proc.wait()
+  leftovers = [name for name in os.listdir(directory) if "tmp" in name]
+  assert leftovers, "the kill came after step 2 was finished: make it bigger"
+  mngr = checkpoint.manager(str(directory))
+  assert mngr.all_steps() == [1]
+  assert_same(checkpoint.resume(mngr, state(0), CONFIG), state(1))
+  # The next run resumes from step 1 and saves over the half-written step.
+  checkpoint.save(mngr, state(2), CONFIG)
+  checkpoint.finish(mngr)
+  assert mngr.all_steps() == [1, 2]
+  assert_same(checkpoint.resume(checkpoint.manager(str(directory)), state(0), CONFIG), state(2))
+
+
+def newest_data_file(directory, step):
+  files = [os.path.join(root, name) for root, _, names in os.walk(directory / str(step) /
+                                                                    "trainer")
+           for name in names]
+  return max(files, key=os.path.getsize)
+
+
+@pytest.mark.parametrize("fault", ["truncated", "deleted"])
+def test_unreadable_newest_step_falls_back_and_names_the_file(tmp_path, fault):
+  directory = tmp_path / "ckpt"
+  saved_steps(directory, 1, 2)
+  victim = newest_data_file(directory, 2)
+  if fault == "truncated":
+    with open(victim, "r+b") as f:
+      f.truncate(os.path.getsize(victim) // 2)
+  else:
+    os.remove(victim)
+  lines = []
+  restored = checkpoint.resume(checkpoint.manager(str(directory)), state(0), CONFIG,
+                               print_fn=lines.append)
+  assert_same(restored, state(1))
+  warning = next(line for line in lines if line.startswith("WARNING"))
+  assert "step 2" in warning and victim in warning
+  assert ("is missing" if fault == "deleted" else "bytes") in warning
+  assert lines[-1].endswith("step 1")
+
+
+def test_every_step_unreadable_is_an_error_that_overwrites_nothing(tmp_path):
+  directory = tmp_path / "ckpt"
+  saved_steps(directory, 1)
+  os.remove(newest_data_file(directory, 1))
+  before = sorted(os.listdir(directory))
+  with pytest.raises(ValueError, match="no readable checkpoint .* nothing was overwritten"):
+    checkpoint.resume(checkpoint.manager(str(directory)), state(0), CONFIG, print_fn=print)
+  assert sorted(os.listdir(directory)) == before
+
+
+@pytest.mark.parametrize("make", ["missing", "empty"])
+def test_missing_or_empty_directory_starts_fresh(tmp_path, make):
+  directory = tmp_path / "ckpt"
+  if make == "empty":
+    directory.mkdir()
+  lines = []
+  fresh = state(0)
+  assert checkpoint.resume(checkpoint.manager(str(directory)), fresh, CONFIG,
+                           print_fn=lines.append) is fresh
+  assert lines == [f"no checkpoint in {directory}: starting a fresh run"]
+
+
+@pytest.mark.parametrize("change", [{"env": "Walker2D"}, {"agent": "mpo"}, {"seed": 1}])
+def test_another_config_is_refused_naming_it_and_nothing_is_overwritten(tmp_path, change):
+  directory = tmp_path / "ckpt"
+  saved_steps(directory, 1)
+  files = checkpoint._files(str(directory))
+  key = next(iter(change))
+  with pytest.raises(checkpoint.ConfigMismatch,
+                     match=f"from another config \\({key}: saved {CONFIG[key]!r}, now "
+                           f"{change[key]!r}\\)"):
+    checkpoint.resume(checkpoint.manager(str(directory)), state(0), {**CONFIG, **change})
+  assert checkpoint._files(str(directory)) == files
+
+
+# A tiny D4PG run: 2 chunks of 5 iterations (40 env steps each); learning starts at iteration 3.
+TRAIN = [*TINY_ARGS, "--agent", "d4pg", "--set", "num_atoms=11"]
+
+
+def train_in_fresh_process(out, steps):
+  subprocess.run([sys.executable, "-m", "mjx_hopper.cli", *TRAIN, "--steps", str(steps),
+                  "--out", str(out)], check=True, stdout=subprocess.DEVNULL)
+
+
+def test_resume_is_bit_exact_in_fresh_processes(tmp_path):
+  train_in_fresh_process(tmp_path / "straight", 160)
+  train_in_fresh_process(tmp_path / "split", 80)
+  train_in_fresh_process(tmp_path / "split", 160)   # resumes at 80 env steps
+  straight = loop.restore(str(tmp_path / "straight" / "checkpoints"))[1]
+  split = loop.restore(str(tmp_path / "split" / "checkpoints"))[1]
+  assert int(straight.iteration) == int(split.iteration) == 20
+  assert int(straight.updates) > 0
+  # Params, target params, optimizer states, replay, env states, keys and counters.
+  assert_same(straight, split)
+  # Two chunks of the log each: the split run appended to its log rather than restarting it.
+  with open(tmp_path / "split" / "log.csv") as f:
+    assert sum(line.startswith("train,") for line in f) == 4
