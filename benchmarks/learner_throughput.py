@@ -119,7 +119,7 @@ def learner_rows(agent_name: str, presets: list[str], batch: int, updates: int) 
 
 def table(rows: list[dict], peaks: dict[int, float]) -> str:
   lines = ["| agent | preset | platform | devices | batch | compile (s) | updates/s "
-           "| GFLOP/update | GFLOP/s | % of matmul peak |", "|---|---|---|---|---|---|---|---|---|---|"]
+           "| GFLOP/update | GFLOP/s | % of matmul peak |", "|---" * 10 + "|"]
   for r in rows:
     peak = peaks[r["devices"]]
     lines.append(f"| {r['agent']} | {r['preset']} | {r['platform']} | {r['devices']} "

@@ -1,11 +1,13 @@
 """Learning curves: evaluation return against env steps and wall-clock seconds (compile
 included), for several seeds, with time-to-score.
 
-    python benchmarks/learning.py --minutes 30 --seeds 0,1,2                  # 2-core CPU
-    python benchmarks/learning.py --minutes 10 --num-envs 256 --batch-size 1024 ...  # GPU
+    python benchmarks/learning.py --agent d4pg --seeds 0,1,2 --sequential --minutes 30   # CPU
+    python benchmarks/learning.py --preset gpu --batch-size 1024 --cpu-devices 1 ...      # GPU
+                                                       # (benchmarks/gpu_session.sh has them)
 
 Each seed is a `mjx_hopper.loop.run` in its own process; the seeds run at the same time, sharing
-the machine, or with --sequential one after another. Writes OUT/seed_N/log.csv, OUT/summary.json and OUT/curves.png.
+the machine, or with --sequential one after another. Writes OUT/seed_N/log.csv,
+OUT/summary.json and OUT/curves.png.
 """
 
 from __future__ import annotations
@@ -114,7 +116,8 @@ def main() -> None:
 
 
 def report(summary: dict) -> None:
-  print("| seed | best eval return | final | env steps | wall s | target reached at (env steps, s) |")
+  print("| seed | best eval return | final | env steps | wall s "
+        "| target reached at (env steps, s) |")
   print("|---|---|---|---|---|---|")
   for seed, s in summary["seeds"].items():
     hit = (f"{s['target_env_steps']:,}, {s['target_wall_s']:.0f}" if s["target_env_steps"]

@@ -61,5 +61,6 @@ def test_cross_entropy_and_mean():
 
 
 def test_bad_support():
-  with pytest.raises(ValueError, match="vmin < vmax and num_atoms >= 2, got vmin=1.0, vmax=1.0"):
+  with pytest.raises(ValueError,
+                     match="vmin < vmax and an integer num_atoms >= 2, got vmin=1.0, vmax=1.0"):
     distributional.atoms(1.0, 1.0, 51)

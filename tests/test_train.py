@@ -135,8 +135,8 @@ def test_run_logs_checkpoints_and_resumes(tmp_path, capsys):
   with pytest.raises(ValueError, match="from another config .*agent_config"):
     loop.run(dataclasses.replace(cfg, agent_overrides={**cfg.agent_overrides, "n_step": 2}),
              progress=False)
-  assert sorted(os.listdir(tmp_path / "run" / "checkpoints"))[-1] == str(
-      int(longer.state.iteration))
+  assert max(int(p) for p in os.listdir(tmp_path / "run" / "checkpoints") if p.isdigit()) == int(
+      longer.state.iteration)
   # The CLI's eval loads just the policy and writes a video.
   video = tmp_path / "policy.mp4"
   cli.main(["--cpu-devices", "2", "eval", "--checkpoint", str(tmp_path / "run" / "checkpoints"),
