@@ -5,6 +5,9 @@
 #   bash benchmarks/gpu_session.sh install-and-tune   # learner throughput, agent tests, tuning
 #   bash benchmarks/gpu_session.sh ddpg mpo           # learning, 3 seeds of each, all at once
 #   bash benchmarks/gpu_session.sh dmpo cpu-tune      # ... and D4PG settings for the 2-core CPU
+#   bash benchmarks/gpu_session.sh mpo-tune           # MPO/DMPO std constraints, CPU settings
+#   bash benchmarks/gpu_session.sh mpo dmpo mpo-cpu-seed2  # their gpu presets, once retuned
+#   bash benchmarks/gpu_session.sh mpo-acme-std       # acme's std constraint, as a baseline
 # Every run of a call shares the one GPU (XLA_PYTHON_CLIENT_MEM_FRACTION=0.1 each).
 # The runs write to $WORK; $OUT (default runs/gpu) gets the printed tables and results.tgz (every
 # run's summary, curves and log, without checkpoints).
@@ -58,7 +61,36 @@ for phase in "$@"; do
       learn tune_cpu_e1024_b1024_r4 "${T[@]}" --preset cpu --num-envs 1024 --batch-size 1024 --replay-ratio 4
       learn tune_gpu_e512_b512_r2 "${T[@]}" --preset gpu --num-envs 512 --batch-size 512 --replay-ratio 2
       ;;
-    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune" >&2
+    mpo-tune)
+      # MPO and DMPO with the CPU's settings and looser std constraints (2 seeds each): acme's
+      # eps_std 1e-6 with its std dual starting at 1000 keeps the policy's std near 0.6.
+      T=(--preset cpu --seeds 0,1 --minutes 8 --chunk 25 --min-replay 20000 --target 2000
+         --eval-every 200000 --num-envs 512 --batch-size 256 --replay-ratio 4)
+      for agent in mpo dmpo; do
+        learn tune_${agent}_std1e-5 --agent $agent "${T[@]}" --set epsilon_stddev=1e-5 \
+          --set init_log_alpha_stddev=10.0
+        learn tune_${agent}_std1e-4 --agent $agent "${T[@]}" --set epsilon_stddev=1e-4 \
+          --set init_log_alpha_stddev=10.0
+      done
+      ;;
+    mpo-cpu-seed2)
+      # The third seed of mpo-tune's eps_std 1e-5 (now the presets' value), same settings.
+      T=(--preset cpu --seeds 2 --minutes 8 --chunk 25 --min-replay 20000 --target 2000
+         --eval-every 200000 --num-envs 512 --batch-size 256 --replay-ratio 4)
+      for agent in mpo dmpo; do learn tune_${agent}_std1e-5_seed2 --agent $agent "${T[@]}"; done
+      ;;
+    mpo-acme-std)
+      # The baseline for mpo-tune: acme's std constraint with the same CPU settings, 3 seeds;
+      # and eps_std 3e-6 between the two (2 seeds of MPO).
+      T=(--preset cpu --minutes 8 --chunk 25 --min-replay 20000 --target 2000
+         --eval-every 200000 --num-envs 512 --batch-size 256 --replay-ratio 4)
+      for agent in mpo dmpo; do
+        learn tune_${agent}_std1e-6 --agent $agent "${T[@]}" --seeds 0,1,2 \
+          --set epsilon_stddev=1e-6 --set init_log_alpha_stddev=1000.0
+      done
+      learn tune_mpo_std3e-6 --agent mpo "${T[@]}" --seeds 0,1 --set epsilon_stddev=3e-6
+      ;;
+    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std" >&2
        exit 2 ;;
   esac
 done

@@ -16,8 +16,10 @@ import argparse
 import csv
 import json
 import os
+import signal
 import subprocess
 import sys
+import time
 
 
 def one_seed(args, seed: int) -> None:
@@ -33,14 +35,29 @@ def one_seed(args, seed: int) -> None:
            + sum((["--set", s] for s in args.set), []))
 
 
+def evaluations(args, seed: int) -> list[tuple[int, float, float]]:
+  """(env steps, wall s, eval return) of each evaluation in a seed's log so far."""
+  path = os.path.join(args.out, f"seed_{seed}", "log.csv")
+  if not os.path.exists(path):
+    return []
+  with open(path) as f:
+    return [(int(r["env_steps"]), float(r["wall_s"]), float(r["eval_return"]))
+            for r in csv.DictReader(f) if r["kind"] == "eval"]
+
+
+def reached(args, seed: int) -> bool:
+  try:
+    return any(p[2] >= args.target for p in evaluations(args, seed))
+  except (ValueError, KeyError):  # a row being written as we read
+    return False
+
+
 def summarise(args, seeds: list[int]) -> dict:
   summary = {"env": args.env, "agent": args.agent, "preset": args.preset, "target": args.target,
              "seeds": {}}
   curves = {}
   for seed in seeds:
-    with open(os.path.join(args.out, f"seed_{seed}", "log.csv")) as f:
-      evals = [r for r in csv.DictReader(f) if r["kind"] == "eval"]
-    points = [(int(r["env_steps"]), float(r["wall_s"]), float(r["eval_return"])) for r in evals]
+    points = evaluations(args, seed)
     curves[seed] = points
     hit = next((p for p in points if p[2] >= args.target), None)
     summary["seeds"][seed] = {
@@ -91,6 +108,9 @@ def main() -> None:
   p.add_argument("--sequential", action="store_true",
                  help="run the seeds one after another, each with the machine to itself")
   p.add_argument("--target", type=float, default=2000.0)
+  p.add_argument("--stop-at-target", action="store_true",
+                 help="end a seed (SIGTERM: it saves and exits) once an evaluation reaches "
+                      "--target, instead of running out its budget")
   p.add_argument("--label", default="")
   p.add_argument("--out", default="runs/learning")
   p.add_argument("--summarise-only", action="store_true",
@@ -106,10 +126,18 @@ def main() -> None:
   argv = [a for a in sys.argv[1:]]
   def start(seed):
     return subprocess.Popen([sys.executable, __file__, *argv, "--one-seed", str(seed)])
+  def finish(seed, proc):
+    while proc.poll() is None:
+      if args.stop_at_target and reached(args, seed):
+        proc.send_signal(signal.SIGTERM)
+        return proc.wait()
+      time.sleep(2)
+    return proc.returncode
   if args.sequential:
-    codes = [start(seed).wait() for seed in seeds]
+    codes = [finish(seed, start(seed)) for seed in seeds]
   else:
-    codes = [proc.wait() for proc in [start(seed) for seed in seeds]]
+    procs = [(seed, start(seed)) for seed in seeds]
+    codes = [finish(seed, proc) for seed, proc in procs]
   if any(codes):
     raise SystemExit(f"a seed failed: exit codes {codes}")
   report(summarise(args, seeds))
