@@ -8,6 +8,7 @@
 #   bash benchmarks/gpu_session.sh mpo-tune           # MPO/DMPO std constraints, CPU settings
 #   bash benchmarks/gpu_session.sh mpo dmpo mpo-cpu-seed2  # their gpu presets, once retuned
 #   bash benchmarks/gpu_session.sh mpo-acme-std       # acme's std constraint, as a baseline
+#   bash benchmarks/gpu_session.sh humanoid-stability # cheaper Humanoid solver settings
 # Every run of a call shares the one GPU (XLA_PYTHON_CLIENT_MEM_FRACTION=0.1 each).
 # The runs write to $WORK; $OUT (default runs/gpu) gets the printed tables and results.tgz (every
 # run's summary, curves and log, without checkpoints).
@@ -90,7 +91,15 @@ for phase in "$@"; do
       done
       learn tune_mpo_std3e-6 --agent mpo "${T[@]}" --seeds 0,1 --set epsilon_stddev=3e-6
       ;;
-    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std" >&2
+    humanoid-stability)
+      # Cheaper Humanoid solves through the stability check, each variant in its own process.
+      for v in "4/8" "3/6" "3/4" "4/4" "2/8" "legs 3/6" "legs 2/6" "dt3 4/8"; do
+        name=humanoid_$(echo "$v" | tr ' /' '__')
+        timeout 500 python3 benchmarks/humanoid_options.py --stability 10000 --num-envs 256 \
+          --variants "$v" > "$WORK/$name.txt" 2>&1 &
+      done
+      ;;
+    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability" >&2
        exit 2 ;;
   esac
 done

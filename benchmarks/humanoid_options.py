@@ -1,15 +1,23 @@
 """What Humanoid's MJX step costs on this machine, under model options that might make it cheaper:
-floor contacts for fewer geoms, and fewer solver iterations. Each variant changes the MuJoCo
-model before `mjx.put_model` and is timed like `env_throughput.py` (N auto-resetting envs with
-random actions, over every XLA device), with the count of non-finite states seen.
+floor contacts for fewer geoms, fewer solver iterations, fewer and longer physics substeps per
+0.0165 s control step. Each variant changes the MuJoCo model before `mjx.put_model` and is timed
+like `env_throughput.py` (N auto-resetting envs with random actions, over every XLA device),
+with the count of non-finite states seen; with --stability it is instead run through
+`stability.py`'s check (N envs x T random-action steps, non-finite states and largest |qvel|).
+
+A variant is words separated by spaces: "legs" (only the legs touch the floor), "I/L" (I solver
+iterations, L line-search steps), "dtK" (K substeps of 0.0165 / K s instead of 4).
 
     XLA_FLAGS=--xla_force_host_platform_device_count=2 python benchmarks/humanoid_options.py
+    python benchmarks/humanoid_options.py --stability 10000 --num-envs 256 --variants "dt2 4/8"
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
+import sys
 import time
 
 import jax
@@ -17,7 +25,7 @@ import jax.numpy as jnp
 import mujoco
 from mujoco import mjx
 
-from mjx_hopper import envs, rollout
+from mjx_hopper import envs, parallel, rollout
 
 LEGS = ("right_thigh1", "right_shin1", "right_foot", "left_thigh1", "left_shin1", "left_foot")
 
@@ -30,10 +38,14 @@ def variant(name: str):
     for g in range(model.ngeom):
       if model.geom(g).name not in LEGS and model.geom(g).name != "floor":
         model.geom_contype[g] = model.geom_conaffinity[g] = 0
-  if "2/6" in name:
-    model.opt.iterations, model.opt.ls_iterations = 2, 6
-  if "1/4" in name:
-    model.opt.iterations, model.opt.ls_iterations = 1, 4
+  for word in name.split():
+    if "/" in word:
+      model.opt.iterations, model.opt.ls_iterations = map(int, word.split("/"))
+    elif word.startswith("dt"):
+      env.n_substeps = int(word[2:])
+      model.opt.timestep = env.control_dt / env.n_substeps
+    elif word != "legs":
+      raise SystemExit(f"unknown variant word {word!r} in {name!r}: use legs, I/L or dtK")
   env.mjx_model = mjx.put_model(model)
   env._data0 = mjx.make_data(env.mjx_model)
   return env
@@ -55,13 +67,36 @@ def measure(env, num_envs: int, steps: int) -> tuple[float, int]:
   return num_envs * steps / statistics.median(times), bad
 
 
+def stability(args) -> None:
+  sys.path.insert(0, os.path.dirname(__file__))
+  import stability as check
+  print(f"| Humanoid variant | envs x steps | non-finite states | largest abs(qvel) | s |")
+  print("|---|---|---|---|---|")
+  for name in args.variants.split(","):
+    env = variant(name)
+    key = jax.random.PRNGKey(0)
+    state = parallel.shard(jax.vmap(env.reset)(jax.random.split(key, args.num_envs)))
+    chunk = min(500, args.stability)
+    run = check.make_run(env, args.num_envs, chunk)
+    bad, top, t0 = 0, 0.0, time.perf_counter()
+    for i in range(args.stability // chunk):
+      state, b, t, _ = run(state, jax.random.fold_in(key, i))
+      bad, top = bad + int(b), max(top, float(t))
+    print(f"| {name} | {args.num_envs} x {args.stability // chunk * chunk} | {bad} | {top:,.1f} | "
+          f"{time.perf_counter() - t0:.0f} |", flush=True)
+
+
 def main() -> None:
   parser = argparse.ArgumentParser(description=__doc__,
                                    formatter_class=argparse.RawDescriptionHelpFormatter)
   parser.add_argument("--num-envs", type=int, default=64)
   parser.add_argument("--steps", type=int, default=200)
   parser.add_argument("--variants", default="4/8,legs 4/8,2/6,legs 2/6")
+  parser.add_argument("--stability", type=int, default=0, metavar="T",
+                      help="run each variant T random-action steps through stability.py's check")
   args = parser.parse_args()
+  if args.stability:
+    return stability(args)
   print(f"| Humanoid variant | contacts | env steps/s ({len(jax.devices())} devices, "
         f"{args.num_envs} envs) | non-finite states at the timed calls' ends |")
   print("|---|---|---|---|")

@@ -24,11 +24,8 @@ def _setup_jax(cpu_devices: int) -> None:
   os.environ["XLA_FLAGS"] = " ".join(
       [f for f in os.environ.get("XLA_FLAGS", "").split()
        if not f.startswith("--xla_force_host_platform_device_count")] + [flag])
-  import jax
-  cache = os.environ.get("MJX_HOPPER_JAX_CACHE",
-                         os.path.join(os.path.expanduser("~"), ".cache", "mjx_hopper", "jax"))
-  jax.config.update("jax_compilation_cache_dir", cache)
-  jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
+  import mjx_hopper
+  mjx_hopper.use_compile_cache()
 
 
 def demo(args: argparse.Namespace) -> None:

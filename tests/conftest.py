@@ -5,12 +5,17 @@ import os
 os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "")
                            + " --xla_force_host_platform_device_count=2")
 
+# One compile cache for the tests and the processes they start (CLI runs, notebooks), so that
+# a program compiled by one is loaded by the others.
+os.environ.setdefault("MJX_HOPPER_JAX_CACHE",
+                      os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", ".cache", "jax"))
+
 import jax  # noqa: E402
 import pytest  # noqa: E402
 
-jax.config.update("jax_compilation_cache_dir",
-                  os.path.join(os.path.dirname(__file__), "..", ".cache", "jax"))
-jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
+import mjx_hopper  # noqa: E402
+
+mjx_hopper.use_compile_cache()
 
 
 ROBOTS = ("Hopper", "Walker2D", "HalfCheetah", "Ant", "Humanoid")

@@ -1,6 +1,7 @@
 """Checkpoints lose nothing: a kill -9 mid-save, a truncated or deleted file, a wrong config,
 a missing or empty directory; and a resumed run continues bit for bit, in fresh processes."""
 
+import csv
 import os
 import signal
 import subprocess
@@ -140,3 +141,9 @@ def test_resume_is_bit_exact_in_fresh_processes(tmp_path):
   # Two chunks of the log each: the split run appended to its log rather than restarting it.
   with open(tmp_path / "split" / "log.csv") as f:
     assert sum(line.startswith("train,") for line in f) == 4
+  with open(tmp_path / "straight" / "log.csv") as f:
+    rows = list(csv.DictReader(f))
+  assert [r["kind"] for r in rows].count("eval") == 4
+  last_train = [r for r in rows if r["kind"] == "train"][-1]
+  for name in ("critic_loss", "q_mean", "policy_grad_norm", "episode_return"):
+    assert np.isfinite(float(last_train[name])), name

@@ -154,8 +154,8 @@ def test_cli_defaults_are_the_train_config_defaults():
   assert got == train.TrainConfig()
 
 
+# D4PG's CLI run is test_checkpoint.py's bit-exact test (the same settings, in fresh processes).
 @pytest.mark.parametrize("agent, extra", [
-    ("d4pg", ["--set", "num_atoms=11"]),
     ("ddpg", []),
     ("mpo", ["--set", "num_samples=4"]),
     ("dmpo", ["--set", "num_samples=4", "--set", "num_atoms=11"]),
