@@ -70,7 +70,7 @@ def measure(env, num_envs: int, steps: int) -> tuple[float, int]:
 def stability(args) -> None:
   sys.path.insert(0, os.path.dirname(__file__))
   import stability as check
-  print(f"| Humanoid variant | envs x steps | non-finite states | largest abs(qvel) | s |")
+  print("| Humanoid variant | envs x steps | non-finite states | largest abs(qvel) | s |")
   print("|---|---|---|---|---|")
   for name in args.variants.split(","):
     env = variant(name)

@@ -126,18 +126,19 @@ def main() -> None:
   argv = [a for a in sys.argv[1:]]
   def start(seed):
     return subprocess.Popen([sys.executable, __file__, *argv, "--one-seed", str(seed)])
-  def finish(seed, proc):
-    while proc.poll() is None:
-      if args.stop_at_target and reached(args, seed):
-        proc.send_signal(signal.SIGTERM)
-        return proc.wait()
+  def finish(procs: dict) -> list[int]:
+    """Waits for every seed's process, stopping those that reached the target if asked."""
+    while any(proc.poll() is None for proc in procs.values()):
+      for seed, proc in procs.items():
+        if proc.poll() is None and args.stop_at_target and reached(args, seed):
+          proc.send_signal(signal.SIGTERM)
+          proc.wait()
       time.sleep(2)
-    return proc.returncode
+    return [proc.returncode for proc in procs.values()]
   if args.sequential:
-    codes = [finish(seed, start(seed)) for seed in seeds]
+    codes = [code for seed in seeds for code in finish({seed: start(seed)})]
   else:
-    procs = [(seed, start(seed)) for seed in seeds]
-    codes = [finish(seed, proc) for seed, proc in procs]
+    codes = finish({seed: start(seed) for seed in seeds})
   if any(codes):
     raise SystemExit(f"a seed failed: exit codes {codes}")
   report(summarise(args, seeds))
