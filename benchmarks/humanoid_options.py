@@ -25,7 +25,7 @@ import jax.numpy as jnp
 import mujoco
 from mujoco import mjx
 
-from mjx_hopper import envs, parallel, rollout
+from mjx_hopper import envs, rollout
 
 LEGS = ("right_thigh1", "right_shin1", "right_foot", "left_thigh1", "left_shin1", "left_foot")
 
@@ -34,17 +34,17 @@ def variant(name: str):
   """A Humanoid whose model is changed as `name` says."""
   env = envs.make("Humanoid")
   model = env.mj_model
-  if "legs" in name:  # only the legs can touch the floor
-    for g in range(model.ngeom):
-      if model.geom(g).name not in LEGS and model.geom(g).name != "floor":
-        model.geom_contype[g] = model.geom_conaffinity[g] = 0
   for word in name.split():
-    if "/" in word:
+    if word == "legs":  # only the legs can touch the floor
+      for g in range(model.ngeom):
+        if model.geom(g).name not in LEGS and model.geom(g).name != "floor":
+          model.geom_contype[g] = model.geom_conaffinity[g] = 0
+    elif "/" in word:
       model.opt.iterations, model.opt.ls_iterations = map(int, word.split("/"))
     elif word.startswith("dt"):
       env.n_substeps = int(word[2:])
       model.opt.timestep = env.control_dt / env.n_substeps
-    elif word != "legs":
+    else:
       raise SystemExit(f"unknown variant word {word!r} in {name!r}: use legs, I/L or dtK")
   env.mjx_model = mjx.put_model(model)
   env._data0 = mjx.make_data(env.mjx_model)
@@ -73,17 +73,9 @@ def stability(args) -> None:
   print("| Humanoid variant | envs x steps | non-finite states | largest abs(qvel) | s |")
   print("|---|---|---|---|---|")
   for name in args.variants.split(","):
-    env = variant(name)
-    key = jax.random.PRNGKey(0)
-    state = parallel.shard(jax.vmap(env.reset)(jax.random.split(key, args.num_envs)))
-    chunk = min(500, args.stability)
-    run = check.make_run(env, args.num_envs, chunk)
-    bad, top, t0 = 0, 0.0, time.perf_counter()
-    for i in range(args.stability // chunk):
-      state, b, t, _ = run(state, jax.random.fold_in(key, i))
-      bad, top = bad + int(b), max(top, float(t))
-    print(f"| {name} | {args.num_envs} x {args.stability // chunk * chunk} | {bad} | {top:,.1f} | "
-          f"{time.perf_counter() - t0:.0f} |", flush=True)
+    r = check.check(variant(name), args.num_envs, args.stability, min(500, args.stability))
+    print(f"| {name} | {args.num_envs} x {r['steps']} | {r['bad']} | {r['top']:,.1f} | "
+          f"{r['seconds']:.0f} |", flush=True)
 
 
 def main() -> None:

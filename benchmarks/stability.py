@@ -36,6 +36,22 @@ def make_run(env, num_envs: int, chunk: int):
   return jax.jit(run)
 
 
+def check(env, num_envs: int, steps: int, chunk: int) -> dict:
+  """Steps `num_envs` envs `steps` random-action steps (in whole chunks): the counts of
+  non-finite states and ended episodes, the largest |qvel|, the steps run and the seconds."""
+  key = jax.random.PRNGKey(0)
+  state = parallel.shard(jax.vmap(env.reset)(jax.random.split(key, num_envs)))
+  run = make_run(env, num_envs, chunk)
+  bad = episodes = 0
+  top = 0.0
+  t0 = time.perf_counter()
+  for i in range(steps // chunk):
+    state, b, t, d = run(state, jax.random.fold_in(key, i))
+    bad, top, episodes = bad + int(b), max(top, float(t)), episodes + int(d)
+  return {"bad": bad, "top": top, "episodes": episodes, "steps": steps // chunk * chunk,
+          "seconds": time.perf_counter() - t0}
+
+
 def main() -> None:
   parser = argparse.ArgumentParser(description=__doc__,
                                    formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -44,22 +60,11 @@ def main() -> None:
   parser.add_argument("--steps", type=int, default=10_000)
   parser.add_argument("--chunk", type=int, default=500)
   args = parser.parse_args()
-  env = envs.make(args.env)
-  key = jax.random.PRNGKey(0)
-  state = parallel.shard(jax.vmap(env.reset)(jax.random.split(key, args.num_envs)))
-  run = make_run(env, args.num_envs, args.chunk)
-  bad = episodes = 0
-  top = 0.0
-  t0 = time.perf_counter()
-  for i in range(args.steps // args.chunk):
-    state, b, t, d = run(state, jax.random.fold_in(key, i))
-    bad, top, episodes = bad + int(b), max(top, float(t)), episodes + int(d)
-  steps = args.steps // args.chunk * args.chunk
-  print(f"{args.env}: {args.num_envs} envs x {steps} random-action steps "
-        f"({args.num_envs * steps:,} env steps, {episodes:,} episodes ended) on "
-        f"{jax.devices()[0].platform} in {time.perf_counter() - t0:.0f} s: "
-        f"{bad} non-finite states, largest |qvel| {top:.1f}")
-
+  r = check(envs.make(args.env), args.num_envs, args.steps, args.chunk)
+  print(f"{args.env}: {args.num_envs} envs x {r['steps']} random-action steps "
+        f"({args.num_envs * r['steps']:,} env steps, {r['episodes']:,} episodes ended) on "
+        f"{jax.devices()[0].platform} in {r['seconds']:.0f} s: "
+        f"{r['bad']} non-finite states, largest |qvel| {r['top']:.1f}")
 
 if __name__ == "__main__":
   main()
