@@ -27,6 +27,9 @@ learn() {  # learn NAME ARGS...: one learning benchmark in the background, logge
 }
 GPU_TRAIN=(--num-envs 512 --unroll-length 4 --batch-size 1024 --replay-ratio 4 --min-replay 20000
            --chunk 25 --eval-every 200000)
+# The 2-core CPU's settings (TrainConfig's defaults), for runs that stand in for CPU runs.
+CPU_TRAIN=(--preset cpu --minutes 8 --chunk 25 --min-replay 20000 --target 2000 --eval-every 200000
+           --num-envs 512 --batch-size 256 --replay-ratio 4)
 
 for phase in "$@"; do
   case $phase in
@@ -65,8 +68,7 @@ for phase in "$@"; do
     mpo-tune)
       # MPO and DMPO with the CPU's settings and looser std constraints (2 seeds each): acme's
       # eps_std 1e-6 with its std dual starting at 1000 keeps the policy's std near 0.6.
-      T=(--preset cpu --seeds 0,1 --minutes 8 --chunk 25 --min-replay 20000 --target 2000
-         --eval-every 200000 --num-envs 512 --batch-size 256 --replay-ratio 4)
+      T=("${CPU_TRAIN[@]}" --seeds 0,1)
       for agent in mpo dmpo; do
         learn tune_${agent}_std1e-5 --agent $agent "${T[@]}" --set epsilon_stddev=1e-5 \
           --set init_log_alpha_stddev=10.0
@@ -76,15 +78,13 @@ for phase in "$@"; do
       ;;
     mpo-cpu-seed2)
       # The third seed of mpo-tune's eps_std 1e-5 (now the presets' value), same settings.
-      T=(--preset cpu --seeds 2 --minutes 8 --chunk 25 --min-replay 20000 --target 2000
-         --eval-every 200000 --num-envs 512 --batch-size 256 --replay-ratio 4)
+      T=("${CPU_TRAIN[@]}" --seeds 2)
       for agent in mpo dmpo; do learn tune_${agent}_std1e-5_seed2 --agent $agent "${T[@]}"; done
       ;;
     mpo-acme-std)
       # The baseline for mpo-tune: acme's std constraint with the same CPU settings, 3 seeds;
       # and eps_std 3e-6 between the two (2 seeds of MPO).
-      T=(--preset cpu --minutes 8 --chunk 25 --min-replay 20000 --target 2000
-         --eval-every 200000 --num-envs 512 --batch-size 256 --replay-ratio 4)
+      T=("${CPU_TRAIN[@]}")
       for agent in mpo dmpo; do
         learn tune_${agent}_std1e-6 --agent $agent "${T[@]}" --seeds 0,1,2 \
           --set epsilon_stddev=1e-6 --set init_log_alpha_stddev=1000.0
