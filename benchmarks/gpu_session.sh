@@ -9,6 +9,8 @@
 #   bash benchmarks/gpu_session.sh mpo dmpo mpo-cpu-seed2  # their gpu presets, once retuned
 #   bash benchmarks/gpu_session.sh mpo-acme-std       # acme's std constraint, as a baseline
 #   bash benchmarks/gpu_session.sh humanoid-stability # cheaper Humanoid solver settings
+#   bash benchmarks/gpu_session.sh humanoid-ls        # ... with fewer line-search steps
+#   bash benchmarks/gpu_session.sh mpo-pair0          # MPO and DMPO seed 0, two runs on the GPU
 # Every run of a call shares the one GPU (XLA_PYTHON_CLIENT_MEM_FRACTION=0.1 each).
 # The runs write to $WORK; $OUT (default runs/gpu) gets the printed tables and results.tgz (every
 # run's summary, curves and log, without checkpoints).
@@ -99,7 +101,28 @@ for phase in "$@"; do
           --variants "$v" > "$WORK/$name.txt" 2>&1 &
       done
       ;;
-    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability" >&2
+    mpo-pair[0-9])
+      # MPO and DMPO's gpu presets, one seed, only the two of them on the GPU: nearer to "one
+      # GPU" than the six- to eight-way shared runs above. Each stops at 2,500.
+      seed=${phase#mpo-pair}
+      for agent in mpo dmpo; do
+        learn pair_${agent}_$seed --agent $agent --preset gpu --seeds $seed --minutes 9.2 \
+          --target 2500 --stop-at-target "${GPU_TRAIN[@]}"
+      done
+      ;;
+    humanoid-ls)
+      # Fewer line-search steps: under vmap MJX's line search runs all of its steps. Stability
+      # of four variants on the GPU, and their throughput on two of the host's cores.
+      for v in "4/4" "4/2" "3/3" "legs 3/3"; do
+        name=humanoid_$(echo "$v" | tr ' /' '__')
+        timeout 540 taskset -c 0-11 python3 benchmarks/humanoid_options.py --stability 10000 \
+          --num-envs 256 --variants "$v" > "$WORK/$name.txt" 2>&1 &
+      done
+      JAX_PLATFORMS=cpu XLA_FLAGS=--xla_force_host_platform_device_count=2 timeout 540 \
+        taskset -c 14,15 python3 benchmarks/humanoid_options.py \
+        --variants "4/8,4/4,4/2,3/3,2/4,2/2,1/4,legs 4/4,legs 3/3,2/8" > "$WORK/humanoid_cpu2.txt" 2>&1 &
+      ;;
+    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, mpo-pairN" >&2
        exit 2 ;;
   esac
 done

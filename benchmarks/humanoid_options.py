@@ -73,7 +73,8 @@ def stability(args) -> None:
   print("| Humanoid variant | envs x steps | non-finite states | largest abs(qvel) | s |")
   print("|---|---|---|---|---|")
   for name in args.variants.split(","):
-    r = check.check(variant(name), args.num_envs, args.stability, min(500, args.stability))
+    r = check.check(variant(name), args.num_envs, args.stability, min(500, args.stability),
+                    log=lambda line: print(f"  {name}: {line}", file=sys.stderr, flush=True))
     print(f"| {name} | {args.num_envs} x {r['steps']} | {r['bad']} | {r['top']:,.1f} | "
           f"{r['seconds']:.0f} |", flush=True)
 

@@ -36,9 +36,10 @@ def make_run(env, num_envs: int, chunk: int):
   return jax.jit(run)
 
 
-def check(env, num_envs: int, steps: int, chunk: int) -> dict:
+def check(env, num_envs: int, steps: int, chunk: int, log=None) -> dict:
   """Steps `num_envs` envs `steps` random-action steps (in whole chunks): the counts of
-  non-finite states and ended episodes, the largest |qvel|, the steps run and the seconds."""
+  non-finite states and ended episodes, the largest |qvel|, the steps run and the seconds.
+  `log`, if given, is called with the running counts after each chunk."""
   key = jax.random.PRNGKey(0)
   state = parallel.shard(jax.vmap(env.reset)(jax.random.split(key, num_envs)))
   run = make_run(env, num_envs, chunk)
@@ -48,6 +49,8 @@ def check(env, num_envs: int, steps: int, chunk: int) -> dict:
   for i in range(steps // chunk):
     state, b, t, d = run(state, jax.random.fold_in(key, i))
     bad, top, episodes = bad + int(b), max(top, float(t)), episodes + int(d)
+    if log:
+      log(f"{(i + 1) * chunk} steps: {bad} non-finite, largest |qvel| {top:.1f}")
   return {"bad": bad, "top": top, "episodes": episodes, "steps": steps // chunk * chunk,
           "seconds": time.perf_counter() - t0}
 
