@@ -10,6 +10,8 @@
 #   bash benchmarks/gpu_session.sh mpo-acme-std       # acme's std constraint, as a baseline
 #   bash benchmarks/gpu_session.sh humanoid-stability # cheaper Humanoid solver settings
 #   bash benchmarks/gpu_session.sh humanoid-ls        # ... with fewer line-search steps
+#   bash benchmarks/gpu_session.sh humanoid-shipped   # the shipped Humanoid's stability, 3 more seeds
+#   bash benchmarks/gpu_session.sh humanoid-before    # ... and the model it replaced, 4 seeds
 #   bash benchmarks/gpu_session.sh mpo-pair0          # MPO and DMPO seed 0, two runs on the GPU
 # Every run of a call shares the one GPU (XLA_PYTHON_CLIENT_MEM_FRACTION=0.1 each).
 # The runs write to $WORK; $OUT (default runs/gpu) gets the printed tables and results.tgz (every
@@ -101,6 +103,23 @@ for phase in "$@"; do
           --variants "$v" > "$WORK/$name.txt" 2>&1 &
       done
       ;;
+    humanoid-shipped)
+      # The shipped Humanoid (4/4, floor contacts for the legs) on four seeds of the stability
+      # check, four processes at once (seed 1 is in BENCHMARKS.md's table already).
+      for run in "shipped 0" "shipped 2" "shipped 3" "shipped 4"; do
+        read -r v seed <<< "$run"
+        timeout 540 python3 benchmarks/humanoid_options.py --stability 10000 --num-envs 256 \
+          --variants "$v" --seed $seed > "$WORK/humanoid_${v/\//_}_seed$seed.txt" 2>&1 &
+      done
+      ;;
+    humanoid-before)
+      # The Humanoid as shipped before (4/8, every part touching the floor), on the seeds the
+      # shipped model's check used, as the baseline for its non-finite states.
+      for seed in 1 2 3 4; do
+        timeout 560 python3 benchmarks/humanoid_options.py --stability 10000 --num-envs 256 \
+          --variants "all 4/8" --seed $seed > "$WORK/humanoid_all_4_8_seed$seed.txt" 2>&1 &
+      done
+      ;;
     mpo-pair[0-9])
       # MPO and DMPO's gpu presets, one seed, only the two of them on the GPU: nearer to "one
       # GPU" than the six- to eight-way shared runs above. Each stops at 2,500.
@@ -122,7 +141,7 @@ for phase in "$@"; do
         taskset -c 14,15 python3 benchmarks/humanoid_options.py \
         --variants "4/8,4/4,4/2,3/3,2/4,2/2,1/4,legs 4/4,legs 3/3,2/8" > "$WORK/humanoid_cpu2.txt" 2>&1 &
       ;;
-    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, mpo-pairN" >&2
+    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, mpo-pairN" >&2
        exit 2 ;;
   esac
 done

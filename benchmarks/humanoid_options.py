@@ -5,11 +5,12 @@ like `env_throughput.py` (N auto-resetting envs with random actions, over every 
 with the count of non-finite states seen; with --stability it is instead run through
 `stability.py`'s check (N envs x T random-action steps, non-finite states and largest |qvel|).
 
-A variant is words separated by spaces: "legs" (only the legs touch the floor), "I/L" (I solver
-iterations, L line-search steps), "dtK" (K substeps of 0.0165 / K s instead of 4).
+A variant is words separated by spaces, each a change from the shipped model: "all" (every part
+touches the floor), "legs" (only the legs do), "I/L" (I solver iterations, L line-search steps),
+"dtK" (K substeps of 0.0165 / K s instead of 4); "shipped" changes nothing.
 
     XLA_FLAGS=--xla_force_host_platform_device_count=2 python benchmarks/humanoid_options.py
-    python benchmarks/humanoid_options.py --stability 10000 --num-envs 256 --variants "dt2 4/8"
+    python benchmarks/humanoid_options.py --stability 10000 --num-envs 256 --variants "shipped"
 """
 
 from __future__ import annotations
@@ -27,25 +28,28 @@ from mujoco import mjx
 
 from mjx_hopper import envs, rollout
 
-LEGS = ("right_thigh1", "right_shin1", "right_foot", "left_thigh1", "left_shin1", "left_foot")
+LEGS = ("right_thigh", "right_shin", "right_foot", "left_thigh", "left_shin", "left_foot")
 
 
 def variant(name: str):
-  """A Humanoid whose model is changed as `name` says."""
-  env = envs.make("Humanoid")
+  """A Humanoid changed from the shipped one as `name` says."""
+  words = name.split()
+  floor = {"all": None, "legs": LEGS}
+  cls = envs.Humanoid
+  for word in words:
+    if word in floor:
+      cls = type(f"Humanoid_{word}", (envs.Humanoid,), {"floor_bodies": floor[word]})
+  env = cls()
   model = env.mj_model
-  for word in name.split():
-    if word == "legs":  # only the legs can touch the floor
-      for g in range(model.ngeom):
-        if model.geom(g).name not in LEGS and model.geom(g).name != "floor":
-          model.geom_contype[g] = model.geom_conaffinity[g] = 0
-    elif "/" in word:
+  for word in words:
+    if "/" in word:
       model.opt.iterations, model.opt.ls_iterations = map(int, word.split("/"))
     elif word.startswith("dt"):
       env.n_substeps = int(word[2:])
       model.opt.timestep = env.control_dt / env.n_substeps
-    else:
-      raise SystemExit(f"unknown variant word {word!r} in {name!r}: use legs, I/L or dtK")
+    elif word not in floor and word != "shipped":
+      raise SystemExit(f"unknown variant word {word!r} in {name!r}: use shipped, all, legs, "
+                       "I/L or dtK")
   env.mjx_model = mjx.put_model(model)
   env._data0 = mjx.make_data(env.mjx_model)
   return env
@@ -70,13 +74,14 @@ def measure(env, num_envs: int, steps: int) -> tuple[float, int]:
 def stability(args) -> None:
   sys.path.insert(0, os.path.dirname(__file__))
   import stability as check
-  print("| Humanoid variant | envs x steps | non-finite states | largest abs(qvel) | s |")
-  print("|---|---|---|---|---|")
+  print("| Humanoid variant | seed | envs x steps | non-finite states | largest abs(qvel) | s |")
+  print("|---|---|---|---|---|---|")
   for name in args.variants.split(","):
     r = check.check(variant(name), args.num_envs, args.stability, min(500, args.stability),
+                    seed=args.seed,
                     log=lambda line: print(f"  {name}: {line}", file=sys.stderr, flush=True))
-    print(f"| {name} | {args.num_envs} x {r['steps']} | {r['bad']} | {r['top']:,.1f} | "
-          f"{r['seconds']:.0f} |", flush=True)
+    print(f"| {name} | {args.seed} | {args.num_envs} x {r['steps']} | {r['bad']} | "
+          f"{r['top']:,.1f} | {r['seconds']:.0f} |", flush=True)
 
 
 def main() -> None:
@@ -84,9 +89,10 @@ def main() -> None:
                                    formatter_class=argparse.RawDescriptionHelpFormatter)
   parser.add_argument("--num-envs", type=int, default=64)
   parser.add_argument("--steps", type=int, default=200)
-  parser.add_argument("--variants", default="4/8,legs 4/8,2/6,legs 2/6")
+  parser.add_argument("--variants", default="shipped,all 4/8,legs,all")
   parser.add_argument("--stability", type=int, default=0, metavar="T",
                       help="run each variant T random-action steps through stability.py's check")
+  parser.add_argument("--seed", type=int, default=0, help="the stability check's resets and actions")
   args = parser.parse_args()
   if args.stability:
     return stability(args)
@@ -96,7 +102,7 @@ def main() -> None:
   for name in args.variants.split(","):
     env = variant(name)
     rate, bad = measure(env, args.num_envs, args.steps)
-    contacts = mjx.make_data(env.mjx_model).contact.dist.shape[0]
+    contacts = mjx.make_data(env.mjx_model)._impl.contact.dist.shape[0]
     print(f"| {name} | {contacts} | {rate:,.0f} | {bad} |", flush=True)
 
 

@@ -36,11 +36,12 @@ def make_run(env, num_envs: int, chunk: int):
   return jax.jit(run)
 
 
-def check(env, num_envs: int, steps: int, chunk: int, log=None) -> dict:
+def check(env, num_envs: int, steps: int, chunk: int, log=None, seed: int = 0) -> dict:
   """Steps `num_envs` envs `steps` random-action steps (in whole chunks): the counts of
   non-finite states and ended episodes, the largest |qvel|, the steps run and the seconds.
-  `log`, if given, is called with the running counts after each chunk."""
-  key = jax.random.PRNGKey(0)
+  `log`, if given, is called with the running counts after each chunk. `seed` picks the resets
+  and actions."""
+  key = jax.random.PRNGKey(seed)
   state = parallel.shard(jax.vmap(env.reset)(jax.random.split(key, num_envs)))
   run = make_run(env, num_envs, chunk)
   bad = episodes = 0
@@ -62,8 +63,9 @@ def main() -> None:
   parser.add_argument("--num-envs", type=int, default=256)
   parser.add_argument("--steps", type=int, default=10_000)
   parser.add_argument("--chunk", type=int, default=500)
+  parser.add_argument("--seed", type=int, default=0)
   args = parser.parse_args()
-  r = check(envs.make(args.env), args.num_envs, args.steps, args.chunk)
+  r = check(envs.make(args.env), args.num_envs, args.steps, args.chunk, seed=args.seed)
   print(f"{args.env}: {args.num_envs} envs x {r['steps']} random-action steps "
         f"({args.num_envs * r['steps']:,} env steps, {r['episodes']:,} episodes ended) on "
         f"{jax.devices()[0].platform} in {r['seconds']:.0f} s: "

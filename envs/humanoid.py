@@ -23,6 +23,12 @@ class Humanoid(LocomotionEnv):
   power = 0.41
   power_coefs = ((100.0,) * 3 + (100.0, 100.0, 300.0, 200.0) * 2 + (75.0,) * 6)
   feet = ("right_foot", "left_foot")
+  # Only the legs touch the floor. While alive (torso centre of mass above 0.78 m) the torso,
+  # head, waist, pelvis and upper arms cannot reach it; the forearms can, in rare poses, and
+  # pass through it (docs/fidelity.md). A task that lets the robot lie, crawl or lean on its
+  # hands sets floor_bodies = None.
+  floor_bodies = ("right_thigh", "right_shin", "right_foot", "left_thigh", "left_shin",
+                  "left_foot")
   initial_z = 0.8
   electricity_cost = 4.25 * -2.0
   stall_torque_cost = 4.25 * -0.1

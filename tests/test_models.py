@@ -1,10 +1,13 @@
 """Each robot's model against PyBullet's: masses, inertias, torques, limits, timing, specs."""
 
+import itertools
+
 import mujoco
 import numpy as np
 import pytest
 
 from conftest import ROBOTS, make_bullet, make_env
+from mjx_hopper import envs
 from mjx_hopper.envs import pybullet_oracle
 
 TOTAL_MASS = {"Hopper": 15.82, "Walker2D": 23.6772, "HalfCheetah": 38.1878, "Ant": 182.176,
@@ -118,3 +121,58 @@ def test_hopper_action_spec_reads_well(hopper):
   assert repr(hopper.action_spec()) == (
       "BoundedArray(shape=(3,), dtype=float32, name='action', "
       "minimum=[-1. -1. -1.], maximum=[1. 1. 1.])")
+
+
+def _farthest_reach(model, data, geom, torso):
+  """How far the geom's surface reaches from the torso's centre of mass in this pose (m)."""
+  centre, size = data.geom_xpos[geom], model.geom_size[geom]
+  ends = [centre]
+  if model.geom_type[geom] == mujoco.mjtGeom.mjGEOM_CAPSULE:
+    axis = data.geom_xmat[geom].reshape(3, 3)[:, 2] * size[1]
+    ends = [centre + axis, centre - axis]
+  return max(np.linalg.norm(e - data.xipos[torso]) for e in ends) + size[0]
+
+
+def test_humanoid_floor_contacts_are_where_the_floor_is_in_reach():
+  """Alive means the torso's centre of mass is above 0.78 m, and only the legs touch the floor.
+  The torso, head, waist, pelvis and upper arms stay less than 0.78 m from that centre in every
+  pose of the joints between them (a grid over their ranges), so they cannot touch the floor
+  while alive. The forearms reach 0.90 m: in rare poses they pass up to 0.12 m through the floor
+  (docs/fidelity.md)."""
+  env = make_env("Humanoid")
+  model, data = env.mj_model, mujoco.MjData(env.mj_model)
+  torso = model.body("torso").id
+  dropped = {model.geom(g).name for g in range(1, model.ngeom) if model.geom_contype[g] == 0}
+  forearms = {"right_larm", "right_hand", "left_larm", "left_hand"}
+  assert dropped == {"torso1", "head", "uwaist", "lwaist", "butt", "right_uarm1",
+                     "left_uarm1"} | forearms
+  reach = {}
+  for name in dropped:
+    g = model.geom(name).id
+    body, chain = model.geom_bodyid[g], []
+    while body != torso:
+      chain += [j for j in range(model.njnt) if model.jnt_bodyid[j] == body]
+      body = model.body_parentid[body]
+    reach[name] = 0.0
+    for values in itertools.product(*[np.linspace(*model.jnt_range[j], 9) for j in chain]):
+      data.qpos[:] = model.qpos0
+      data.qpos[model.jnt_qposadr[chain]] = values
+      mujoco.mj_kinematics(model, data)
+      reach[name] = max(reach[name], _farthest_reach(model, data, g, torso))
+  for name in dropped - forearms:
+    assert reach[name] < 0.78, (name, reach[name])
+  for name in forearms:
+    assert 0.8 < reach[name] < 0.91, (name, reach[name])
+
+
+def test_floor_bodies_choose_which_parts_touch_the_floor():
+  class Crawler(envs.Humanoid):
+    floor_bodies = None
+  model = Crawler().mj_model
+  assert (model.geom_contype[1:] != 0).all() and (model.geom_conaffinity[1:] != 0).all()
+
+  class Typo(envs.Humanoid):
+    floor_bodies = ("right_foot", "nose")
+  with pytest.raises(ValueError, match=r"Typo.floor_bodies names \['nose'\], which humanoid.xml "
+                                       r"lacks; its bodies are \['torso', "):
+    Typo()
