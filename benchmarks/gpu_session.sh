@@ -10,7 +10,7 @@
 #   bash benchmarks/gpu_session.sh mpo-acme-std       # acme's std constraint, as a baseline
 #   bash benchmarks/gpu_session.sh humanoid-stability # cheaper Humanoid solver settings
 #   bash benchmarks/gpu_session.sh humanoid-ls        # ... with fewer line-search steps
-#   bash benchmarks/gpu_session.sh humanoid-shipped   # the shipped Humanoid's stability, 3 more seeds
+#   bash benchmarks/gpu_session.sh humanoid-shipped   # the shipped Humanoid's stability, 4 seeds
 #   bash benchmarks/gpu_session.sh humanoid-before    # ... and the model it replaced, 4 seeds
 #   bash benchmarks/gpu_session.sh mpo-pair0          # MPO and DMPO seed 0, two runs on the GPU
 # Every run of a call shares the one GPU (XLA_PYTHON_CLIENT_MEM_FRACTION=0.1 each).
@@ -97,7 +97,8 @@ for phase in "$@"; do
       ;;
     humanoid-stability)
       # Cheaper Humanoid solves through the stability check, each variant in its own process.
-      for v in "4/8" "3/6" "3/4" "4/4" "2/8" "legs 3/6" "legs 2/6" "dt3 4/8"; do
+      for v in "all 4/8" "all 3/6" "all 3/4" "all 4/4" "all 2/8" "legs 3/6" "legs 2/6" \
+               "all dt3 4/8"; do
         name=humanoid_$(echo "$v" | tr ' /' '__')
         timeout 500 python3 benchmarks/humanoid_options.py --stability 10000 --num-envs 256 \
           --variants "$v" > "$WORK/$name.txt" 2>&1 &
@@ -130,16 +131,13 @@ for phase in "$@"; do
       done
       ;;
     humanoid-ls)
-      # Fewer line-search steps: under vmap MJX's line search runs all of its steps. Stability
-      # of four variants on the GPU, and their throughput on two of the host's cores.
-      for v in "4/4" "4/2" "3/3" "legs 3/3"; do
+      # Fewer line-search steps (under vmap MJX's line search runs all of its steps): four
+      # variants through the stability check.
+      for v in "all 4/4" "all 4/2" "all 3/3" "legs 3/3"; do
         name=humanoid_$(echo "$v" | tr ' /' '__')
-        timeout 540 taskset -c 0-11 python3 benchmarks/humanoid_options.py --stability 10000 \
-          --num-envs 256 --variants "$v" > "$WORK/$name.txt" 2>&1 &
+        timeout 540 python3 benchmarks/humanoid_options.py --stability 10000 --num-envs 256 \
+          --variants "$v" > "$WORK/$name.txt" 2>&1 &
       done
-      JAX_PLATFORMS=cpu XLA_FLAGS=--xla_force_host_platform_device_count=2 timeout 540 \
-        taskset -c 14,15 python3 benchmarks/humanoid_options.py \
-        --variants "4/8,4/4,4/2,3/3,2/4,2/2,1/4,legs 4/4,legs 3/3,2/8" > "$WORK/humanoid_cpu2.txt" 2>&1 &
       ;;
     *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, mpo-pairN" >&2
        exit 2 ;;

@@ -89,7 +89,7 @@ class LocomotionEnv(Env):
   reset_noise: ClassVar[float] = 0.1
   contact_distance: ClassVar[float] = 0.005  # Bullet reports a contact within ~5 mm (measured)
   # Bodies whose geoms touch the floor; None: every body's. Leaving out parts that cannot reach
-  # the floor while the robot is alive makes the step cheaper and changes nothing else.
+  # the floor while the robot is alive makes the step cheaper.
   floor_bodies: ClassVar[tuple[str, ...] | None] = None
 
   def __init__(self, episode_steps: int = 1000):
