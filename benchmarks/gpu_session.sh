@@ -31,6 +31,13 @@ learn() {  # learn NAME ARGS...: one learning benchmark in the background, logge
 }
 GPU_TRAIN=(--num-envs 512 --unroll-length 4 --batch-size 1024 --replay-ratio 4 --min-replay 20000
            --chunk 25 --eval-every 200000)
+stable() {  # stable VARIANT [SEED]: humanoid_options.py's stability check in the background,
+  # 256 envs x 10,000 random-action steps, logged to $WORK/humanoid_VARIANT_seedSEED.txt
+  local v=$1 seed=${2:-0}
+  local log="$WORK/humanoid_$(echo "$v" | tr ' /' '__')_seed$seed.txt"
+  timeout 560 python3 benchmarks/humanoid_options.py --stability 10000 --num-envs 256 \
+    --variants "$v" --seed "$seed" > "$log" 2>&1 &
+}
 # The 2-core CPU's settings (TrainConfig's defaults), for runs that stand in for CPU runs.
 CPU_TRAIN=(--preset cpu --minutes 8 --chunk 25 --min-replay 20000 --target 2000 --eval-every 200000
            --num-envs 512 --batch-size 256 --replay-ratio 4)
@@ -99,27 +106,18 @@ for phase in "$@"; do
       # Cheaper Humanoid solves through the stability check, each variant in its own process.
       for v in "all 4/8" "all 3/6" "all 3/4" "all 4/4" "all 2/8" "legs 3/6" "legs 2/6" \
                "all dt3 4/8"; do
-        name=humanoid_$(echo "$v" | tr ' /' '__')
-        timeout 500 python3 benchmarks/humanoid_options.py --stability 10000 --num-envs 256 \
-          --variants "$v" > "$WORK/$name.txt" 2>&1 &
+        stable "$v"
       done
       ;;
     humanoid-shipped)
       # The shipped Humanoid (4/4, floor contacts for the legs) on four seeds of the stability
       # check, four processes at once (seed 1 is in BENCHMARKS.md's table already).
-      for run in "shipped 0" "shipped 2" "shipped 3" "shipped 4"; do
-        read -r v seed <<< "$run"
-        timeout 540 python3 benchmarks/humanoid_options.py --stability 10000 --num-envs 256 \
-          --variants "$v" --seed $seed > "$WORK/humanoid_${v/\//_}_seed$seed.txt" 2>&1 &
-      done
+      for seed in 0 2 3 4; do stable shipped $seed; done
       ;;
     humanoid-before)
       # The Humanoid as shipped before (4/8, every part touching the floor), on the seeds the
       # shipped model's check used, as the baseline for its non-finite states.
-      for seed in 1 2 3 4; do
-        timeout 560 python3 benchmarks/humanoid_options.py --stability 10000 --num-envs 256 \
-          --variants "all 4/8" --seed $seed > "$WORK/humanoid_all_4_8_seed$seed.txt" 2>&1 &
-      done
+      for seed in 1 2 3 4; do stable "all 4/8" $seed; done
       ;;
     mpo-pair[0-9])
       # MPO and DMPO's gpu presets, one seed, only the two of them on the GPU: nearer to "one
@@ -133,11 +131,7 @@ for phase in "$@"; do
     humanoid-ls)
       # Fewer line-search steps (under vmap MJX's line search runs all of its steps): four
       # variants through the stability check.
-      for v in "all 4/4" "all 4/2" "all 3/3" "legs 3/3"; do
-        name=humanoid_$(echo "$v" | tr ' /' '__')
-        timeout 540 python3 benchmarks/humanoid_options.py --stability 10000 --num-envs 256 \
-          --variants "$v" > "$WORK/$name.txt" 2>&1 &
-      done
+      for v in "all 4/4" "all 4/2" "all 3/3" "legs 3/3"; do stable "$v"; done
       ;;
     *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, mpo-pairN" >&2
        exit 2 ;;

@@ -23,7 +23,6 @@ import time
 
 import jax
 import jax.numpy as jnp
-import mujoco
 from mujoco import mjx
 
 from mjx_hopper import envs, rollout

@@ -71,5 +71,6 @@ def main() -> None:
         f"{jax.devices()[0].platform} in {r['seconds']:.0f} s: "
         f"{r['bad']} non-finite states, largest |qvel| {r['top']:.1f}")
 
+
 if __name__ == "__main__":
   main()
