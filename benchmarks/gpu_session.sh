@@ -12,6 +12,7 @@
 #   bash benchmarks/gpu_session.sh humanoid-ls        # ... with fewer line-search steps
 #   bash benchmarks/gpu_session.sh humanoid-shipped   # the shipped Humanoid's stability, 4 seeds
 #   bash benchmarks/gpu_session.sh humanoid-before    # ... and the model it replaced, 4 seeds
+#   bash benchmarks/gpu_session.sh humanoid-capture   # its GPU rows; non-finite states saved
 #   bash benchmarks/gpu_session.sh mpo-pair0          # MPO and DMPO seed 0, two runs on the GPU
 # Every run of a call shares the one GPU (XLA_PYTHON_CLIENT_MEM_FRACTION=0.1 each).
 # The runs write to $WORK; $OUT (default runs/gpu) gets the printed tables and results.tgz (every
@@ -31,12 +32,15 @@ learn() {  # learn NAME ARGS...: one learning benchmark in the background, logge
 }
 GPU_TRAIN=(--num-envs 512 --unroll-length 4 --batch-size 1024 --replay-ratio 4 --min-replay 20000
            --chunk 25 --eval-every 200000)
-stable() {  # stable VARIANT [SEED]: humanoid_options.py's stability check in the background,
-  # 256 envs x 10,000 random-action steps, logged to $WORK/humanoid_VARIANT_seedSEED.txt
-  local v=$1 seed=${2:-0}
+stable() {  # stable VARIANT [SEED [ENVS]]: humanoid_options.py's stability check in the
+  # background, ENVS (256) envs x 10,000 random-action steps, logged to
+  # $WORK/humanoid_VARIANT_seedSEED.txt; the non-finite steps' starting states go to
+  # $WORK/nonfinite_VARIANT_seedSEED.npz (benchmarks/replay_nonfinite.py). It stops at 540 s.
+  local v=$1 seed=${2:-0} envs=${3:-256}
   local log="$WORK/humanoid_$(echo "$v" | tr ' /' '__')_seed$seed.txt"
-  timeout 560 python3 benchmarks/humanoid_options.py --stability 10000 --num-envs 256 \
-    --variants "$v" --seed "$seed" > "$log" 2>&1 &
+  timeout 580 python3 benchmarks/humanoid_options.py --stability 10000 --num-envs "$envs" \
+    --variants "$v" --seed "$seed" --max-seconds "${STABLE_SECONDS:-540}" \
+    --dump "$WORK/nonfinite" > "$log" 2>&1 &
 }
 # The 2-core CPU's settings (TrainConfig's defaults), for runs that stand in for CPU runs.
 CPU_TRAIN=(--preset cpu --minutes 8 --chunk 25 --min-replay 20000 --target 2000 --eval-every 200000
@@ -128,12 +132,22 @@ for phase in "$@"; do
           --target 2500 --stop-at-target "${GPU_TRAIN[@]}"
       done
       ;;
+    humanoid-capture)
+      # The shipped Humanoid: its GPU throughput alone on the GPU, then two seeds of 4,096 envs x
+      # 10,000 random-action steps (16 times the stability check's 256 envs each), saving the
+      # state before each non-finite step for replay_nonfinite.py.
+      XLA_PYTHON_CLIENT_MEM_FRACTION=0.6 timeout 150 python3 benchmarks/env_throughput.py \
+        --envs Humanoid --batches 4096,32768 --devices 1 --steps-total 2000000 \
+        --json "$WORK/humanoid_gpu.json" > "$WORK/humanoid_gpu.txt" 2>&1
+      STABLE_SECONDS=360
+      for seed in 10 11; do stable shipped $seed 4096; done
+      ;;
     humanoid-ls)
       # Fewer line-search steps (under vmap MJX's line search runs all of its steps): four
       # variants through the stability check.
       for v in "all 4/4" "all 4/2" "all 3/3" "legs 3/3"; do stable "$v"; done
       ;;
-    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, mpo-pairN" >&2
+    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, humanoid-capture, mpo-pairN" >&2
        exit 2 ;;
   esac
 done

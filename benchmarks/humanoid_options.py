@@ -77,10 +77,15 @@ def stability(args) -> None:
   print("|---|---|---|---|---|---|")
   for name in args.variants.split(","):
     r = check.check(variant(name), args.num_envs, args.stability, min(500, args.stability),
-                    seed=args.seed,
+                    seed=args.seed, max_seconds=args.max_seconds,
                     log=lambda line: print(f"  {name}: {line}", file=sys.stderr, flush=True))
     print(f"| {name} | {args.seed} | {args.num_envs} x {r['steps']} | {r['bad']} | "
           f"{r['top']:,.1f} | {r['seconds']:.0f} |", flush=True)
+    if args.dump and r["caught"]:
+      path = f"{args.dump}_{name.replace(' ', '_').replace('/', '-')}_seed{args.seed}.npz"
+      check.dump(path, r["caught"])
+      print(f"  {name}: {len(r['caught'])} non-finite steps' starting states saved to {path}",
+            file=sys.stderr, flush=True)
 
 
 def main() -> None:
@@ -92,6 +97,11 @@ def main() -> None:
   parser.add_argument("--stability", type=int, default=0, metavar="T",
                       help="run each variant T random-action steps through stability.py's check")
   parser.add_argument("--seed", type=int, default=0, help="the stability check's resets and actions")
+  parser.add_argument("--max-seconds", type=float,
+                      help="with --stability, stop each variant after the chunk that passes this")
+  parser.add_argument("--dump", metavar="PREFIX",
+                      help="with --stability, save each variant's non-finite steps' starting "
+                      "states to PREFIX_VARIANT_seedS.npz (benchmarks/replay_nonfinite.py)")
   args = parser.parse_args()
   if args.stability:
     return stability(args)
