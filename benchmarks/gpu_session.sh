@@ -13,6 +13,7 @@
 #   bash benchmarks/gpu_session.sh humanoid-shipped   # the shipped Humanoid's stability, 4 seeds
 #   bash benchmarks/gpu_session.sh humanoid-before    # ... and the model it replaced, 4 seeds
 #   bash benchmarks/gpu_session.sh humanoid-capture   # its GPU rows; non-finite states saved
+#   bash benchmarks/gpu_session.sh humanoid-limits    # joint-limit settings, screened
 #   bash benchmarks/gpu_session.sh mpo-pair0          # MPO and DMPO seed 0, two runs on the GPU
 # Every run of a call shares the one GPU (XLA_PYTHON_CLIENT_MEM_FRACTION=0.1 each).
 # The runs write to $WORK; $OUT (default runs/gpu) gets the printed tables and results.tgz (every
@@ -142,12 +143,21 @@ for phase in "$@"; do
       STABLE_SECONDS=360
       for seed in 10 11; do stable shipped $seed 4096; done
       ;;
+    humanoid-limits)
+      # The captured non-finite states were blow-ups after joints had crept far past their
+      # limits (a hip 0.5 rad past, a knee 1.07); limits with stiffness or harder impedance,
+      # 2,048 envs x 10,000 random-action steps each, four at once.
+      STABLE_SECONDS=420
+      for v in "limimp=0.99,0.99" "limref=-400,-400" "limref=-4000,-400" "limref=0.02,1"; do
+        stable "$v" 12 2048
+      done
+      ;;
     humanoid-ls)
       # Fewer line-search steps (under vmap MJX's line search runs all of its steps): four
       # variants through the stability check.
       for v in "all 4/4" "all 4/2" "all 3/3" "legs 3/3"; do stable "$v"; done
       ;;
-    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, humanoid-capture, mpo-pairN" >&2
+    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, humanoid-capture, humanoid-limits, mpo-pairN" >&2
        exit 2 ;;
   esac
 done

@@ -7,7 +7,8 @@ with the count of non-finite states seen; with --stability it is instead run thr
 
 A variant is words separated by spaces, each a change from the shipped model: "all" (every part
 touches the floor), "legs" (only the legs do), "I/L" (I solver iterations, L line-search steps),
-"dtK" (K substeps of 0.0165 / K s instead of 4); "shipped" changes nothing.
+"dtK" (K substeps of 0.0165 / K s instead of 4), "limref=A,B" (every joint limit's solref),
+"limimp=D0,D1" (the first two numbers of every joint limit's solimp); "shipped" changes nothing.
 
     XLA_FLAGS=--xla_force_host_platform_device_count=2 python benchmarks/humanoid_options.py
     python benchmarks/humanoid_options.py --stability 10000 --num-envs 256 --variants "shipped"
@@ -41,14 +42,18 @@ def variant(name: str):
   env = cls()
   model = env.mj_model
   for word in words:
-    if "/" in word:
+    if word.startswith(("limref=", "limimp=")):
+      values = [float(v) for v in word.split("=")[1].split(",")]
+      target = model.jnt_solref if word.startswith("limref") else model.jnt_solimp
+      target[:, :len(values)] = values
+    elif "/" in word:
       model.opt.iterations, model.opt.ls_iterations = map(int, word.split("/"))
     elif word.startswith("dt"):
       env.n_substeps = int(word[2:])
       model.opt.timestep = env.control_dt / env.n_substeps
     elif word not in floor and word != "shipped":
       raise SystemExit(f"unknown variant word {word!r} in {name!r}: use shipped, all, legs, "
-                       "I/L or dtK")
+                       "I/L, dtK, limref=A,B or limimp=D0,D1")
   env.mjx_model = mjx.put_model(model)
   env._data0 = mjx.make_data(env.mjx_model)
   return env
