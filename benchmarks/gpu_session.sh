@@ -14,6 +14,7 @@
 #   bash benchmarks/gpu_session.sh humanoid-before    # ... and the model it replaced, 4 seeds
 #   bash benchmarks/gpu_session.sh humanoid-capture   # its GPU rows; non-finite states saved
 #   bash benchmarks/gpu_session.sh humanoid-limits    # joint-limit settings, screened
+#   bash benchmarks/gpu_session.sh humanoid-armature  # hinge armature, screened
 #   bash benchmarks/gpu_session.sh mpo-pair0          # MPO and DMPO seed 0, two runs on the GPU
 # Every run of a call shares the one GPU (XLA_PYTHON_CLIENT_MEM_FRACTION=0.1 each).
 # The runs write to $WORK; $OUT (default runs/gpu) gets the printed tables and results.tgz (every
@@ -148,16 +149,24 @@ for phase in "$@"; do
       # limits (a hip 0.5 rad past, a knee 1.07); limits with stiffness or harder impedance,
       # 2,048 envs x 10,000 random-action steps each, four at once.
       STABLE_SECONDS=420
+      # (As run on 2026-11-23 the variants were split at their commas: what ran was limimp=0.99
+      # (d0 only), limref=-400 and limref=-4000 (stiffness; damping stays 400), and limref=0.02.)
       for v in "limimp=0.99,0.99" "limref=-400,-400" "limref=-4000,-400" "limref=0.02,1"; do
         stable "$v" 12 2048
       done
+      ;;
+    humanoid-armature)
+      # Armature on the hinges: the hips' three hinges meet at one point, and a hip_z past its
+      # limit nears the pose where hip_x and hip_y line up and the mass matrix is singular.
+      STABLE_SECONDS=420
+      for a in 0.005 0.01 0.02 0.05; do stable "arm=$a" 12 2048; done
       ;;
     humanoid-ls)
       # Fewer line-search steps (under vmap MJX's line search runs all of its steps): four
       # variants through the stability check.
       for v in "all 4/4" "all 4/2" "all 3/3" "legs 3/3"; do stable "$v"; done
       ;;
-    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, humanoid-capture, humanoid-limits, mpo-pairN" >&2
+    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, humanoid-capture, humanoid-limits, humanoid-armature, mpo-pairN" >&2
        exit 2 ;;
   esac
 done

@@ -8,7 +8,9 @@ with the count of non-finite states seen; with --stability it is instead run thr
 A variant is words separated by spaces, each a change from the shipped model: "all" (every part
 touches the floor), "legs" (only the legs do), "I/L" (I solver iterations, L line-search steps),
 "dtK" (K substeps of 0.0165 / K s instead of 4), "limref=A,B" (every joint limit's solref),
-"limimp=D0,D1" (the first two numbers of every joint limit's solimp); "shipped" changes nothing.
+"limimp=D0,D1" (the first two numbers of every joint limit's solimp), "arm=A" (armature A on
+every hinge); "shipped" changes nothing. --variants separates variants with ";" (or "," when
+no variant has a comma).
 
     XLA_FLAGS=--xla_force_host_platform_device_count=2 python benchmarks/humanoid_options.py
     python benchmarks/humanoid_options.py --stability 10000 --num-envs 256 --variants "shipped"
@@ -46,6 +48,8 @@ def variant(name: str):
       values = [float(v) for v in word.split("=")[1].split(",")]
       target = model.jnt_solref if word.startswith("limref") else model.jnt_solimp
       target[:, :len(values)] = values
+    elif word.startswith("arm="):
+      model.dof_armature[6:] = float(word[4:])  # the hinges; the free joint's 6 dofs keep none
     elif "/" in word:
       model.opt.iterations, model.opt.ls_iterations = map(int, word.split("/"))
     elif word.startswith("dt"):
@@ -53,10 +57,14 @@ def variant(name: str):
       model.opt.timestep = env.control_dt / env.n_substeps
     elif word not in floor and word != "shipped":
       raise SystemExit(f"unknown variant word {word!r} in {name!r}: use shipped, all, legs, "
-                       "I/L, dtK, limref=A,B or limimp=D0,D1")
+                       "I/L, dtK, arm=A, limref=A,B or limimp=D0,D1")
   env.mjx_model = mjx.put_model(model)
   env._data0 = mjx.make_data(env.mjx_model)
   return env
+
+
+def variant_names(text: str) -> list[str]:
+  return text.split(";" if ";" in text or "=" in text else ",")
 
 
 def measure(env, num_envs: int, steps: int) -> tuple[float, int]:
@@ -80,7 +88,7 @@ def stability(args) -> None:
   import stability as check
   print("| Humanoid variant | seed | envs x steps | non-finite states | largest abs(qvel) | s |")
   print("|---|---|---|---|---|---|")
-  for name in args.variants.split(","):
+  for name in variant_names(args.variants):
     r = check.check(variant(name), args.num_envs, args.stability, min(500, args.stability),
                     seed=args.seed, max_seconds=args.max_seconds,
                     log=lambda line: print(f"  {name}: {line}", file=sys.stderr, flush=True))
@@ -113,7 +121,7 @@ def main() -> None:
   print(f"| Humanoid variant | contacts | env steps/s ({len(jax.devices())} devices, "
         f"{args.num_envs} envs) | non-finite states at the timed calls' ends |")
   print("|---|---|---|---|")
-  for name in args.variants.split(","):
+  for name in variant_names(args.variants):
     env = variant(name)
     rate, bad = measure(env, args.num_envs, args.steps)
     contacts = mjx.make_data(env.mjx_model)._impl.contact.dist.shape[0]
