@@ -15,6 +15,7 @@
 #   bash benchmarks/gpu_session.sh humanoid-capture   # its GPU rows; non-finite states saved
 #   bash benchmarks/gpu_session.sh humanoid-limits    # joint-limit settings, screened
 #   bash benchmarks/gpu_session.sh humanoid-armature  # hinge armature, screened
+#   bash benchmarks/gpu_session.sh humanoid-confirm   # the Humanoid as shipped: GPU rows, stability
 #   bash benchmarks/gpu_session.sh mpo-pair0          # MPO and DMPO seed 0, two runs on the GPU
 # Every run of a call shares the one GPU (XLA_PYTHON_CLIENT_MEM_FRACTION=0.1 each).
 # The runs write to $WORK; $OUT (default runs/gpu) gets the printed tables and results.tgz (every
@@ -161,12 +162,23 @@ for phase in "$@"; do
       STABLE_SECONDS=420
       for a in 0.005 0.01 0.02 0.05; do stable "arm=$a" 12 2048; done
       ;;
+    humanoid-confirm)
+      # The Humanoid with armature 0.02 and solver tolerance 1e-4: its GPU throughput alone on
+      # the GPU, then 4,096 envs x 10,000 steps (seed 10, as humanoid-capture) beside the
+      # stability check itself (256 envs x 10,000 steps) on seeds 0, 1 and 2.
+      XLA_PYTHON_CLIENT_MEM_FRACTION=0.6 timeout 150 python3 benchmarks/env_throughput.py \
+        --envs Humanoid --batches 4096,32768 --devices 1 --steps-total 2000000 \
+        --json "$WORK/humanoid_gpu.json" > "$WORK/humanoid_gpu.txt" 2>&1
+      STABLE_SECONDS=420
+      stable shipped 10 4096
+      for seed in 0 1 2; do stable shipped $seed; done
+      ;;
     humanoid-ls)
       # Fewer line-search steps (under vmap MJX's line search runs all of its steps): four
       # variants through the stability check.
       for v in "all 4/4" "all 4/2" "all 3/3" "legs 3/3"; do stable "$v"; done
       ;;
-    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, humanoid-capture, humanoid-limits, humanoid-armature, mpo-pairN" >&2
+    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, humanoid-capture, humanoid-limits, humanoid-armature, humanoid-confirm, mpo-pairN" >&2
        exit 2 ;;
   esac
 done

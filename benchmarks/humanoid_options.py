@@ -9,7 +9,7 @@ A variant is words separated by spaces, each a change from the shipped model: "a
 touches the floor), "legs" (only the legs do), "I/L" (I solver iterations, L line-search steps),
 "dtK" (K substeps of 0.0165 / K s instead of 4), "limref=A,B" (every joint limit's solref),
 "limimp=D0,D1" (the first two numbers of every joint limit's solimp), "arm=A" (armature A on
-every hinge); "shipped" changes nothing. --variants separates variants with ";" (or "," when
+every hinge), "tol=T" (the solver's tolerance); "shipped" changes nothing. --variants separates variants with ";" (or "," when
 no variant has a comma).
 
     XLA_FLAGS=--xla_force_host_platform_device_count=2 python benchmarks/humanoid_options.py
@@ -48,6 +48,8 @@ def variant(name: str):
       values = [float(v) for v in word.split("=")[1].split(",")]
       target = model.jnt_solref if word.startswith("limref") else model.jnt_solimp
       target[:, :len(values)] = values
+    elif word.startswith("tol="):
+      model.opt.tolerance = float(word[4:])
     elif word.startswith("arm="):
       model.dof_armature[6:] = float(word[4:])  # the hinges; the free joint's 6 dofs keep none
     elif "/" in word:
@@ -57,7 +59,7 @@ def variant(name: str):
       model.opt.timestep = env.control_dt / env.n_substeps
     elif word not in floor and word != "shipped":
       raise SystemExit(f"unknown variant word {word!r} in {name!r}: use shipped, all, legs, "
-                       "I/L, dtK, arm=A, limref=A,B or limimp=D0,D1")
+                       "I/L, dtK, arm=A, tol=T, limref=A,B or limimp=D0,D1")
   env.mjx_model = mjx.put_model(model)
   env._data0 = mjx.make_data(env.mjx_model)
   return env
