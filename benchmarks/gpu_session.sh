@@ -38,13 +38,22 @@ GPU_TRAIN=(--num-envs 512 --unroll-length 4 --batch-size 1024 --replay-ratio 4 -
 stable() {  # stable VARIANT [SEED [ENVS]]: humanoid_options.py's stability check in the
   # background, ENVS (256) envs x 10,000 random-action steps, logged to
   # $WORK/humanoid_VARIANT_seedSEED.txt; the non-finite steps' starting states go to
-  # $WORK/nonfinite_VARIANT_seedSEED.npz (benchmarks/replay_nonfinite.py). It stops at 540 s.
+  # $WORK/nonfinite_VARIANT_seedSEED.npz (benchmarks/replay_nonfinite.py). It stops after the
+  # chunk that passes $STABLE_SECONDS (540).
   local v=$1 seed=${2:-0} envs=${3:-256}
   local log="$WORK/humanoid_$(echo "$v" | tr ' /' '__')_seed$seed.txt"
   timeout 580 python3 benchmarks/humanoid_options.py --stability 10000 --num-envs "$envs" \
     --variants "$v" --seed "$seed" --max-seconds "${STABLE_SECONDS:-540}" \
     --dump "$WORK/nonfinite" > "$log" 2>&1 &
 }
+humanoid_gpu_rows() {  # the Humanoid's GPU throughput, alone on the GPU, to $WORK/humanoid_gpu.*
+  XLA_PYTHON_CLIENT_MEM_FRACTION=0.6 timeout 150 python3 benchmarks/env_throughput.py \
+    --envs Humanoid --batches 4096,32768 --devices 1 --steps-total 2000000 \
+    --json "$WORK/humanoid_gpu.json" > "$WORK/humanoid_gpu.txt" 2>&1
+}
+# The phases run before the Humanoid got its hinge armature (0.02) and solver tolerance (1e-4)
+# undo both, so that they rerun what BENCHMARKS.md records for them.
+BEFORE_ARMATURE="arm=0 tol=1e-8"
 # The 2-core CPU's settings (TrainConfig's defaults), for runs that stand in for CPU runs.
 CPU_TRAIN=(--preset cpu --minutes 8 --chunk 25 --min-replay 20000 --target 2000 --eval-every 200000
            --num-envs 512 --batch-size 256 --replay-ratio 4)
@@ -113,18 +122,18 @@ for phase in "$@"; do
       # Cheaper Humanoid solves through the stability check, each variant in its own process.
       for v in "all 4/8" "all 3/6" "all 3/4" "all 4/4" "all 2/8" "legs 3/6" "legs 2/6" \
                "all dt3 4/8"; do
-        stable "$v"
+        stable "$v $BEFORE_ARMATURE"
       done
       ;;
     humanoid-shipped)
       # The shipped Humanoid (4/4, floor contacts for the legs) on four seeds of the stability
       # check, four processes at once (seed 1 is in BENCHMARKS.md's table already).
-      for seed in 0 2 3 4; do stable shipped $seed; done
+      for seed in 0 2 3 4; do stable "$BEFORE_ARMATURE" $seed; done
       ;;
     humanoid-before)
       # The Humanoid as shipped before (4/8, every part touching the floor), on the seeds the
       # shipped model's check used, as the baseline for its non-finite states.
-      for seed in 1 2 3 4; do stable "all 4/8" $seed; done
+      for seed in 1 2 3 4; do stable "all 4/8 $BEFORE_ARMATURE" $seed; done
       ;;
     mpo-pair[0-9])
       # MPO and DMPO's gpu presets, one seed, only the two of them on the GPU: nearer to "one
@@ -139,11 +148,9 @@ for phase in "$@"; do
       # The shipped Humanoid: its GPU throughput alone on the GPU, then two seeds of 4,096 envs x
       # 10,000 random-action steps (16 times the stability check's 256 envs each), saving the
       # state before each non-finite step for replay_nonfinite.py.
-      XLA_PYTHON_CLIENT_MEM_FRACTION=0.6 timeout 150 python3 benchmarks/env_throughput.py \
-        --envs Humanoid --batches 4096,32768 --devices 1 --steps-total 2000000 \
-        --json "$WORK/humanoid_gpu.json" > "$WORK/humanoid_gpu.txt" 2>&1
+      humanoid_gpu_rows
       STABLE_SECONDS=360
-      for seed in 10 11; do stable shipped $seed 4096; done
+      for seed in 10 11; do stable "$BEFORE_ARMATURE" $seed 4096; done
       ;;
     humanoid-limits)
       # The captured non-finite states were blow-ups after joints had crept far past their
@@ -153,22 +160,20 @@ for phase in "$@"; do
       # (As run on 2026-11-23 the variants were split at their commas: what ran was limimp=0.99
       # (d0 only), limref=-400 and limref=-4000 (stiffness; damping stays 400), and limref=0.02.)
       for v in "limimp=0.99,0.99" "limref=-400,-400" "limref=-4000,-400" "limref=0.02,1"; do
-        stable "$v" 12 2048
+        stable "$v $BEFORE_ARMATURE" 12 2048
       done
       ;;
     humanoid-armature)
       # Armature on the hinges: the hips' three hinges meet at one point, and a hip_z past its
       # limit nears the pose where hip_x and hip_y line up and the mass matrix is singular.
       STABLE_SECONDS=420
-      for a in 0.005 0.01 0.02 0.05; do stable "arm=$a" 12 2048; done
+      for a in 0.005 0.01 0.02 0.05; do stable "arm=$a tol=1e-8" 12 2048; done
       ;;
     humanoid-confirm)
       # The Humanoid with armature 0.02 and solver tolerance 1e-4: its GPU throughput alone on
       # the GPU, then 4,096 envs x 10,000 steps (seed 10, as humanoid-capture) beside the
       # stability check itself (256 envs x 10,000 steps) on seeds 0, 1 and 2.
-      XLA_PYTHON_CLIENT_MEM_FRACTION=0.6 timeout 150 python3 benchmarks/env_throughput.py \
-        --envs Humanoid --batches 4096,32768 --devices 1 --steps-total 2000000 \
-        --json "$WORK/humanoid_gpu.json" > "$WORK/humanoid_gpu.txt" 2>&1
+      humanoid_gpu_rows
       STABLE_SECONDS=420
       stable shipped 10 4096
       for seed in 0 1 2; do stable shipped $seed; done
@@ -176,7 +181,7 @@ for phase in "$@"; do
     humanoid-ls)
       # Fewer line-search steps (under vmap MJX's line search runs all of its steps): four
       # variants through the stability check.
-      for v in "all 4/4" "all 4/2" "all 3/3" "legs 3/3"; do stable "$v"; done
+      for v in "all 4/4" "all 4/2" "all 3/3" "legs 3/3"; do stable "$v $BEFORE_ARMATURE"; done
       ;;
     *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, humanoid-capture, humanoid-limits, humanoid-armature, humanoid-confirm, mpo-pairN" >&2
        exit 2 ;;

@@ -9,8 +9,8 @@ A variant is words separated by spaces, each a change from the shipped model: "a
 touches the floor), "legs" (only the legs do), "I/L" (I solver iterations, L line-search steps),
 "dtK" (K substeps of 0.0165 / K s instead of 4), "limref=A,B" (every joint limit's solref),
 "limimp=D0,D1" (the first two numbers of every joint limit's solimp), "arm=A" (armature A on
-every hinge), "tol=T" (the solver's tolerance); "shipped" changes nothing. --variants separates variants with ";" (or "," when
-no variant has a comma).
+every hinge), "tol=T" (the solver's tolerance); "shipped" changes nothing. --variants separates
+variants with ";", or with "," when it has neither ";" nor "=" (whose values hold commas).
 
     XLA_FLAGS=--xla_force_host_platform_device_count=2 python benchmarks/humanoid_options.py
     python benchmarks/humanoid_options.py --stability 10000 --num-envs 256 --variants "shipped"
@@ -66,6 +66,7 @@ def variant(name: str):
 
 
 def variant_names(text: str) -> list[str]:
+  """The variants of a --variants value (the module's docstring says how they are separated)."""
   return text.split(";" if ";" in text or "=" in text else ",")
 
 

@@ -60,14 +60,16 @@ def replay_mjx(env, event: dict) -> str:
         return (f"substep {sub + 1} of {env.n_substeps}, stage '{name}': non-finite "
                 f"{', '.join(bad[:6])}{' ...' if len(bad) > 6 else ''} (|qvel| max "
                 f"{np.abs(np.asarray(before.qvel)).max():.1f} before it)")
-  return f"finite after {env.n_substeps} substeps (max |qvel| {np.abs(np.asarray(d.qvel)).max():.1f})"
+  return (f"finite after {env.n_substeps} substeps (max |qvel| "
+          f"{np.abs(np.asarray(d.qvel)).max():.1f})")
 
 
 def replay_c(env, event: dict) -> str:
   model = env.mj_model
   data = mujoco.MjData(model)
   data.qpos[:], data.qvel[:] = event["qpos"], event["qvel"]
-  data.qacc_warmstart[:], data.ctrl[:], data.time = event["qacc_warmstart"], event["ctrl"], event["time"]
+  data.qacc_warmstart[:], data.ctrl[:] = event["qacc_warmstart"], event["ctrl"]
+  data.time = event["time"]
   top = 0.0
   for sub in range(env.n_substeps):
     mujoco.mj_step(model, data)
