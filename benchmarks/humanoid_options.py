@@ -33,36 +33,36 @@ from mjx_hopper import envs, rollout
 LEGS = ("right_thigh", "right_shin", "right_foot", "left_thigh", "left_shin", "left_foot")
 
 
+def edit(model, word: str, name: str) -> None:
+  """Apply one variant word's change to the MuJoCo model."""
+  key, _, value = word.partition("=")
+  if key in ("limref", "limimp"):
+    values = [float(v) for v in value.split(",")]
+    target = model.jnt_solref if key == "limref" else model.jnt_solimp
+    target[:, :len(values)] = values
+  elif key == "tol":
+    model.opt.tolerance = float(value)
+  elif key == "arm":
+    model.dof_armature[6:] = float(value)  # the hinges; the free joint's 6 dofs keep none
+  elif "/" in word:
+    model.opt.iterations, model.opt.ls_iterations = map(int, word.split("/"))
+  elif word.startswith("dt"):
+    model.opt.timestep = envs.Humanoid.control_dt / int(word[2:])
+  elif word not in ("shipped", "all", "legs"):
+    raise SystemExit(f"unknown variant word {word!r} in {name!r}: use shipped, all, legs, "
+                     "I/L, dtK, arm=A, tol=T, limref=A,B or limimp=D0,D1")
+
+
 def variant(name: str):
   """A Humanoid changed from the shipped one as `name` says."""
   words = name.split()
-  floor = {"all": None, "legs": LEGS}
-  cls = envs.Humanoid
+  attributes = {"edit_model": lambda self, model: [edit(model, w, name) for w in words]}
   for word in words:
-    if word in floor:
-      cls = type(f"Humanoid_{word}", (envs.Humanoid,), {"floor_bodies": floor[word]})
-  env = cls()
-  model = env.mj_model
-  for word in words:
-    if word.startswith(("limref=", "limimp=")):
-      values = [float(v) for v in word.split("=")[1].split(",")]
-      target = model.jnt_solref if word.startswith("limref") else model.jnt_solimp
-      target[:, :len(values)] = values
-    elif word.startswith("tol="):
-      model.opt.tolerance = float(word[4:])
-    elif word.startswith("arm="):
-      model.dof_armature[6:] = float(word[4:])  # the hinges; the free joint's 6 dofs keep none
-    elif "/" in word:
-      model.opt.iterations, model.opt.ls_iterations = map(int, word.split("/"))
+    if word in ("all", "legs"):
+      attributes["floor_bodies"] = LEGS if word == "legs" else None
     elif word.startswith("dt"):
-      env.n_substeps = int(word[2:])
-      model.opt.timestep = env.control_dt / env.n_substeps
-    elif word not in floor and word != "shipped":
-      raise SystemExit(f"unknown variant word {word!r} in {name!r}: use shipped, all, legs, "
-                       "I/L, dtK, arm=A, tol=T, limref=A,B or limimp=D0,D1")
-  env.mjx_model = mjx.put_model(model)
-  env._data0 = mjx.make_data(env.mjx_model)
-  return env
+      attributes["n_substeps"] = int(word[2:])
+  return type("HumanoidVariant", (envs.Humanoid,), attributes)()
 
 
 def variant_names(text: str) -> list[str]:

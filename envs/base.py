@@ -70,7 +70,8 @@ class LocomotionEnv(Env):
   """A PyBullet locomotion task (WalkerBaseBulletEnv) on MuJoCo MJX.
 
   Subclasses set the class constants below and `alive_bonus`. A custom task subclasses a robot
-  and overrides `reward` and/or `is_done`; `episode_steps` sets the time limit.
+  and overrides `reward` and/or `is_done`; `episode_steps` sets the time limit; `edit_model`
+  changes the physics.
   """
 
   xml_file: ClassVar[str]
@@ -97,6 +98,7 @@ class LocomotionEnv(Env):
       raise ValueError(f"episode_steps must be an integer >= 1, got {episode_steps!r}")
     self.episode_steps = int(episode_steps)
     model = mujoco.MjModel.from_xml_path(os.path.join(ASSETS, self.xml_file))
+    self.edit_model(model)
     if abs(model.opt.timestep * self.n_substeps - self.control_dt) > 1e-9:
       raise ValueError(f"{self.xml_file}: timestep {model.opt.timestep} x {self.n_substeps} "
                        f"substeps is not the control dt {self.control_dt}")
@@ -138,6 +140,10 @@ class LocomotionEnv(Env):
     self._foot_geom, self._foot_half_length, self._foot_radius, self._foot_mask = (
         self._foot_geoms(model))
     self._data0 = mjx.make_data(self.mjx_model)
+
+  def edit_model(self, model: mujoco.MjModel) -> None:
+    """Change the MuJoCo model in place before the env is built from it (masses, friction,
+    solver options, timestep with `n_substeps`, ...). The default changes nothing."""
 
   def _root_kind(self, model: mujoco.MjModel) -> str:
     """'planar' (slide x, slide z, hinge y at the torso's origin) or 'free'."""

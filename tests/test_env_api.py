@@ -98,6 +98,22 @@ def seed_style_task(base):
   return Custom(episode_steps=40)
 
 
+def test_edit_model_changes_the_physics(hopper):
+  class MoonHopper(type(hopper)):
+    def edit_model(self, model):
+      model.opt.gravity[2] = -1.62
+
+  moon = MoonHopper()
+  assert hopper.mj_model.opt.gravity[2] == pytest.approx(-9.8)  # the shipped one is untouched
+  for env, g in ((hopper, 9.8), (moon, 1.62)):  # at rest 1 m up, the robot falls for a step
+    qpos = np.array(env.mj_model.qpos0)
+    qpos[1] += 1.0  # the root's z slide
+    state = jax.jit(env.init_state)(qpos, np.zeros(env.mj_model.nv))
+    state = jax.jit(env.step)(state, jnp.zeros(env.action_size))
+    np.testing.assert_allclose(state.pipeline_state.qvel[:3], [0, -g * env.control_dt, 0],
+                               rtol=1e-3, atol=1e-4)
+
+
 @pytest.mark.parametrize("robot", ROBOTS)
 def test_custom_task_by_subclassing_jits_and_vmaps(robot):
   base_env = make_env(robot)

@@ -7,6 +7,7 @@ import pybullet
 import pytest
 
 from conftest import ROBOTS, make_bullet, make_env
+from mjx_hopper import envs
 from mjx_hopper.envs import base, pybullet_oracle
 
 def random_state(env, rng, airborne=False):
@@ -71,31 +72,60 @@ def test_observation_matches_bullet_at_random_states(robot, init_state):
       np.testing.assert_allclose(xyz, bullet.robot.parts[name].pose().xyz(), atol=1e-5)
 
 
-@pytest.mark.parametrize("robot", ROBOTS)
-def test_one_step_matches_bullet(robot, init_state):
-  """After a control step PyBullet reports poses one substep old: so must we."""
-  env, bullet = make_env(robot), make_bullet(robot)
-  step = jax.jit(env.step)
-  rng = np.random.default_rng(2)
-  for airborne in (True, True, False, False):
-    qpos, qvel = random_state(env, rng, airborne)
-    action = rng.uniform(-1, 1, env.action_size) * (0.3 if airborne else 1.0)
+class BulletHumanoid(envs.Humanoid):
+  """The Humanoid without the hinge armature that we add for stability (fidelity.md)."""
+
+  def edit_model(self, model):
+    model.dof_armature[:] = 0.0
+
+
+def one_step(env, bullet, seed, count=2):
+  """From `count` random airborne states, one control step of ours and of Bullet's: our
+  observations before and after it, Bullet's after it, our progress and Bullet's."""
+  step, init = jax.jit(env.step), jax.jit(env.init_state)
+  rng = np.random.default_rng(seed)
+  for _ in range(count):
+    qpos, qvel = random_state(env, rng, airborne=True)
+    action = rng.uniform(-1, 1, env.action_size) * 0.3
     pybullet_oracle.set_state(bullet, env, qpos, qvel)
     bullet.potential = bullet.robot.calc_potential()
     bullet_obs, _, _, _ = bullet.step(action)
-    state = step(init_state(robot)(qpos, qvel), jnp.asarray(action, jnp.float32))
-    progress = bullet.rewards[1]
-    if airborne:  # no contact: only the integrators differ
-      assert float(state.metrics["progress"]) == pytest.approx(progress, rel=0.02, abs=0.02)
-      speed = np.zeros(env.observation_size, bool)
-      speed[3:6] = True  # Bullet takes the link speed from a part-updated pose: see fidelity.md
-      if robot == "Humanoid":  # Bullet's arms collide with its body, ours do not: leave them out
-        arms = [i for i, j in enumerate(env.joints) if "shoulder" in j or "elbow" in j]
-        speed[[8 + 2 * i + k for i in arms for k in (0, 1)]] = True
-      # Free-floating robots agree less well (fidelity.md): their base is Bullet's root link.
-      tolerance = 0.01 if env._root == "planar" else 0.05
-      np.testing.assert_allclose(state.obs[~speed], bullet_obs[~speed], atol=tolerance)
-      np.testing.assert_allclose(state.obs[3:6], bullet_obs[3:6], atol=0.05)
+    start = init(qpos, qvel)
+    state = step(start, jnp.asarray(action, jnp.float32))
+    yield start.obs, state.obs, bullet_obs, float(state.metrics["progress"]), bullet.rewards[1]
+
+
+@pytest.mark.parametrize("robot", ROBOTS)
+def test_one_step_matches_bullet(robot):
+  """After a control step PyBullet reports poses one substep old: so must we. In the air, with
+  no contact, only the integrators differ."""
+  env = BulletHumanoid() if robot == "Humanoid" else make_env(robot)
+  speed = np.zeros(env.observation_size, bool)
+  speed[3:6] = True  # Bullet takes the link speed from a part-updated pose: see fidelity.md
+  if robot == "Humanoid":  # Bullet's arms collide with its body, ours do not: leave them out
+    arms = [i for i, j in enumerate(env.joints) if "shoulder" in j or "elbow" in j]
+    speed[[8 + 2 * i + k for i in arms for k in (0, 1)]] = True
+  # Free-floating robots agree less well (fidelity.md): their base is Bullet's root link.
+  tolerance = 0.01 if env._root == "planar" else 0.05
+  for _, obs, bullet_obs, progress, bullet_progress in one_step(env, make_bullet(robot), 2):
+    assert progress == pytest.approx(bullet_progress, rel=0.02, abs=0.02)
+    np.testing.assert_allclose(obs[~speed], bullet_obs[~speed], atol=tolerance)
+    np.testing.assert_allclose(obs[3:6], bullet_obs[3:6], atol=0.05)
+
+
+def test_humanoid_armature_only_slows_the_joints():
+  """The shipped Humanoid's hinge armature leaves the pose after a step as Bullet's, and its
+  joints' speeds change less in the step than without armature."""
+  env, bullet = make_env("Humanoid"), make_bullet("Humanoid")
+  positions = 8 + 2 * np.arange(len(env.joints))
+  speeds = positions + 1
+  shipped = one_step(env, bullet, 3, count=4)
+  without = list(one_step(BulletHumanoid(), bullet, 3, count=4))
+  for (start, obs, bullet_obs, _, _), (_, free, _, _, _) in zip(shipped, without):
+    np.testing.assert_allclose(obs[positions], bullet_obs[positions], atol=0.05)
+    np.testing.assert_allclose(obs[speeds], bullet_obs[speeds], atol=0.15)
+    change, free_change = (np.linalg.norm(o[speeds] - start[speeds]) for o in (obs, free))
+    assert change < 0.8 * free_change
 
 
 def test_feet_contact_lags_one_step(hopper, hopper_reset, hopper_step):
