@@ -51,9 +51,10 @@ humanoid_gpu_rows() {  # the Humanoid's GPU throughput, alone on the GPU, to $WO
     --envs Humanoid --batches 4096,32768 --devices 1 --steps-total 2000000 \
     --json "$WORK/humanoid_gpu.json" > "$WORK/humanoid_gpu.txt" 2>&1
 }
-# The phases run before the Humanoid got its hinge armature (0.02) and solver tolerance (1e-4)
-# undo both, so that they rerun what BENCHMARKS.md records for them.
-BEFORE_ARMATURE="arm=0 tol=1e-8"
+# The phases run before the Humanoid got its hinge armature (0.02), solver tolerance (1e-4) and
+# 3/3 solve start from the model they ran on (4/4 then), so that they rerun what BENCHMARKS.md
+# records for them; a variant's own words come after it and win.
+BEFORE_ARMATURE="4/4 arm=0 tol=1e-8"
 # The 2-core CPU's settings (TrainConfig's defaults), for runs that stand in for CPU runs.
 CPU_TRAIN=(--preset cpu --minutes 8 --chunk 25 --min-replay 20000 --target 2000 --eval-every 200000
            --num-envs 512 --batch-size 256 --replay-ratio 4)
@@ -122,7 +123,7 @@ for phase in "$@"; do
       # Cheaper Humanoid solves through the stability check, each variant in its own process.
       for v in "all 4/8" "all 3/6" "all 3/4" "all 4/4" "all 2/8" "legs 3/6" "legs 2/6" \
                "all dt3 4/8"; do
-        stable "$v $BEFORE_ARMATURE"
+        stable "$BEFORE_ARMATURE $v"
       done
       ;;
     humanoid-shipped)
@@ -133,7 +134,7 @@ for phase in "$@"; do
     humanoid-before)
       # The Humanoid as shipped before (4/8, every part touching the floor), on the seeds the
       # shipped model's check used, as the baseline for its non-finite states.
-      for seed in 1 2 3 4; do stable "all 4/8 $BEFORE_ARMATURE" $seed; done
+      for seed in 1 2 3 4; do stable "$BEFORE_ARMATURE all 4/8" $seed; done
       ;;
     mpo-pair[0-9])
       # MPO and DMPO's gpu presets, one seed, only the two of them on the GPU: nearer to "one
@@ -160,17 +161,17 @@ for phase in "$@"; do
       # (As run on 2026-11-23 the variants were split at their commas: what ran was limimp=0.99
       # (d0 only), limref=-400 and limref=-4000 (stiffness; damping stays 400), and limref=0.02.)
       for v in "limimp=0.99,0.99" "limref=-400,-400" "limref=-4000,-400" "limref=0.02,1"; do
-        stable "$v $BEFORE_ARMATURE" 12 2048
+        stable "$BEFORE_ARMATURE $v" 12 2048
       done
       ;;
     humanoid-armature)
       # Armature on the hinges: the hips' three hinges meet at one point, and a hip_z past its
       # limit nears the pose where hip_x and hip_y line up and the mass matrix is singular.
       STABLE_SECONDS=420
-      for a in 0.005 0.01 0.02 0.05; do stable "arm=$a tol=1e-8" 12 2048; done
+      for a in 0.005 0.01 0.02 0.05; do stable "4/4 arm=$a tol=1e-8" 12 2048; done
       ;;
     humanoid-confirm)
-      # The Humanoid with armature 0.02 and solver tolerance 1e-4: its GPU throughput alone on
+      # The Humanoid as shipped (run first with 4/4, then with 3/3): its GPU throughput alone on
       # the GPU, then 4,096 envs x 10,000 steps (seed 10, as humanoid-capture) beside the
       # stability check itself (256 envs x 10,000 steps) on seeds 0, 1 and 2.
       humanoid_gpu_rows
@@ -181,7 +182,7 @@ for phase in "$@"; do
     humanoid-ls)
       # Fewer line-search steps (under vmap MJX's line search runs all of its steps): four
       # variants through the stability check.
-      for v in "all 4/4" "all 4/2" "all 3/3" "legs 3/3"; do stable "$v $BEFORE_ARMATURE"; done
+      for v in "all 4/4" "all 4/2" "all 3/3" "legs 3/3"; do stable "$BEFORE_ARMATURE $v"; done
       ;;
     *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, humanoid-capture, humanoid-limits, humanoid-armature, humanoid-confirm, mpo-pairN" >&2
        exit 2 ;;

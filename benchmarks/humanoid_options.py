@@ -3,7 +3,10 @@ floor contacts for fewer geoms, fewer solver iterations, fewer and longer physic
 0.0165 s control step. Each variant changes the MuJoCo model before `mjx.put_model` and is timed
 like `env_throughput.py` (N auto-resetting envs with random actions, over every XLA device),
 with the count of non-finite states seen; with --stability it is instead run through
-`stability.py`'s check (N envs x T random-action steps, non-finite states and largest |qvel|).
+`stability.py`'s check (N envs x T random-action steps, non-finite states and largest |qvel|),
+and with --accuracy its solver is compared with a converged one: on states of its own
+random-action episodes, the relative error of MJX's accelerations (`qacc`, float32, warm-started
+as in the env) against MuJoCo C's in float64 with 100 iterations and tolerance 1e-12.
 
 A variant is words separated by spaces, each a change from the shipped model: "all" (every part
 touches the floor), "legs" (only the legs do), "I/L" (I solver iterations, L line-search steps),
@@ -14,6 +17,7 @@ variants with ";", or with "," when it has neither ";" nor "=" (whose values hol
 
     XLA_FLAGS=--xla_force_host_platform_device_count=2 python benchmarks/humanoid_options.py
     python benchmarks/humanoid_options.py --stability 10000 --num-envs 256 --variants "shipped"
+    python benchmarks/humanoid_options.py --accuracy 2000 --variants "shipped;3/3;2/4"
 """
 
 from __future__ import annotations
@@ -26,6 +30,8 @@ import time
 
 import jax
 import jax.numpy as jnp
+import mujoco
+import numpy as np
 from mujoco import mjx
 
 from mjx_hopper import envs, rollout
@@ -104,6 +110,50 @@ def stability(args) -> None:
             file=sys.stderr, flush=True)
 
 
+def episode_states(env, count: int, seed: int = 0) -> dict[str, np.ndarray]:
+  """`count` states from random-action episodes (64 at a time, steps 1 to 15, alive envs only:
+  most episodes end near step 20) with the action that follows each, as numpy arrays."""
+  num_envs, steps = 64, 15
+  reset, step = jax.jit(jax.vmap(env.reset)), jax.jit(jax.vmap(env.step))
+  keys = ("qpos", "qvel", "qacc_warmstart", "ctrl")
+  out = {k: [] for k in keys}
+  key = jax.random.PRNGKey(seed)
+  while len(out["qpos"]) * num_envs < count:
+    key, reset_key = jax.random.split(key)
+    state = reset(jax.random.split(reset_key, num_envs))
+    for t in range(steps):
+      key, act_key = jax.random.split(key)
+      action = jax.random.uniform(act_key, (num_envs, env.action_size), minval=-1, maxval=1)
+      if t:
+        alive = np.asarray(state.done == 0)
+        data = state.pipeline_state
+        for k in keys[:3]:
+          out[k].append(np.asarray(getattr(data, k))[alive])
+        out["ctrl"].append(np.asarray(action)[alive])
+      state = step(state, action)
+  return {k: np.concatenate(v)[:count] for k, v in out.items()}
+
+
+def accuracy(env, count: int) -> np.ndarray:
+  """Relative error of the env's qacc against a converged float64 MuJoCo C solve, per state."""
+  states = episode_states(env, count)
+  forward = jax.jit(jax.vmap(lambda d: mjx.forward(env.mjx_model, d)))
+  batch = jax.vmap(lambda q, v, w, c: env._data0.replace(qpos=q, qvel=v, qacc_warmstart=w,
+                                                         ctrl=c))(
+      *(jnp.asarray(states[k]) for k in ("qpos", "qvel", "qacc_warmstart", "ctrl")))
+  ours = np.asarray(forward(batch).qacc, np.float64)
+  model = env.mj_model.__copy__()
+  model.opt.iterations, model.opt.ls_iterations, model.opt.tolerance = 100, 50, 1e-12
+  data = mujoco.MjData(model)
+  errors = np.empty(len(ours))
+  for i in range(len(ours)):
+    for k in ("qpos", "qvel", "qacc_warmstart", "ctrl"):
+      getattr(data, k)[:] = states[k][i]
+    mujoco.mj_forward(model, data)
+    errors[i] = np.linalg.norm(ours[i] - data.qacc) / max(np.linalg.norm(data.qacc), 1.0)
+  return errors
+
+
 def main() -> None:
   parser = argparse.ArgumentParser(description=__doc__,
                                    formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -118,9 +168,20 @@ def main() -> None:
   parser.add_argument("--dump", metavar="PREFIX",
                       help="with --stability, save each variant's non-finite steps' starting "
                       "states to PREFIX_VARIANT_seedS.npz (benchmarks/replay_nonfinite.py)")
+  parser.add_argument("--accuracy", type=int, default=0, metavar="S",
+                      help="compare each variant's accelerations with a converged solve on S "
+                      "states of its own random-action episodes")
   args = parser.parse_args()
   if args.stability:
     return stability(args)
+  if args.accuracy:
+    print("| Humanoid variant | states | qacc relative error: median | p90 | p99 | max |")
+    print("|---|---|---|---|---|---|")
+    for name in variant_names(args.variants):
+      e = accuracy(variant(name), args.accuracy)
+      print(f"| {name} | {len(e)} | " + " | ".join(
+          f"{v:.1e}" for v in np.percentile(e, [50, 90, 99, 100])) + " |", flush=True)
+    return
   print(f"| Humanoid variant | contacts | env steps/s ({len(jax.devices())} devices, "
         f"{args.num_envs} envs) | non-finite states at the timed calls' ends |")
   print("|---|---|---|---|")

@@ -29,8 +29,7 @@ LOOSER = {
                                 "joints_at_limit_cost": (0.0, 0.08)},
     ("Ant", "random"): {"length": (0.3, 1.0), "return": (0.3, 2.0),
                         "electricity_cost": (0.35, 0.02)},
-    ("Humanoid", "random"): {"return": (1.2, 2.0), "electricity_cost": (0.6, 0.02),
-                             "joints_at_limit_cost": (0.0, 0.16)},
+    ("Humanoid", "random"): {"return": (0.3, 2.0), "joints_at_limit_cost": (0.0, 0.16)},
     ("Humanoid", "zero"): {"length": (0.3, 1.0), "return": (0.3, 2.0),
                            "joints_at_limit_cost": (0.0, 0.08)},
 }
