@@ -104,6 +104,9 @@ def set_state(env, ours, qpos, qvel) -> np.ndarray:
       name = model.joint(j).name
       bullet_joint = j if model.jnt_bodyid[j] == model.body(ours.torso).id else index[name]
       client.resetJointState(body, bullet_joint, qpos[q], qvel[v])
+  # calc_state reports the foot contacts found by Bullet's last step; a state set by hand has
+  # had no step, so its contacts are those of a fresh reset, not of an earlier episode.
+  env.robot.feet_contact[:] = 0.0
   return env.robot.calc_state()
 
 
