@@ -2,8 +2,11 @@
 
 import os
 
-os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "")
-                           + " --xla_force_host_platform_device_count=2")
+# Two devices; and XLA:CPU's loop emitters instead of its fusion emitters, which compile MJX's
+# physics about 30% faster (benchmarks/xla_cpu_flags.py): the suite's time is mostly compiling.
+# Users keep XLA's default, as the programs' speed depends on the robot (BENCHMARKS.md).
+TEST_XLA_FLAGS = "--xla_force_host_platform_device_count=2 --xla_cpu_use_fusion_emitters=false"
+os.environ["XLA_FLAGS"] = os.environ.get("XLA_FLAGS", "") + " " + TEST_XLA_FLAGS
 
 # One compile cache for the tests and the processes they start (CLI runs, notebooks), so that
 # a program compiled by one is loaded by the others.

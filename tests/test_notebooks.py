@@ -1,11 +1,12 @@
 """The notebooks run top to bottom (in their short mode)."""
 
-import os
 import pathlib
 
 import nbformat
 import pytest
 from nbclient import NotebookClient
+
+from conftest import TEST_XLA_FLAGS
 
 NOTEBOOKS = sorted((pathlib.Path(__file__).parent.parent / "notebooks").glob("*.ipynb"))
 
@@ -13,7 +14,7 @@ NOTEBOOKS = sorted((pathlib.Path(__file__).parent.parent / "notebooks").glob("*.
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.stem for p in NOTEBOOKS])
 def test_notebook_runs(path, tmp_path, monkeypatch):
   monkeypatch.setenv("MJX_HOPPER_SHORT", "1")
-  monkeypatch.setenv("XLA_FLAGS", "--xla_force_host_platform_device_count=2")
+  monkeypatch.setenv("XLA_FLAGS", TEST_XLA_FLAGS)
   notebook = nbformat.read(path, as_version=4)
   # Run in a scratch copy of the folder so outputs (videos) do not land in the repository.
   for other in path.parent.iterdir():
