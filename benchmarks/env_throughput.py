@@ -21,33 +21,46 @@ import sys
 import time
 
 
+def time_stepper(env, num_envs: int, steps: int) -> dict:
+  """Traces (`lower`) and compiles a stepper of `num_envs` envs and `steps` steps per call, then
+  times it: the median of 3 calls after a warm-up."""
+  import jax
+
+  from mjx_hopper import rollout
+
+  init, run = rollout.make_stepper(env, num_envs, steps)
+  key = jax.random.PRNGKey(0)
+  state = init(key)
+  start = time.perf_counter()
+  lowered = run.lower(state, key)
+  traced = time.perf_counter()
+  compiled = lowered.compile()
+  trace_s, compile_s = traced - start, time.perf_counter() - traced
+  state, r = compiled(state, key)
+  r.block_until_ready()
+  times = []
+  for i in range(3):
+    t0 = time.perf_counter()
+    state, r = compiled(state, jax.random.fold_in(key, i))
+    r.block_until_ready()
+    times.append(time.perf_counter() - t0)
+  return {"trace_s": trace_s, "compile_s": compile_s,
+          "env_steps_per_s": num_envs * steps / statistics.median(times)}
+
+
 def mjx_rows(env_id: str, batches: list[int], steps_total: int) -> list[dict]:
   import jax
 
-  from mjx_hopper import envs, rollout
+  from mjx_hopper import envs
 
   env = envs.make(env_id)
   devices = jax.devices()
   rows = []
   for n in batches:
-    steps = max(20, min(1000, steps_total // n))
-    init, run = rollout.make_stepper(env, n, steps)
-    key = jax.random.PRNGKey(0)
-    state = init(key)
-    t0 = time.perf_counter()
-    compiled = run.lower(state, key).compile()
-    compile_s = time.perf_counter() - t0
-    state, r = compiled(state, key)
-    r.block_until_ready()
-    times = []
-    for i in range(3):
-      t0 = time.perf_counter()
-      state, r = compiled(state, jax.random.fold_in(key, i))
-      r.block_until_ready()
-      times.append(time.perf_counter() - t0)
+    timed = time_stepper(env, n, max(20, min(1000, steps_total // n)))
+    compile_s = timed["trace_s"] + timed["compile_s"]
     rows.append({"engine": "MJX", "platform": devices[0].platform, "devices": len(devices),
-                 "batch": n, "compile_s": compile_s,
-                 "env_steps_per_s": n * steps / statistics.median(times)})
+                 "batch": n, "compile_s": compile_s, "env_steps_per_s": timed["env_steps_per_s"]})
     print(f"  MJX {devices[0].platform} x{len(devices)} batch {n:>6}: "
           f"{rows[-1]['env_steps_per_s']:>12,.0f} env steps/s, compile {compile_s:.1f} s",
           file=sys.stderr, flush=True)

@@ -32,27 +32,10 @@ VARIANTS = "--xla_cpu_use_fusion_emitters=true;--xla_cpu_use_fusion_emitters=fal
 def measure(env_id: str, num_envs: int, steps: int = 50) -> dict:
   import jax
 
-  from mjx_hopper import envs, rollout
+  from env_throughput import time_stepper
+  from mjx_hopper import envs
 
-  init, run = rollout.make_stepper(envs.make(env_id), num_envs, steps)
-  key = jax.random.PRNGKey(0)
-  state = init(key)
-  t0 = time.perf_counter()
-  lowered = run.lower(state, key)
-  t1 = time.perf_counter()
-  compiled = lowered.compile()
-  t2 = time.perf_counter()
-  state, r = compiled(state, key)
-  r.block_until_ready()
-  times = []
-  for i in range(3):
-    t0_run = time.perf_counter()
-    state, r = compiled(state, jax.random.fold_in(key, i))
-    r.block_until_ready()
-    times.append(time.perf_counter() - t0_run)
-  return {"trace_s": t1 - t0, "compile_s": t2 - t1,
-          "env_steps_per_s": num_envs * steps / statistics.median(times),
-          "devices": len(jax.devices())}
+  return {**time_stepper(envs.make(env_id), num_envs, steps), "devices": len(jax.devices())}
 
 
 def main() -> None:
@@ -95,8 +78,8 @@ def main() -> None:
                    "batch": args.num_envs, "repeats": len(runs),
                    **{k: statistics.median(run[k] for run in runs)
                       for k in ("trace_s", "compile_s", "env_steps_per_s")}})
-  lines = [f"| env | XLA_FLAGS | trace (s) | compile (s) | env steps/s | compile ÷ first "
-           f"| steps/s ÷ first |", "|---|---|---|---|---|---|---|"]
+  lines = ["| env | XLA_FLAGS | trace (s) | compile (s) | env steps/s | compile ÷ first "
+           "| steps/s ÷ first |", "|---|---|---|---|---|---|---|"]
   for row in rows:
     first = next(r for r in rows if r["env"] == row["env"] and r["xla_flags"] == variants[0])
     lines.append(f"| {row['env']} | `{row['xla_flags'] or '(default)'}` | {row['trace_s']:.1f} | "
