@@ -110,13 +110,16 @@ def stability(args) -> None:
             file=sys.stderr, flush=True)
 
 
+# What the solve starts from: MJX's Data fields that `accuracy` copies into MuJoCo C's.
+SOLVE_INPUTS = ("qpos", "qvel", "qacc_warmstart", "ctrl")
+
+
 def episode_states(env, count: int, seed: int = 0) -> dict[str, np.ndarray]:
   """`count` states from random-action episodes (64 at a time, steps 1 to 15, alive envs only:
   most episodes end near step 20) with the action that follows each, as numpy arrays."""
   num_envs, steps = 64, 15
   reset, step = jax.jit(jax.vmap(env.reset)), jax.jit(jax.vmap(env.step))
-  keys = ("qpos", "qvel", "qacc_warmstart", "ctrl")
-  out = {k: [] for k in keys}
+  out = {k: [] for k in SOLVE_INPUTS}
   key = jax.random.PRNGKey(seed)
   while len(out["qpos"]) * num_envs < count:
     key, reset_key = jax.random.split(key)
@@ -127,7 +130,7 @@ def episode_states(env, count: int, seed: int = 0) -> dict[str, np.ndarray]:
       if t:
         alive = np.asarray(state.done == 0)
         data = state.pipeline_state
-        for k in keys[:3]:
+        for k in SOLVE_INPUTS[:-1]:  # all but ctrl: the action that follows
           out[k].append(np.asarray(getattr(data, k))[alive])
         out["ctrl"].append(np.asarray(action)[alive])
       state = step(state, action)
@@ -140,14 +143,14 @@ def accuracy(env, count: int) -> np.ndarray:
   forward = jax.jit(jax.vmap(lambda d: mjx.forward(env.mjx_model, d)))
   batch = jax.vmap(lambda q, v, w, c: env._data0.replace(qpos=q, qvel=v, qacc_warmstart=w,
                                                          ctrl=c))(
-      *(jnp.asarray(states[k]) for k in ("qpos", "qvel", "qacc_warmstart", "ctrl")))
+      *(jnp.asarray(states[k]) for k in SOLVE_INPUTS))
   ours = np.asarray(forward(batch).qacc, np.float64)
   model = env.mj_model.__copy__()
   model.opt.iterations, model.opt.ls_iterations, model.opt.tolerance = 100, 50, 1e-12
   data = mujoco.MjData(model)
   errors = np.empty(len(ours))
   for i in range(len(ours)):
-    for k in ("qpos", "qvel", "qacc_warmstart", "ctrl"):
+    for k in SOLVE_INPUTS:
       getattr(data, k)[:] = states[k][i]
     mujoco.mj_forward(model, data)
     errors[i] = np.linalg.norm(ours[i] - data.qacc) / max(np.linalg.norm(data.qacc), 1.0)

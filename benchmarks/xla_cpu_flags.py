@@ -3,7 +3,7 @@ its env steps/s, per robot, each measurement in a fresh process (no compile cach
 
     python benchmarks/xla_cpu_flags.py                        # every robot, 2 devices
     python benchmarks/xla_cpu_flags.py --envs Hopper --repeats 3 \
-        --variants "--xla_cpu_use_fusion_emitters=true;--xla_cpu_use_fusion_emitters=false"
+        --variants="--xla_cpu_use_fusion_emitters=true;--xla_cpu_use_fusion_emitters=false"
 
 Variants are `;`-separated XLA_FLAGS strings; the first is the reference of the ratio columns,
 and an empty one is XLA's default.
@@ -29,15 +29,6 @@ ROBOTS = "Hopper,Walker2D,HalfCheetah,Ant,Humanoid"
 VARIANTS = "--xla_cpu_use_fusion_emitters=true;--xla_cpu_use_fusion_emitters=false"
 
 
-def measure(env_id: str, num_envs: int, steps: int = 50) -> dict:
-  import jax
-
-  from env_throughput import time_stepper
-  from mjx_hopper import envs
-
-  return {**time_stepper(envs.make(env_id), num_envs, steps), "devices": len(jax.devices())}
-
-
 def main() -> None:
   p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
   p.add_argument("--envs", default=ROBOTS)
@@ -49,7 +40,9 @@ def main() -> None:
   p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
   args = p.parse_args()
   if args.worker:
-    print(json.dumps(measure(args.envs, args.num_envs)))
+    from env_throughput import time_stepper
+    from mjx_hopper import envs
+    print(json.dumps(time_stepper(envs.make(args.envs), args.num_envs, steps=50)))
     return
   from mjx_hopper import envs
   robots, variants = args.envs.split(","), [v.strip() for v in args.variants.split(";")]

@@ -6,15 +6,12 @@ import nbformat
 import pytest
 from nbclient import NotebookClient
 
-from conftest import TEST_XLA_FLAGS
-
 NOTEBOOKS = sorted((pathlib.Path(__file__).parent.parent / "notebooks").glob("*.ipynb"))
 
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.stem for p in NOTEBOOKS])
 def test_notebook_runs(path, tmp_path, monkeypatch):
-  monkeypatch.setenv("MJX_HOPPER_SHORT", "1")
-  monkeypatch.setenv("XLA_FLAGS", TEST_XLA_FLAGS)
+  monkeypatch.setenv("MJX_HOPPER_SHORT", "1")  # the kernel also inherits conftest's XLA_FLAGS
   notebook = nbformat.read(path, as_version=4)
   # Run in a scratch copy of the folder so outputs (videos) do not land in the repository.
   for other in path.parent.iterdir():
