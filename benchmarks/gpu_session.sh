@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
-# The GPU runs behind BENCHMARKS.md, in the batches the device tool runs them (each call is at
-# most 10 minutes). On the device machine, from the repository root, with the wheels that
-# cannot be downloaded there carried in .whl/:
+# The GPU runs behind BENCHMARKS.md and docs/benchmark-history.md, in the batches the device
+# tool runs them (each call is at most 10 minutes). On the device machine, from the repository
+# root, with the wheels that cannot be downloaded there carried in .whl/:
 #   bash benchmarks/gpu_session.sh install-and-tune   # learner throughput, agent tests, tuning
 #   bash benchmarks/gpu_session.sh ddpg mpo           # learning, 3 seeds of each, all at once
 #   bash benchmarks/gpu_session.sh dmpo cpu-tune      # ... and D4PG settings for the 2-core CPU
@@ -38,11 +38,11 @@ GPU_TRAIN=(--num-envs 512 --unroll-length 4 --batch-size 1024 --replay-ratio 4 -
 stable() {  # stable VARIANT [SEED [ENVS]]: humanoid_options.py's stability check in the
   # background, ENVS (256) envs x 10,000 random-action steps, logged to
   # $WORK/humanoid_VARIANT_seedSEED.txt; the non-finite steps' starting states go to
-  # $WORK/nonfinite_VARIANT_seedSEED.npz (benchmarks/replay_nonfinite.py). It stops after the
-  # chunk that passes $STABLE_SECONDS (540).
+  # $WORK/nonfinite_VARIANT_seedSEED.npz (benchmarks/research/replay_nonfinite.py). It stops
+  # after the chunk that passes $STABLE_SECONDS (540).
   local v=$1 seed=${2:-0} envs=${3:-256}
   local log="$WORK/humanoid_$(echo "$v" | tr ' /' '__')_seed$seed.txt"
-  timeout 580 python3 benchmarks/humanoid_options.py --stability 10000 --num-envs "$envs" \
+  timeout 580 python3 benchmarks/research/humanoid_options.py --stability 10000 --num-envs "$envs" \
     --variants "$v" --seed "$seed" --max-seconds "${STABLE_SECONDS:-540}" \
     --dump "$WORK/nonfinite" > "$log" 2>&1 &
 }
@@ -52,8 +52,8 @@ humanoid_gpu_rows() {  # the Humanoid's GPU throughput, alone on the GPU, to $WO
     --json "$WORK/humanoid_gpu.json" > "$WORK/humanoid_gpu.txt" 2>&1
 }
 # The phases run before the Humanoid got its hinge armature (0.02), solver tolerance (1e-4) and
-# 3/3 solve start from the model they ran on (4/4 then), so that they rerun what BENCHMARKS.md
-# records for them; a variant's own words come after it and win.
+# 3/3 solve start from the model they ran on (4/4 then), so that they rerun what
+# docs/benchmark-history.md records for them; a variant's own words come after it and win.
 BEFORE_ARMATURE="4/4 arm=0 tol=1e-8"
 # The 2-core CPU's settings (TrainConfig's defaults), for runs that stand in for CPU runs.
 CPU_TRAIN=(--preset cpu --minutes 8 --chunk 25 --min-replay 20000 --target 2000 --eval-every 200000
@@ -128,7 +128,7 @@ for phase in "$@"; do
       ;;
     humanoid-shipped)
       # The shipped Humanoid (4/4, floor contacts for the legs) on four seeds of the stability
-      # check, four processes at once (seed 1 is in BENCHMARKS.md's table already).
+      # check, four processes at once (seed 1 is in docs/benchmark-history.md's table already).
       for seed in 0 2 3 4; do stable "$BEFORE_ARMATURE" $seed; done
       ;;
     humanoid-before)
@@ -148,7 +148,7 @@ for phase in "$@"; do
     humanoid-capture)
       # The shipped Humanoid: its GPU throughput alone on the GPU, then two seeds of 4,096 envs x
       # 10,000 random-action steps (16 times the stability check's 256 envs each), saving the
-      # state before each non-finite step for replay_nonfinite.py.
+      # state before each non-finite step for benchmarks/research/replay_nonfinite.py.
       humanoid_gpu_rows
       STABLE_SECONDS=360
       for seed in 10 11; do stable "$BEFORE_ARMATURE" $seed 4096; done

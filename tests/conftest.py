@@ -3,9 +3,9 @@
 import os
 
 # Two devices; and XLA:CPU's loop emitters instead of its fusion emitters, which compile MJX's
-# physics a quarter to a third faster (benchmarks/xla_cpu_flags.py), as the suite's time is
-# mostly compiling. Users keep XLA's default: the programs' speed depends on the robot
-# (BENCHMARKS.md).
+# physics a quarter to a third faster (benchmarks/research/xla_cpu_flags.py), as the suite's time
+# is mostly compiling. Users keep XLA's default: the programs' speed depends on the robot
+# (docs/benchmark-history.md).
 TEST_XLA_FLAGS = "--xla_force_host_platform_device_count=2 --xla_cpu_use_fusion_emitters=false"
 os.environ["XLA_FLAGS"] = os.environ.get("XLA_FLAGS", "") + " " + TEST_XLA_FLAGS
 

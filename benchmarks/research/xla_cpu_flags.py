@@ -1,8 +1,8 @@
 """XLA:CPU flags against each other: the time to trace and to compile a batched MJX rollout, and
 its env steps/s, per robot, each measurement in a fresh process (no compile cache).
 
-    python benchmarks/xla_cpu_flags.py                        # every robot, 2 devices
-    python benchmarks/xla_cpu_flags.py --envs Hopper --repeats 3 \
+    python benchmarks/research/xla_cpu_flags.py                        # every robot, 2 devices
+    python benchmarks/research/xla_cpu_flags.py --envs Hopper --repeats 3 \
         --variants="--xla_cpu_use_fusion_emitters=true;--xla_cpu_use_fusion_emitters=false"
 
 Variants are `;`-separated XLA_FLAGS strings; the first is the reference of the ratio columns,
@@ -40,6 +40,8 @@ def main() -> None:
   p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
   args = p.parse_args()
   if args.worker:
+    # env_throughput.py is in benchmarks/, this script's parent folder.
+    sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     from env_throughput import time_stepper
     from mjx_hopper import envs
     print(json.dumps(time_stepper(envs.make(args.envs), args.num_envs, steps=50)))

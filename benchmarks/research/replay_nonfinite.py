@@ -2,8 +2,8 @@
 ended non-finite) and says where each went wrong: in which physics substep, which stage of MJX's
 step first made a non-finite value, and what MuJoCo C (float64) makes of the same step.
 
-    python benchmarks/replay_nonfinite.py runs/nonfinite.npz --env Humanoid
-    python benchmarks/replay_nonfinite.py runs/h_shipped_seed2.npz --variant shipped
+    python benchmarks/research/replay_nonfinite.py runs/nonfinite.npz --env Humanoid
+    python benchmarks/research/replay_nonfinite.py runs/h_shipped_seed2.npz --variant shipped
 
 --variant rebuilds a Humanoid variant of `humanoid_options.py`. On the CPU an event recorded on
 a GPU need not repeat: the float32 arithmetic differs, so the report says whether it did.

@@ -1,8 +1,8 @@
 """What Humanoid's MJX step costs on this machine, under model options that might make it cheaper:
 floor contacts for fewer geoms, fewer solver iterations, fewer and longer physics substeps per
 0.0165 s control step. Each variant changes the MuJoCo model before `mjx.put_model` and is timed
-like `env_throughput.py` (N auto-resetting envs with random actions, over every XLA device),
-with the count of non-finite states seen; with --stability it is instead run through
+like `benchmarks/env_throughput.py` (N auto-resetting envs with random actions, over every XLA
+device), with the count of non-finite states seen; with --stability it is instead run through
 `stability.py`'s check (N envs x T random-action steps, non-finite states and largest |qvel|),
 and with --accuracy its solver is compared with a converged one: on states of its own
 random-action episodes, the relative error of MJX's accelerations (`qacc`, float32, warm-started
@@ -15,9 +15,11 @@ touches the floor), "legs" (only the legs do), "I/L" (I solver iterations, L lin
 every hinge), "tol=T" (the solver's tolerance); "shipped" changes nothing. --variants separates
 variants with ";", or with "," when it has neither ";" nor "=" (whose values hold commas).
 
-    XLA_FLAGS=--xla_force_host_platform_device_count=2 python benchmarks/humanoid_options.py
-    python benchmarks/humanoid_options.py --stability 10000 --num-envs 256 --variants "shipped"
-    python benchmarks/humanoid_options.py --accuracy 2000 --variants "shipped;3/3;2/4"
+    XLA_FLAGS=--xla_force_host_platform_device_count=2 \
+        python benchmarks/research/humanoid_options.py
+    python benchmarks/research/humanoid_options.py --stability 10000 --num-envs 256 \
+        --variants "shipped"
+    python benchmarks/research/humanoid_options.py --accuracy 2000 --variants "shipped;3/3;2/4"
 """
 
 from __future__ import annotations
@@ -170,7 +172,7 @@ def main() -> None:
                       help="with --stability, stop each variant after the chunk that passes this")
   parser.add_argument("--dump", metavar="PREFIX",
                       help="with --stability, save each variant's non-finite steps' starting "
-                      "states to PREFIX_VARIANT_seedS.npz (benchmarks/replay_nonfinite.py)")
+                      "states to PREFIX_VARIANT_seedS.npz (for replay_nonfinite.py)")
   parser.add_argument("--accuracy", type=int, default=0, metavar="S",
                       help="compare each variant's accelerations with a converged solve on S "
                       "states of its own random-action episodes")

@@ -1,11 +1,12 @@
 """Stability under random actions: N envs stepped T times with uniform random actions and
 auto-reset, counting steps whose physics state is not finite and the largest joint speed.
 
-    python benchmarks/stability.py --env Humanoid --num-envs 256 --steps 10000
-    python benchmarks/stability.py --env Humanoid --num-envs 4096 --dump runs/nonfinite.npz
+    python benchmarks/research/stability.py --env Humanoid --num-envs 256 --steps 10000
+    python benchmarks/research/stability.py --env Humanoid --num-envs 4096 --dump runs/nonfinite.npz
 
 With --dump, the state each non-finite step started from (the first such step of each chunk)
-is saved, so that `benchmarks/replay_nonfinite.py` can step it again and say where it failed.
+is saved, so that `replay_nonfinite.py` (in this folder) can step it again and say where it
+failed.
 """
 
 import argparse
