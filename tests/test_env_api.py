@@ -67,8 +67,12 @@ def test_auto_reset_keeps_final_observation(hopper):
   for _ in range(200):
     expected = raw_step(state, jnp.zeros(3))
     state = step(state, jnp.zeros(3))
-    np.testing.assert_array_equal(state.info["final_obs"], expected.obs)
-    assert float(state.reward) == float(expected.reward)
+    # Two compiled programs (the wrapped step and the bare one) may fuse and vectorise the same
+    # float32 physics differently, more so on another CPU (AVX-512 or not): 4 substeps with a
+    # contact solve put their last bits ~1e-5 apart (8e-6 seen). The observations are O(1), so
+    # 1e-4 is far below any real difference, such as the next episode's first observation.
+    np.testing.assert_allclose(state.info["final_obs"], expected.obs, rtol=1e-5, atol=1e-4)
+    assert float(state.reward) == pytest.approx(float(expected.reward), rel=1e-5, abs=1e-4)
     if float(state.done):
       break
   else:

@@ -1,0 +1,58 @@
+"""The persistent compile cache is kept per CPU feature set, so that no process loads a program
+compiled for a CPU it is not."""
+
+import json
+import os
+import subprocess
+import sys
+
+import mjx_hopper
+
+# Compiles one small program with the cache in argv[1], as a CPU with features argv[2] when
+# given (standing in for another machine), and prints where the cache went and JAX's cache
+# hits and misses.
+PROGRAM = """
+import json, sys
+import jax, jax.numpy as jnp
+import mjx_hopper
+if len(sys.argv) > 2:
+  mjx_hopper._cpu_features = lambda: sys.argv[2]
+directory = mjx_hopper.use_compile_cache(sys.argv[1])
+jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+events = []
+jax.monitoring.register_event_listener(lambda name, **kwargs: events.append(name))
+jax.jit(lambda x: jnp.sin(x) @ x.T + 1.0)(jnp.ones((8, 8))).block_until_ready()
+print(json.dumps({"directory": directory,
+                  "hits": events.count("/jax/compilation_cache/cache_hits"),
+                  "misses": events.count("/jax/compilation_cache/cache_misses")}))
+"""
+
+
+def compile_once(cache, *features):
+  done = subprocess.run([sys.executable, "-c", PROGRAM, str(cache), *features], check=True,
+                        capture_output=True, text=True)
+  return json.loads(done.stdout.strip().splitlines()[-1]), done.stderr
+
+
+def test_cpu_key_names_the_feature_set(monkeypatch):
+  monkeypatch.setattr(mjx_hopper, "_cpu_features", lambda: "avx2 fma sse4_2")
+  key = mjx_hopper.cpu_key()
+  assert key == mjx_hopper.cpu_key()
+  monkeypatch.setattr(mjx_hopper, "_cpu_features", lambda: "avx2 avx512f fma sse4_2")
+  assert mjx_hopper.cpu_key() != key
+  assert key.split("-")[0] == (os.uname().machine or "cpu")
+
+
+def test_another_cpu_compiles_afresh(tmp_path):
+  first, _ = compile_once(tmp_path)
+  assert first["directory"] == str(tmp_path / mjx_hopper.cpu_key())
+  assert first["misses"] >= 1 and first["hits"] == 0
+  again, stderr = compile_once(tmp_path)
+  assert again["hits"] >= 1 and again["misses"] == 0
+  # XLA:CPU logs an error for each program it loads on an AVX-512 host (its own tuning flags
+  # +prefer-no-gather/scatter, which no host lists); a user never sees it.
+  assert "cpu_aot_loader" not in stderr
+  other, _ = compile_once(tmp_path, "sse2 only")
+  assert other["directory"] != first["directory"]
+  assert other["misses"] >= 1 and other["hits"] == 0
+  assert os.listdir(other["directory"])  # the other CPU's programs are kept apart
