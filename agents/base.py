@@ -2,13 +2,14 @@
 pieces every agent shares: common settings, the optimizer, and target-network updates.
 
 The trainer knows nothing agent-specific: it calls `init` once, `act` to collect, `update` on
-sampled n-step transitions, and `policy` to evaluate. Agent state is any pytree.
+sampled n-step transitions, and `policy` to evaluate. Agent state is any pytree with a
+`hparams` field: the config's dynamic settings as arrays (see `CommonConfig.DYNAMIC`).
 """
 
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Callable, NamedTuple
+from typing import Any, Callable, ClassVar, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -20,12 +21,15 @@ AgentState = Any
 class Agent(NamedTuple):
   """A learner as pure functions. Observations are (..., O), actions (..., A) in [-1, 1].
 
-  init(key) -> state
+  init(key, hparams=None) -> state; `hparams` (the config's dynamic settings as arrays, see
+    `hparams`) default to the config's values, and are kept in the state as `state.hparams`
   act(state, obs, key) -> action, with exploration
   policy(state, obs) -> action, deterministic (for evaluation)
   update(state, transitions, key, axis_name=None) -> (state, metrics); with `axis_name`, the
     gradients (and metrics) are averaged over that mapped axis (data-parallel learning).
-  n_step, discount: how the trainer builds the n-step transitions it samples for `update`.
+  n_step: the longest n-step window the trainer builds for `update`; each state's own n and
+    discount are `state.hparams["n_step"]` and `state.hparams["discount"]`.
+  hparams: the config's dynamic settings, as arrays: what `init` uses by default.
   """
 
   init: Callable[[jax.Array], AgentState]
@@ -33,13 +37,21 @@ class Agent(NamedTuple):
   policy: Callable[[AgentState, jax.Array], jax.Array]
   update: Callable[..., tuple[AgentState, dict[str, jax.Array]]]
   n_step: int
-  discount: float
+  hparams: dict
 
 
 @dataclasses.dataclass(frozen=True)
 class CommonConfig:
   """Settings every agent has. The defaults are the seed notebook's networks and acme's
-  hyperparameters."""
+  hyperparameters.
+
+  The settings named in DYNAMIC are read from the agent state's `hparams` inside the compiled
+  functions, so that one compiled program serves any of their values (a sweep's members each
+  have their own); the others (network sizes, ...) shape the program and are structural.
+  """
+
+  DYNAMIC: ClassVar[tuple[str, ...]] = ("learning_rate", "discount", "n_step",
+                                        "target_update_period", "max_grad_norm")
 
   policy_layers: tuple[int, ...] = (256, 256, 256)
   critic_layers: tuple[int, ...] = (512, 512, 256)
@@ -66,9 +78,19 @@ class CommonConfig:
                          f"{layers!r}")
 
 
-def optimizer(cfg: CommonConfig) -> optax.GradientTransformation:
-  """Adam at the config's learning rate, after clipping the gradients' global norm."""
-  return optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm), optax.adam(cfg.learning_rate))
+def hparams(cfg: CommonConfig) -> dict[str, jax.Array]:
+  """The config's dynamic settings (`cfg.DYNAMIC`) as arrays: int32 for integer settings,
+  float32 for the others."""
+  return {name: jnp.asarray(getattr(cfg, name),
+                            jnp.int32 if isinstance(getattr(cfg, name), int) else jnp.float32)
+          for name in cfg.DYNAMIC}
+
+
+def optimizer(learning_rate, max_grad_norm) -> optax.GradientTransformation:
+  """Adam at `learning_rate`, after clipping the gradients' global norm to `max_grad_norm`
+  (acme's); either may be an array. Its state does not depend on them, so a state made with
+  any values serves every value."""
+  return optax.chain(optax.clip_by_global_norm(max_grad_norm), optax.adam(learning_rate))
 
 
 def update_targets(steps: jax.Array, period: int, online, target):

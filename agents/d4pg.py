@@ -7,6 +7,7 @@ target networks and Gaussian exploration, with acme's JAX learner semantics.
 from __future__ import annotations
 
 import dataclasses
+from typing import ClassVar
 
 from mjx_hopper import distributional
 from mjx_hopper.agents import critics, dpg
@@ -17,6 +18,7 @@ from mjx_hopper.agents.base import Agent
 class Config(dpg.Config):
   """Defaults are the seed notebook's networks and acme's D4PG hyperparameters."""
 
+  DYNAMIC: ClassVar[tuple[str, ...]] = dpg.Config.DYNAMIC + ("vmin", "vmax")
   vmin: float = -150.0
   vmax: float = 150.0
   num_atoms: int = 51
@@ -41,4 +43,4 @@ State = dpg.State
 
 def make(obs_size: int, action_size: int, cfg: Config = Config()) -> Agent:
   return dpg.make(obs_size, action_size, cfg,
-                  critics.categorical(cfg.vmin, cfg.vmax, cfg.num_atoms))
+                  lambda hp: critics.categorical(hp["vmin"], hp["vmax"], cfg.num_atoms))

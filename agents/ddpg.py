@@ -25,4 +25,4 @@ State = dpg.State
 
 
 def make(obs_size: int, action_size: int, cfg: Config = Config()) -> Agent:
-  return dpg.make(obs_size, action_size, cfg, critics.scalar())
+  return dpg.make(obs_size, action_size, cfg, lambda hp: critics.scalar())

@@ -6,7 +6,7 @@ learner semantics. `ddpg.py` and `d4pg.py` choose the head and the presets.
 from __future__ import annotations
 
 import dataclasses
-from typing import NamedTuple
+from typing import Callable, ClassVar, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -14,11 +14,14 @@ import optax
 
 from mjx_hopper import networks
 from mjx_hopper.agents import critics
-from mjx_hopper.agents.base import Agent, CommonConfig, optimizer, pmean, update_targets
+from mjx_hopper.agents.base import (Agent, CommonConfig, hparams, optimizer, pmean,
+                                    update_targets)
 
 
 @dataclasses.dataclass(frozen=True)
 class Config(CommonConfig):
+  DYNAMIC: ClassVar[tuple[str, ...]] = CommonConfig.DYNAMIC + ("sigma",)
+
   sigma: float = 0.3                 # std of the Gaussian exploration noise
 
   def __post_init__(self):
@@ -35,45 +38,54 @@ class State(NamedTuple):
   policy_opt: optax.OptState
   critic_opt: optax.OptState
   steps: jax.Array  # () int32 updates done
+  hparams: dict     # the config's dynamic settings (Config.DYNAMIC), as arrays
 
 
-def make(obs_size: int, action_size: int, cfg: Config, head: critics.Head) -> Agent:
+def make(obs_size: int, action_size: int, cfg: Config,
+         head_of: Callable[[dict], critics.Head]) -> Agent:
+  """`head_of(hparams)` is the critic's head for these dynamic settings."""
+  defaults = hparams(cfg)
   policy_net = networks.TanhPolicy(cfg.policy_layers, action_size)
-  critic_net = networks.Critic(cfg.critic_layers, head.num_outputs)
-  opt = optimizer(cfg)
+  critic_net = networks.Critic(cfg.critic_layers, head_of(defaults).num_outputs)
 
-  def init(key):
+  def init(key, hparams=None):
+    hp = defaults if hparams is None else hparams
+    opt = optimizer(hp["learning_rate"], hp["max_grad_norm"])
     policy_key, critic_key = jax.random.split(key)
     obs, action = jnp.zeros((1, obs_size)), jnp.zeros((1, action_size))
     policy = policy_net.init(policy_key, obs)
     critic = critic_net.init(critic_key, obs, action)
     return State(policy, critic, policy, critic, opt.init(policy), opt.init(critic),
-                 jnp.zeros((), jnp.int32))
+                 jnp.zeros((), jnp.int32), hp)
 
   def policy(state, obs):
     return policy_net.apply(state.policy, obs)
 
   def act(state, obs, key):
     action = policy(state, obs)
-    return jnp.clip(action + cfg.sigma * jax.random.normal(key, action.shape), -1.0, 1.0)
+    noise = state.hparams["sigma"] * jax.random.normal(key, action.shape)
+    return jnp.clip(action + noise, -1.0, 1.0)
 
-  def critic_loss(critic_params, state, batch):
+  def critic_loss(critic_params, state, batch, head):
     next_action = policy_net.apply(state.target_policy, batch.next_obs)
     next_out = critic_net.apply(state.target_critic, batch.next_obs, next_action)
     target = head.target(next_out[None], batch.reward, batch.discount)
     out = critic_net.apply(critic_params, batch.obs, batch.action)
     return head.loss(out, jax.lax.stop_gradient(target)).mean(), head.value(out)
 
-  def policy_loss(policy_params, state, batch):
+  def policy_loss(policy_params, state, batch, head):
     # As acme's learners, the deterministic policy gradient is taken at the next observations.
     action = policy_net.apply(policy_params, batch.next_obs)
     return -head.value(critic_net.apply(state.critic, batch.next_obs, action)).mean()
 
   def update(state, batch, key, axis_name=None):
     del key  # the update is deterministic given the batch
+    hp = state.hparams
+    head = head_of(hp)
+    opt = optimizer(hp["learning_rate"], hp["max_grad_norm"])
     (c_loss, q), c_grads = jax.value_and_grad(critic_loss, has_aux=True)(state.critic, state,
-                                                                        batch)
-    p_loss, p_grads = jax.value_and_grad(policy_loss)(state.policy, state, batch)
+                                                                        batch, head)
+    p_loss, p_grads = jax.value_and_grad(policy_loss)(state.policy, state, batch, head)
     c_grads, p_grads = pmean((c_grads, p_grads), axis_name)
     c_updates, critic_opt = opt.update(c_grads, state.critic_opt)
     p_updates, policy_opt = opt.update(p_grads, state.policy_opt)
@@ -81,10 +93,10 @@ def make(obs_size: int, action_size: int, cfg: Config, head: critics.Head) -> Ag
     policy_params = optax.apply_updates(state.policy, p_updates)
     steps = state.steps + 1
     target_policy, target_critic = update_targets(
-        steps, cfg.target_update_period, (policy_params, critic),
+        steps, hp["target_update_period"], (policy_params, critic),
         (state.target_policy, state.target_critic))
     new = State(policy_params, critic, target_policy, target_critic, policy_opt, critic_opt,
-                steps)
+                steps, hp)
     metrics = {"critic_loss": c_loss, "policy_loss": p_loss, "q_mean": q.mean(),
                "q_min": q.min(), "q_max": q.max(),
                "critic_grad_norm": optax.tree.norm(c_grads),
@@ -92,4 +104,4 @@ def make(obs_size: int, action_size: int, cfg: Config, head: critics.Head) -> Ag
     return new, pmean(metrics, axis_name)
 
   return Agent(init=init, act=act, policy=policy, update=update, n_step=cfg.n_step,
-               discount=cfg.discount)
+               hparams=defaults)

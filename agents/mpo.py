@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import NamedTuple
+from typing import ClassVar, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -32,7 +32,8 @@ import optax
 
 from mjx_hopper import distributional, networks
 from mjx_hopper.agents import critics
-from mjx_hopper.agents.base import Agent, CommonConfig, optimizer, pmean, update_targets
+from mjx_hopper.agents.base import (Agent, CommonConfig, hparams, optimizer, pmean,
+                                    update_targets)
 
 MIN_LOG_DUAL = -18.0   # raw dual values are clipped from below at this (as acme)
 DUAL_FLOOR = 1e-8      # added after softplus, so that every dual is > 0
@@ -44,6 +45,9 @@ class Config(CommonConfig):
   """Defaults are the seed notebook's DMPO networks and acme's (D)MPO hyperparameters, with a
   scalar critic; `distributional=True` is DMPO."""
 
+  DYNAMIC: ClassVar[tuple[str, ...]] = CommonConfig.DYNAMIC + (
+      "epsilon", "epsilon_mean", "epsilon_stddev", "epsilon_penalty", "init_log_temperature",
+      "init_log_alpha_mean", "init_log_alpha_stddev", "dual_learning_rate", "vmin", "vmax")
   num_samples: int = 20              # actions sampled per state in the E-step
   epsilon: float = 0.1               # KL bound of the E-step's weights
   epsilon_mean: float = 2.5e-3       # per-dimension KL bound on the mean
@@ -117,6 +121,7 @@ class State(NamedTuple):
   critic_opt: optax.OptState
   dual_opt: optax.OptState
   steps: jax.Array  # () int32 updates done
+  hparams: dict     # the config's dynamic settings (Config.DYNAMIC), as arrays
 
 
 def positive(raw: jax.Array) -> jax.Array:
@@ -170,30 +175,39 @@ def gaussian_log_prob(x, mean, std):
 
 
 def make(obs_size: int, action_size: int, cfg: Config = Config()) -> Agent:
+  defaults = hparams(cfg)
   policy_net = networks.GaussianPolicy(cfg.policy_layers, action_size, cfg.init_scale,
                                        cfg.min_scale)
-  head = (critics.categorical(cfg.vmin, cfg.vmax, cfg.num_atoms) if cfg.distributional
-          else critics.scalar())
-  critic_net = networks.Critic(cfg.critic_layers, head.num_outputs)
-  opt = optimizer(cfg)
-  dual_opt = optax.adam(cfg.dual_learning_rate)
+
+  def head_of(hp):
+    return (critics.categorical(hp["vmin"], hp["vmax"], cfg.num_atoms) if cfg.distributional
+            else critics.scalar())
+
+  def optimizers(hp):
+    """(the networks' optimizer, the duals' optimizer) for these dynamic settings."""
+    return (optimizer(hp["learning_rate"], hp["max_grad_norm"]),
+            optax.adam(hp["dual_learning_rate"]))
+
+  critic_net = networks.Critic(cfg.critic_layers, head_of(defaults).num_outputs)
   squash = cfg.action_bounds == "squash"
 
   def to_action(u):
     """Env actions from Gaussian samples: tanh-squashed, or clipped to the bounds."""
     return jnp.tanh(u) if squash else jnp.clip(u, -1.0, 1.0)
 
-  def init(key):
+  def init(key, hparams=None):
+    hp = defaults if hparams is None else hparams
+    opt, dual_opt = optimizers(hp)
     policy_key, critic_key = jax.random.split(key)
     obs, action = jnp.zeros((1, obs_size)), jnp.zeros((1, action_size))
     policy = policy_net.init(policy_key, obs)
     critic = critic_net.init(critic_key, obs, action)
-    duals = Duals(jnp.asarray(cfg.init_log_temperature),
-                  jnp.full(action_size, cfg.init_log_alpha_mean),
-                  jnp.full(action_size, cfg.init_log_alpha_stddev),
-                  jnp.asarray(cfg.init_log_temperature))
+    duals = Duals(jnp.asarray(hp["init_log_temperature"], jnp.float32),
+                  jnp.full(action_size, hp["init_log_alpha_mean"], jnp.float32),
+                  jnp.full(action_size, hp["init_log_alpha_stddev"], jnp.float32),
+                  jnp.asarray(hp["init_log_temperature"], jnp.float32))
     return State(policy, critic, policy, critic, duals, opt.init(policy), opt.init(critic),
-                 dual_opt.init(duals), jnp.zeros((), jnp.int32))
+                 dual_opt.init(duals), jnp.zeros((), jnp.int32), hp)
 
   def policy(state, obs):
     return to_action(policy_net.apply(state.policy, obs)[0])
@@ -202,22 +216,22 @@ def make(obs_size: int, action_size: int, cfg: Config = Config()) -> Agent:
     mean, std = policy_net.apply(state.policy, obs)
     return to_action(mean + std * jax.random.normal(key, mean.shape))
 
-  def critic_loss(critic_params, batch, next_out):
+  def critic_loss(critic_params, batch, next_out, head):
     target = head.target(next_out, batch.reward, batch.discount)
     out = critic_net.apply(critic_params, batch.obs, batch.action)
     return head.loss(out, jax.lax.stop_gradient(target)).mean(), head.value(out)
 
-  def policy_loss(policy_params, duals, next_obs, target_mean, target_std, samples, q):
+  def policy_loss(policy_params, duals, next_obs, target_mean, target_std, samples, q, hp):
     # As acme's learners, the policy is improved at the next observations.
     mean, std = policy_net.apply(policy_params, next_obs)
     temperature = positive(duals.log_temperature)
-    weights, loss_temperature = e_step(q, temperature, cfg.epsilon)
+    weights, loss_temperature = e_step(q, temperature, hp["epsilon"])
     kl_q = jnp.sum(weights * jnp.log(q.shape[0] * weights + 1e-30), axis=0).mean()
-    stats = {"temperature": temperature, "kl_q_rel": kl_q / cfg.epsilon}
+    stats = {"temperature": temperature, "kl_q_rel": kl_q / hp["epsilon"]}
     if not squash:
       penalty_temperature = positive(duals.log_penalty_temperature)
       cost = -jnp.linalg.norm(samples - jnp.clip(samples, -1.0, 1.0), axis=-1)
-      penalty_weights, loss_penalty = e_step(cost, penalty_temperature, cfg.epsilon_penalty)
+      penalty_weights, loss_penalty = e_step(cost, penalty_temperature, hp["epsilon_penalty"])
       weights = weights + penalty_weights
       loss_temperature = loss_temperature + loss_penalty
       stats["penalty_temperature"] = penalty_temperature
@@ -226,29 +240,32 @@ def make(obs_size: int, action_size: int, cfg: Config = Config()) -> Agent:
     fit_std = -jnp.sum(weights * gaussian_log_prob(samples, target_mean, std), axis=0).mean()
     kl_mean, kl_std = decoupled_kl(target_mean, target_std, mean, std)
     alpha_mean, alpha_std = positive(duals.log_alpha_mean), positive(duals.log_alpha_stddev)
-    penalty_mean, dual_mean, mean_kl_mean = kl_losses(kl_mean, alpha_mean, cfg.epsilon_mean)
-    penalty_std, dual_std, mean_kl_std = kl_losses(kl_std, alpha_std, cfg.epsilon_stddev)
+    penalty_mean, dual_mean, mean_kl_mean = kl_losses(kl_mean, alpha_mean, hp["epsilon_mean"])
+    penalty_std, dual_std, mean_kl_std = kl_losses(kl_std, alpha_std, hp["epsilon_stddev"])
     loss = (fit_mean + fit_std + penalty_mean + penalty_std + dual_mean + dual_std
             + loss_temperature)
     stats.update(policy_loss=fit_mean + fit_std, alpha_mean=alpha_mean.mean(),
                  alpha_stddev=alpha_std.mean(),
-                 kl_mean_rel=mean_kl_mean.mean() / cfg.epsilon_mean,
-                 kl_stddev_rel=mean_kl_std.mean() / cfg.epsilon_stddev,
+                 kl_mean_rel=mean_kl_mean.mean() / hp["epsilon_mean"],
+                 kl_stddev_rel=mean_kl_std.mean() / hp["epsilon_stddev"],
                  policy_std=std.mean(), policy_std_min=std.min(), policy_std_max=std.max())
     return loss, stats
 
   def update(state, batch, key, axis_name=None):
+    hp = state.hparams
+    head = head_of(hp)
+    opt, dual_opt = optimizers(hp)
     target_mean, target_std = policy_net.apply(state.target_policy, batch.next_obs)
     samples = target_mean + target_std * jax.random.normal(
         key, (cfg.num_samples,) + target_mean.shape)                       # (N, B, A)
     next_obs = jnp.broadcast_to(batch.next_obs, (cfg.num_samples,) + batch.next_obs.shape)
     next_out = critic_net.apply(state.target_critic, next_obs, to_action(samples))
     (c_loss, q), c_grads = jax.value_and_grad(critic_loss, has_aux=True)(
-        state.critic, batch, next_out)
+        state.critic, batch, next_out, head)
     (_, stats), (p_grads, d_grads) = jax.value_and_grad(policy_loss, argnums=(0, 1),
                                                         has_aux=True)(
         state.policy, state.duals, batch.next_obs, target_mean, target_std, samples,
-        head.value(next_out))
+        head.value(next_out), hp)
     c_grads, p_grads, d_grads = pmean((c_grads, p_grads, d_grads), axis_name)
     c_updates, critic_opt = opt.update(c_grads, state.critic_opt)
     p_updates, policy_opt = opt.update(p_grads, state.policy_opt)
@@ -259,14 +276,14 @@ def make(obs_size: int, action_size: int, cfg: Config = Config()) -> Agent:
                          optax.apply_updates(state.duals, d_updates))
     steps = state.steps + 1
     target_policy, target_critic = update_targets(
-        steps, cfg.target_update_period, (policy_params, critic),
+        steps, hp["target_update_period"], (policy_params, critic),
         (state.target_policy, state.target_critic))
     new = State(policy_params, critic, target_policy, target_critic, duals, policy_opt,
-                critic_opt, dual_state, steps)
+                critic_opt, dual_state, steps, hp)
     metrics = dict(stats, critic_loss=c_loss, q_mean=q.mean(), q_min=q.min(), q_max=q.max(),
                    critic_grad_norm=optax.tree.norm(c_grads),
                    policy_grad_norm=optax.tree.norm(p_grads))
     return new, pmean(metrics, axis_name)
 
   return Agent(init=init, act=act, policy=policy, update=update, n_step=cfg.n_step,
-               discount=cfg.discount)
+               hparams=defaults)

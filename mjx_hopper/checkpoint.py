@@ -16,6 +16,7 @@ import zlib
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 import orbax.checkpoint as ocp
 
 from mjx_hopper import train
@@ -37,8 +38,14 @@ def versions() -> dict[str, str]:
 
 def manager(directory: str, max_to_keep: int = 3) -> ocp.CheckpointManager:
   """A CheckpointManager over `directory` (created if missing), saving asynchronously."""
-  options = ocp.CheckpointManagerOptions(max_to_keep=max_to_keep,
-                                         enable_async_checkpointing=True)
+  # Under jax.distributed each process saves its own members to its own directory: it is the
+  # only process orbax waits for.
+  me = jax.process_index()
+  os.makedirs(directory, exist_ok=True)
+  options = ocp.CheckpointManagerOptions(
+      max_to_keep=max_to_keep, enable_async_checkpointing=True, create=False,
+      multiprocessing_options=ocp.options.MultiprocessingOptions(
+          primary_host=me, active_processes={me}, barrier_sync_key_prefix=f"process{me}"))
   return ocp.CheckpointManager(os.path.abspath(directory), options=options, item_names=ITEMS)
 
 
@@ -49,15 +56,22 @@ def _split(state: train.TrainState) -> tuple:
 
 def _nonempty(tree) -> dict:
   """The leaves of `tree` by index, leaving out zero-size ones (orbax cannot write them; MJX's
-  Data has some, such as `act` for models without actuator states)."""
-  return {str(i): x for i, x in enumerate(jax.tree.leaves(tree)) if x.size}
+  Data has some, such as `act` for models without actuator states). Under jax.distributed
+  they are host (numpy) copies: orbax writes only global arrays of device data, and each
+  process's members live on its own devices."""
+  leaves = jax.tree.leaves(tree)
+  if jax.process_count() > 1:
+    leaves = [np.zeros(x.shape, x.dtype) if isinstance(x, jax.ShapeDtypeStruct)
+              else np.asarray(jax.device_get(x)) for x in leaves]
+  return {str(i): x for i, x in enumerate(leaves) if x.size}
 
 
 def _rebuild(like, saved: dict):
-  """`like`'s structure with the saved leaves, and its zero-size leaves as empty arrays."""
+  """`like`'s structure with the saved leaves, placed as `like`'s, and its zero-size leaves
+  as empty arrays."""
   leaves, treedef = jax.tree.flatten(like)
-  return treedef.unflatten([saved[str(i)] if str(i) in saved
-                            else jax.device_put(jnp.zeros(x.shape, x.dtype), x.sharding)
+  return treedef.unflatten([jax.device_put(saved[str(i)] if str(i) in saved
+                                           else jnp.zeros(x.shape, x.dtype), x.sharding)
                             for i, x in enumerate(leaves)])
 
 
@@ -119,7 +133,7 @@ def save(mngr: ocp.CheckpointManager, state: train.TrainState, config: dict) -> 
   """Starts saving `state` as step = its iteration count, after finishing the previous save
   (see `finish`); returns the step. Call `finish(mngr)` before relying on it."""
   finish(mngr)
-  step = int(state.iteration)
+  step = train.iterations(state)
   agent, trainer = _split(state)
   mngr.save(step, args=ocp.args.Composite(
       agent=ocp.args.StandardSave(_nonempty(agent)),
@@ -162,7 +176,8 @@ def restore_agent(mngr: ocp.CheckpointManager, step: int, like_agent):
 
 # The settings a checkpoint's state depends on; the others (run length, logging, evaluation)
 # may change between a run and its resumption.
-MUST_MATCH = ("env", "agent", "agent_config", "train", "episode_steps", "seed")
+MUST_MATCH = ("env", "agent", "agent_config", "train", "episode_steps", "seed", "seeds", "grid",
+              "member_indices")
 
 
 class ConfigMismatch(ValueError):

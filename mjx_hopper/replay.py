@@ -74,27 +74,35 @@ def can_sample(state: ReplayState, n_step: int) -> jax.Array:
   return state.filled >= n_step
 
 
-def sample(state: ReplayState, key: jax.Array, batch_size: int, n_step: int,
-           gamma: float) -> Transition:
+def sample(state: ReplayState, key: jax.Array, batch_size: int, n_step, gamma,
+           window: int | None = None) -> Transition:
   """`batch_size` n-step transitions, uniformly over the valid starts. Needs
-  `can_sample(state, n_step)`."""
+  `can_sample(state, n_step)`.
+
+  `n_step` and `gamma` may be arrays (a sweep member's own); `window` (default: `n_step`, then
+  an int) is the static number of rows read per transition, at least any n_step used.
+  """
+  window = n_step if window is None else window
   rows, num_envs = state.steps.obs.shape[:2]
   row_key, env_key = jax.random.split(key)
   oldest = (state.position - state.filled) % rows
   starts = jax.random.randint(row_key, (batch_size,), 0, state.filled - n_step + 1)
-  row_idx = (oldest + starts[:, None] + jnp.arange(n_step)) % rows      # (B, n)
+  row_idx = (oldest + starts[:, None] + jnp.arange(window)) % rows      # (B, window)
   env_idx = jax.random.randint(env_key, (batch_size,), 0, num_envs)[:, None]
-  window = jax.tree.map(lambda x: x[row_idx, env_idx], state.steps)      # leaves (B, n, ...)
-  return n_step_transition(window, gamma)
+  steps = jax.tree.map(lambda x: x[row_idx, env_idx], state.steps)      # leaves (B, window, ...)
+  return n_step_transition(steps, gamma, n_step)
 
 
-def n_step_transition(window: Step, gamma: float) -> Transition:
-  """The transition from windows of n consecutive steps of one env (leaves (B, n, ...))."""
-  n = window.reward.shape[-1]
+def n_step_transition(window: Step, gamma, n_step=None) -> Transition:
+  """The transition from windows of consecutive steps of one env (leaves (B, W, ...)), of
+  their first `n_step` steps (default: all W; may be an array)."""
+  w = window.reward.shape[-1]
   not_done = 1.0 - window.done
   # live[k]: no episode ended in steps 0..k-1, so step k belongs to the transition.
   live = jnp.concatenate([jnp.ones_like(not_done[:, :1]), jnp.cumprod(not_done[:, :-1], -1)], -1)
-  powers = gamma ** jnp.arange(n, dtype=jnp.float32)
+  if n_step is not None:
+    live = live * (jnp.arange(w) < n_step)
+  powers = gamma ** jnp.arange(w, dtype=jnp.float32)
   last = (jnp.sum(live, -1) - 1).astype(jnp.int32)                      # index of the final step
   take_last = jax.vmap(lambda x, i: x[i])
   return Transition(

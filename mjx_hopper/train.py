@@ -5,26 +5,37 @@ envs with the agent's exploring policy, inserts them into the replay, and runs K
 updates on batches of n-step transitions, where K = replay_ratio * num_envs * unroll_length /
 batch_size (the replay ratio is samples drawn per transition inserted).
 
-Devices: the whole iteration runs under `shard_map` over every local device. Each device steps
-its share of the envs, keeps their steps in its share of the replay, and samples its share of
-each batch from it; the learner is data-parallel (gradients averaged over devices, parameters
-replicated). With one device it is plain single-device code.
+Members: a trainer trains S members at once (a sweep: seeds and hyperparameters; a single run
+is a sweep of one). Every leaf of the TrainState has a leading member axis of S, and the
+agent's dynamic settings (`agents.base.CommonConfig.DYNAMIC`) and the replay ratio are arrays
+in it, so one compiled program serves every member's values.
+
+Devices: the whole iteration runs under `shard_map` over every local device, laid out as a
+(members, devices) mesh: the members are split over gcd(S, D) groups of devices, and within a
+group each device steps its share of each member's envs, keeps their steps in its share of the
+replay, and samples its share of each batch from it; the learner is data-parallel (gradients
+averaged over the group, parameters replicated in it). A device holding several members runs
+them under vmap; one holding one member runs plain code, the same program as a single run on
+one device.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
 
 from mjx_hopper import replay, rollout
 from mjx_hopper.agents.base import Agent
 from mjx_hopper.envs import AutoReset, LocomotionEnv
 
-AXIS = "devices"
+AXIS = "devices"    # a member's devices: its envs, replay and batches are split over them
+MEMBERS = "members"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -32,7 +43,9 @@ class TrainConfig:
   """How to train. Sizes count transitions (one env step of one env).
 
   The defaults are the settings that reached 2,000 on Hopper in the fewest CPU-affordable
-  env steps and updates with D4PG's cpu preset (BENCHMARKS.md, "Choosing the CPU settings").
+  env steps and updates with D4PG's cpu preset (docs/benchmark-history.md, "Choosing the CPU
+  settings"). `replay_ratio` is dynamic (a sweep's members may each have their own, at most
+  the trainer's); the others are structural.
   """
 
   num_envs: int = 512
@@ -81,25 +94,30 @@ class TrainConfig:
 
 
 class TrainState(NamedTuple):
-  """Everything a run needs to continue: orbax saves it whole."""
+  """Everything a run needs to continue: orbax saves it whole. Every leaf has a leading axis
+  of S members (shapes below are per member)."""
 
-  agent: Any                     # the agent's own pytree (params, targets, optimizer states)
+  agent: Any                     # the agent's own pytree (params, ..., hparams)
   replay: replay.ReplayState     # leaves (rows, num_envs, ...)
   env: Any                       # batch of AutoReset env states, leading axis num_envs
   episode_return: jax.Array      # (num_envs,) return so far of each env's current episode
   key: jax.Array
   iteration: jax.Array           # () int32 iterations done
   updates: jax.Array             # () int32 learner updates done
+  replay_ratio: jax.Array        # () float32 samples drawn per transition inserted
 
 
 class Trainer(NamedTuple):
-  """Compiled functions of one (env, agent, config).
+  """Compiled functions of one (env, agent, config, number of members).
 
-  init(key) -> TrainState
-  train_chunk(state) -> (state, metrics): `iterations_per_chunk` iterations; metrics are the
-    agent's, averaged over the chunk's updates, plus "episodes" (count ended in the chunk),
-    "episode_return" (their mean return; NaN if none ended) and "learning" (1 once updating).
-  evaluate(agent_state, key) -> per-episode "return", "length" (see `evaluate`).
+  init(keys, hparams=None) -> TrainState: keys (S, 2), one PRNGKey per member (a single key
+    is taken as S = 1); hparams: {name: (S,) values} of the agent's dynamic settings and
+    "replay_ratio", each defaulting to the config's.
+  train_chunk(state) -> (state, metrics): `iterations_per_chunk` iterations; metrics, each
+    (S,), are the agent's, averaged over the chunk's updates, plus "episodes" (count ended in
+    the chunk), "episode_return" (their mean return; NaN if none ended) and "learning" (1
+    once updating).
+  evaluate(agent_states, keys) -> per-member, per-episode "return", "length" (S, episodes).
   """
 
   init: Any
@@ -108,33 +126,83 @@ class Trainer(NamedTuple):
   config: TrainConfig
   env: LocomotionEnv
   agent: Agent
+  num_members: int
 
 
-def make_trainer(env: LocomotionEnv, agent: Agent, cfg: TrainConfig,
-                 eval_episodes: int = 16) -> Trainer:
-  devices = jax.local_devices()
-  cfg.check(len(devices))
-  mesh = Mesh(devices, (AXIS,))
+def mesh_shape(num_members: int, num_devices: int) -> tuple[int, int]:
+  """(member groups, devices per member) for S members on D devices: gcd(S, D) groups."""
+  groups = math.gcd(num_members, num_devices)
+  return groups, num_devices // groups
+
+
+def make_trainer(env: LocomotionEnv, agent: Agent, cfg: TrainConfig, eval_episodes: int = 16,
+                 num_members: int = 1, dynamic_updates: bool = False,
+                 devices: list | None = None) -> Trainer:
+  """The compiled trainer of `num_members` members on `devices` (default: every local one).
+
+  With `dynamic_updates`, each member runs round(its replay_ratio * num_envs * unroll_length /
+  batch_size) updates per iteration, at most `cfg`'s (the rest are skipped); without, every
+  member runs `cfg`'s count, whatever its replay_ratio.
+  """
+  devices = list(jax.local_devices() if devices is None else devices)
+  groups, group_size = mesh_shape(num_members, len(devices))
+  cfg.check(group_size)
+  mesh = Mesh(np.array(devices).reshape(groups, group_size), (MEMBERS, AXIS))
+  local_members = num_members // groups
   train_env = AutoReset(env)
   rows = cfg.replay_rows()
   min_rows = max(-(-cfg.min_replay // cfg.num_envs), agent.n_step)
-  local_batch = cfg.batch_size // len(devices)
-  n_updates = cfg.updates_per_iteration
+  local_batch = cfg.batch_size // group_size
+  # A member on one device needs no collectives: leaving them out makes its program the same
+  # whether other devices run other members or not.
+  axis = AXIS if group_size > 1 else None
 
-  specs = TrainState(agent=P(), replay=replay.ReplayState(P(None, AXIS), P(), P()),
-                     env=P(AXIS), episode_return=P(AXIS), key=P(), iteration=P(), updates=P())
+  def device_index():
+    return jax.lax.axis_index(AXIS) if axis else 0
 
-  def init(key):
-    agent_key, env_key, key = jax.random.split(key, 3)
-    env_state = jax.vmap(train_env.reset)(jax.random.split(env_key, cfg.num_envs))
-    return TrainState(
-        agent=agent.init(agent_key),
-        replay=replay.init(rows, cfg.num_envs, env.observation_size, env.action_size),
-        env=env_state, episode_return=jnp.zeros(cfg.num_envs), key=key,
-        iteration=jnp.zeros((), jnp.int32), updates=jnp.zeros((), jnp.int32))
+  def total(x):
+    return jax.lax.psum(x, AXIS) if axis else x
+  max_updates = cfg.updates_per_iteration
 
+  def member_spec(*axes):
+    return P(MEMBERS, *axes)
+
+  specs = TrainState(agent=member_spec(),
+                     replay=replay.ReplayState(member_spec(None, AXIS), member_spec(),
+                                               member_spec()),
+                     env=member_spec(AXIS), episode_return=member_spec(AXIS),
+                     key=member_spec(), iteration=member_spec(), updates=member_spec(),
+                     replay_ratio=member_spec())
   shardings = jax.tree.map(lambda spec: NamedSharding(mesh, spec), specs,
                            is_leaf=lambda x: isinstance(x, P))
+
+  def init_member(key, hp):
+    agent_key, env_key, key = jax.random.split(key, 3)
+    hp = dict(hp)
+    ratio = hp.pop("replay_ratio")
+    env_state = jax.vmap(train_env.reset)(jax.random.split(env_key, cfg.num_envs))
+    return TrainState(
+        agent=agent.init(agent_key, hp),
+        replay=replay.init(rows, cfg.num_envs, env.observation_size, env.action_size),
+        env=env_state, episode_return=jnp.zeros(cfg.num_envs), key=key,
+        iteration=jnp.zeros((), jnp.int32), updates=jnp.zeros((), jnp.int32),
+        replay_ratio=jnp.asarray(ratio, jnp.float32))
+
+  compiled_init = jax.jit(jax.vmap(init_member), out_shardings=shardings)
+
+  def init(keys, hparams=None):
+    keys = jnp.asarray(keys)
+    keys = keys[None] if keys.ndim == 1 else keys
+    if keys.shape[0] != num_members:
+      raise ValueError(f"init takes {num_members} keys (one per member), got {keys.shape[0]}")
+    defaults = {**agent.hparams, "replay_ratio": jnp.asarray(cfg.replay_ratio, jnp.float32)}
+    unknown = sorted(set(hparams or {}) - set(defaults))
+    if unknown:
+      raise ValueError(f"unknown dynamic settings {unknown}; this agent's are {sorted(defaults)}")
+    values = {**defaults, **(hparams or {})}
+    batched = {k: jnp.broadcast_to(jnp.asarray(v, defaults[k].dtype), (num_members,))
+               for k, v in values.items()}
+    return compiled_init(keys, batched)
 
   def collect(agent_state, env_state, episode_return, key):
     """unroll_length steps of this device's envs: (env, return, steps (T, n, ...), ended
@@ -154,13 +222,25 @@ def make_trainer(env: LocomotionEnv, agent: Agent, cfg: TrainConfig,
         one, (env_state, episode_return), jax.random.split(key, cfg.unroll_length))
     return env_state, episode_return, steps, jax.tree.map(jnp.sum, ended)
 
-  def learn(agent_state, buffer, key):
-    def one(agent_state, update_key):
-      sample_key = jax.random.fold_in(update_key, jax.lax.axis_index(AXIS))
-      batch = replay.sample(buffer, sample_key, local_batch, agent.n_step, agent.discount)
-      return agent.update(agent_state, batch, update_key, axis_name=AXIS)
-    agent_state, metrics = jax.lax.scan(one, agent_state, jax.random.split(key, n_updates))
-    return agent_state, jax.tree.map(jnp.mean, metrics)
+  def learn(agent_state, buffer, key, n_updates):
+    """`max_updates` updates, of which the first `n_updates` count (all, unless
+    dynamic_updates): (agent state, metrics averaged over the updates that counted)."""
+    hp = agent_state.hparams
+
+    def one(agent_state, x):
+      i, update_key = x
+      sample_key = jax.random.fold_in(update_key, device_index())
+      batch = replay.sample(buffer, sample_key, local_batch, hp["n_step"], hp["discount"],
+                            window=agent.n_step)
+      new, metrics = agent.update(agent_state, batch, update_key, axis_name=axis)
+      if dynamic_updates:
+        new = jax.tree.map(lambda a, b: jnp.where(i < n_updates, a, b), new, agent_state)
+      return new, metrics
+    steps = jnp.arange(max_updates)
+    agent_state, metrics = jax.lax.scan(one, agent_state,
+                                        (steps, jax.random.split(key, max_updates)))
+    weight = (steps < n_updates) / n_updates
+    return agent_state, jax.tree.map(lambda m: jnp.sum(m * weight), metrics)
 
   example = replay.Transition(jnp.zeros((1, env.observation_size)), jnp.zeros((1, env.action_size)),
                               jnp.zeros(1), jnp.zeros(1), jnp.zeros((1, env.observation_size)))
@@ -170,17 +250,20 @@ def make_trainer(env: LocomotionEnv, agent: Agent, cfg: TrainConfig,
 
   def iteration(state: TrainState, _):
     key, act_key, learn_key = jax.random.split(state.key, 3)
-    act_key = jax.random.fold_in(act_key, jax.lax.axis_index(AXIS))
+    act_key = jax.random.fold_in(act_key, device_index())
     env_state, ep_return, steps, (ended, ended_return) = collect(
         state.agent, state.env, state.episode_return, act_key)
     buffer = replay.insert(state.replay, steps)
     learning = buffer.filled >= min_rows
+    n_updates = (jnp.round(state.replay_ratio * cfg.steps_per_iteration / cfg.batch_size)
+                 .astype(jnp.int32) if dynamic_updates else max_updates)
     zeros = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), metric_shapes)
-    agent_state, metrics = jax.lax.cond(learning, learn, lambda a, b, k: (a, zeros),
-                                        state.agent, buffer, learn_key)
-    new = TrainState(agent_state, buffer, env_state, ep_return, key, state.iteration + 1,
-                     state.updates + learning * n_updates)
-    return new, (metrics, learning, jax.lax.psum(ended, AXIS), jax.lax.psum(ended_return, AXIS))
+    agent_state, metrics = jax.lax.cond(learning, learn, lambda a, b, k, n: (a, zeros),
+                                        state.agent, buffer, learn_key, n_updates)
+    new = state._replace(agent=agent_state, replay=buffer, env=env_state,
+                         episode_return=ep_return, key=key, iteration=state.iteration + 1,
+                         updates=state.updates + learning * n_updates)
+    return new, (metrics, learning, total(ended), total(ended_return))
 
   def chunk(state: TrainState):
     state, (metrics, learning, ended, ended_return) = jax.lax.scan(
@@ -193,22 +276,40 @@ def make_trainer(env: LocomotionEnv, agent: Agent, cfg: TrainConfig,
 
   # Explicit shardings, the same in and out, so that a chunk's output feeds the next call
   # without a second compilation.
-  train_chunk = jax.jit(jax.shard_map(chunk, mesh=mesh, in_specs=(specs,),
-                                      out_specs=(specs, P()), check_vma=False),
-                        in_shardings=(shardings,),
-                        out_shardings=(shardings, NamedSharding(mesh, P())), donate_argnums=0)
+  train_chunk = jax.jit(
+      jax.shard_map(per_member(chunk, local_members), mesh=mesh, in_specs=(specs,),
+                    out_specs=(specs, member_spec()), check_vma=False),
+      in_shardings=(shardings,),
+      out_shardings=(shardings, NamedSharding(mesh, member_spec())), donate_argnums=0)
 
-  def evaluate_fn(agent_state, key):
-    return evaluate(env, agent, agent_state, key, eval_episodes)
+  def evaluate_members(agent_states, keys):
+    return jax.vmap(lambda s, k: evaluate(env, agent, s, k, eval_episodes))(agent_states, keys)
 
-  return Trainer(jax.jit(init, out_shardings=shardings), train_chunk, jax.jit(evaluate_fn), cfg,
-                 env, agent)
+  return Trainer(init, train_chunk, jax.jit(evaluate_members), cfg, env, agent, num_members)
+
+
+def iterations(state: TrainState) -> int:
+  """Iterations done (the same for every member)."""
+  return int(np.asarray(jax.device_get(state.iteration)).reshape(-1)[0])
+
+
+def per_member(fn, local_members: int):
+  """`fn` of one member's pytrees, applied to pytrees with a leading axis of `local_members`:
+  plain code on the one member when there is one (a single run's program), else vmap."""
+  if local_members > 1:
+    return jax.vmap(fn)
+
+  def one(*args):
+    out = fn(*jax.tree.map(lambda x: x[0], args))
+    return jax.tree.map(lambda x: x[None], out)
+  return one
 
 
 def evaluate(env: LocomotionEnv, agent: Agent, agent_state, key: jax.Array,
              num_episodes: int, record_qpos: bool = False) -> dict[str, jax.Array]:
-  """Runs `num_episodes` episodes in parallel with the deterministic policy (jit it with env,
-  agent and num_episodes static). Returns per-episode "return" and "length" (num_episodes,),
-  the mean of each reward term, and with `record_qpos` the "qpos" of episode 0."""
+  """Runs `num_episodes` episodes in parallel with the deterministic policy of one member's
+  `agent_state` (jit it with env, agent and num_episodes static). Returns per-episode "return"
+  and "length" (num_episodes,), the mean of each reward term, and with `record_qpos` the
+  "qpos" of episode 0."""
   return rollout.episodes(env, lambda obs, _: agent.policy(agent_state, obs), key, num_episodes,
                           record_qpos=record_qpos)

@@ -5,8 +5,12 @@ import os
 # Two devices; and XLA:CPU's loop emitters instead of its fusion emitters, which compile MJX's
 # physics a quarter to a third faster (benchmarks/research/xla_cpu_flags.py), as the suite's time
 # is mostly compiling. Users keep XLA's default: the programs' speed depends on the robot
-# (docs/benchmark-history.md).
-TEST_XLA_FLAGS = "--xla_force_host_platform_device_count=2 --xla_cpu_use_fusion_emitters=false"
+# (docs/benchmark-history.md). And single-threaded matrix products within a device: XLA:CPU
+# splits a product over its thread pool only in single-device programs, which changes the
+# order of its sums, so a sweep member would not be bit-identical to its single run on one
+# device (test_sweep.py).
+TEST_XLA_FLAGS = ("--xla_force_host_platform_device_count=2 --xla_cpu_use_fusion_emitters=false "
+                  "--xla_cpu_multi_thread_eigen=false")
 os.environ["XLA_FLAGS"] = os.environ.get("XLA_FLAGS", "") + " " + TEST_XLA_FLAGS
 
 # One compile cache for the tests and the processes they start (CLI runs, notebooks), so that

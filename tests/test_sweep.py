@@ -1,0 +1,155 @@
+"""Sweeps: members of one compiled program, each the single run of its settings, resumable,
+extractable, and split over processes with jax.distributed."""
+
+import csv
+import dataclasses
+import os
+import signal
+import socket
+import subprocess
+import sys
+
+import jax
+import numpy as np
+import pytest
+
+from mjx_hopper import checkpoint, loop, sweep, train
+from test_train import TINY, TINY_ARGS, member
+
+
+def run_chunks(trainer, state, chunks=2):
+  for _ in range(chunks):
+    state, metrics = trainer.train_chunk(state)
+  return jax.device_get(state), jax.device_get(metrics)
+
+
+def assert_same(a, b):
+  jax.tree.map(lambda x, y: np.testing.assert_array_equal(np.asarray(x), np.asarray(y)), a, b)
+
+
+def test_member_is_bit_identical_to_its_single_run():
+  # Two members on the two CPU devices, one each: each runs the program of a single run on one
+  # device, from its own seed's keys, with its learning rate as an array of the same program.
+  cfg = dataclasses.replace(TINY, seeds=(1,), grid={"learning_rate": (1e-3, 3e-4)})
+  trainer = loop.build(cfg)
+  members = cfg.members()
+  state, metrics = run_chunks(trainer, loop.init(cfg, trainer, members))
+  for i, chosen in enumerate(members):
+    single_cfg = dataclasses.replace(TINY, seed=chosen["seed"], agent_overrides={
+        **TINY.agent_overrides, "learning_rate": chosen["learning_rate"]})
+    base = loop.build(single_cfg, 1)
+    single = train.make_trainer(base.env, base.agent, single_cfg.train, TINY.eval_episodes,
+                                devices=jax.local_devices()[:1])
+    one, one_metrics = run_chunks(single, loop.init(single_cfg, single, single_cfg.members()))
+    assert_same(member(state, i), member(one))
+    assert_same(member(metrics, i), member(one_metrics))
+  first, second = (jax.tree.leaves(member(state, i).agent.policy)[0] for i in range(2))
+  assert not np.array_equal(first, second)  # the learning rates made a difference
+
+
+def stop_after_first_chunk(line):
+  """A print_fn that asks the run to stop (as Ctrl-C would) once the first chunk is logged."""
+  if line.startswith("[train]"):
+    os.kill(os.getpid(), signal.SIGTERM)
+
+
+def test_sweep_writes_results_resumes_exactly_and_extracts(tmp_path, capsys):
+  # 2 seeds x 2 sigmas = 4 members, two on each device (under vmap).
+  cfg = dataclasses.replace(TINY, seeds=(0, 1), grid={"sigma": (0.1, 0.3)}, total_env_steps=80,
+                            out_dir=str(tmp_path / "straight"))
+  straight = loop.run(cfg, progress=False)
+  split_cfg = dataclasses.replace(cfg, out_dir=str(tmp_path / "split"))
+  stopped = loop.run(split_cfg, progress=False, print_fn=stop_after_first_chunk)
+  assert train.iterations(stopped.state) * cfg.train.steps_per_iteration == 40
+  resumed = loop.run(split_cfg, progress=False)
+  assert_same(jax.device_get(straight.state), jax.device_get(resumed.state))
+
+  with open(tmp_path / "straight" / "log.csv") as f:
+    rows = list(csv.DictReader(f))
+  evals = [r for r in rows if r["kind"] == "eval"]
+  assert sorted((int(r["member"]), int(r["env_steps"])) for r in evals) == [
+      (m, s) for m in range(4) for s in (40, 80)]
+  assert {(int(r["member"]), int(r["seed"]), float(r["sigma"])) for r in evals} == {
+      (0, 0, 0.1), (1, 1, 0.1), (2, 0, 0.3), (3, 1, 0.3)}
+  out = capsys.readouterr().out
+  assert "| rank | setting |" in out and "sigma=0.1" in out and "sigma=0.3" in out
+  assert (tmp_path / "straight" / "curves.png").stat().st_size > 10_000
+
+  # Member 2 (seed 0, sigma 0.3) becomes a single run's checkpoint.
+  target = sweep.extract(str(tmp_path / "straight" / "checkpoints"), 2, str(tmp_path / "m2"))
+  one_cfg, one_state, _ = loop.restore(target)
+  assert (one_cfg.seed, one_cfg.agent_overrides["sigma"], one_cfg.seeds, one_cfg.grid) == (
+      0, 0.3, (), {})
+  assert_same(member(one_state), member(straight.state, 2))
+  with pytest.raises(ValueError, match="already holds a checkpoint"):
+    sweep.extract(str(tmp_path / "straight" / "checkpoints"), 2, str(tmp_path / "m2"))
+  with pytest.raises(ValueError, match=r"member 7 is not in .*: it holds members \[0, 1, 2, 3\]"):
+    sweep.extract(str(tmp_path / "straight" / "checkpoints"), 7, str(tmp_path / "m7"))
+
+
+@pytest.mark.parametrize("grid, message", [
+    ({"learning_rat": (1e-4,)}, "unknown setting 'learning_rat' in the sweep; settings that can "
+                                "be swept are .*'learning_rate'"),
+    ({"learning_rate": ()}, "the sweep's 'learning_rate' needs a non-empty list of values"),
+    ({"policy_layers": ((16,), (32,))}, "'policy_layers' is structural .* run one sweep per "
+                                        "value"),
+    ({"batch_size": (8, 16)}, "'batch_size' is structural"),
+    ({"sigma": (0.1, 0.1)}, r"the sweep's 'sigma' repeats a value: \[0.1, 0.1\]"),
+    ({"learning_rate": (1e-4, -1.0)}, "learning_rate must be > 0, got -1.0"),
+    ({"replay_ratio": (2.0, 1.5)}, "must be a whole number of updates >= 1, got 1.5"),
+])
+def test_bad_sweep_specs(grid, message):
+  with pytest.raises(ValueError, match=message):
+    dataclasses.replace(TINY, grid=grid)
+
+
+def test_bad_seeds_and_cli_spec(capsys):
+  with pytest.raises(ValueError, match=r"seeds must be distinct integers, got \[1, 1\]"):
+    dataclasses.replace(TINY, seeds=(1, 1))
+  from mjx_hopper import cli
+  with pytest.raises(SystemExit, match="'critic_layers' is structural"):
+    cli.main([*TINY_ARGS[:2], "sweep", *TINY_ARGS[3:], "--set", "critic_layers=(16,),(32,)"])
+
+
+def test_replay_ratio_and_n_step_sweep_each_member_their_own():
+  cfg = dataclasses.replace(TINY, grid={"replay_ratio": (1.0, 2.0), "n_step": (1, 3)})
+  trainer = loop.build(cfg)
+  assert trainer.agent.n_step == 3  # the replay reads the longest window
+  state, _ = run_chunks(trainer, loop.init(cfg, trainer, cfg.members()), chunks=1)
+  # Learning starts at iteration 3 of 5: 3 iterations of 1 or 2 updates per iteration.
+  ratios = [m["replay_ratio"] for m in cfg.members()]
+  assert list(state.updates) == [3 * int(r) for r in ratios]  # 8 transitions, batch 8
+  assert list(state.agent.hparams["n_step"]) == [m["n_step"] for m in cfg.members()]
+
+
+def free_port():
+  with socket.socket() as s:
+    s.bind(("127.0.0.1", 0))
+    return s.getsockname()[1]
+
+
+def test_two_processes_give_one_process_results(tmp_path):
+  # jax.distributed: two processes of one CPU device each train one member each; one process
+  # with two devices trains both, one per device: the same program per member.
+  args = [*TINY_ARGS[2:], "--seeds", "2", "--steps", "40"]
+  args[args.index("train")] = "sweep"
+  address = f"127.0.0.1:{free_port()}"
+  procs = [subprocess.Popen([sys.executable, "-m", "mjx_hopper.cli", "--cpu-devices", "1", *args,
+                             "--out", str(tmp_path / "two"), "--coordinator", address,
+                             "--num-processes", "2", "--process-id", str(i)],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+           for i in range(2)]
+  for proc in procs:
+    out, _ = proc.communicate(timeout=600)
+    assert proc.returncode == 0, out
+  subprocess.run([sys.executable, "-m", "mjx_hopper.cli", "--cpu-devices", "2", *args, "--out",
+                  str(tmp_path / "one")], check=True, stdout=subprocess.DEVNULL)
+  _, both, _ = loop.restore(str(tmp_path / "one" / "checkpoints"))
+  for i in range(2):
+    folder = tmp_path / "two" / f"process{i}"
+    _, mine, _ = loop.restore(str(folder / "checkpoints"))
+    assert_same(member(mine), member(both, i))
+    with open(folder / "log.csv") as f:
+      assert {int(r["member"]) for r in csv.DictReader(f)} == {i}  # its own members' results
+  mngr = checkpoint.manager(str(tmp_path / "two" / "process1" / "checkpoints"))
+  assert checkpoint.read_config(mngr, mngr.latest_step())["member_indices"] == [1]
