@@ -97,7 +97,8 @@ def train(args: argparse.Namespace) -> None:
             iterations_per_chunk=args.chunk),
         total_env_steps=args.steps, max_minutes=args.max_minutes, eval_every=args.eval_every,
         eval_episodes=args.eval_episodes, episode_steps=args.episode_steps, seed=args.seed,
-        out_dir=args.out, time_delta=args.log_every, checkpoint_minutes=args.checkpoint_minutes)
+        out_dir=args.out, tensorboard_dir=args.tensorboard, time_delta=args.log_every,
+        checkpoint_minutes=args.checkpoint_minutes)
     loop.run(cfg, checkpoint_dir=args.checkpoint_dir, progress=not args.no_progress)
   except ValueError as error:
     raise SystemExit(f"mjx-hopper train: {error}")
@@ -160,6 +161,8 @@ def build_parser() -> argparse.ArgumentParser:
                  help="checkpoints (default OUT/checkpoints); resumes when it holds one")
   t.add_argument("--checkpoint-minutes", type=float, default=10.0)
   t.add_argument("--log-every", type=float, default=10.0, help="seconds between log lines")
+  t.add_argument("--tensorboard", default=None, metavar="DIR",
+                 help="also write log.csv's scalars to DIR as TensorBoard events")
   t.add_argument("--no-progress", action="store_true", help="no progress bar")
   e = sub.add_parser("eval", help="evaluate a checkpoint's policy and write an mp4")
   e.add_argument("--checkpoint", required=True, help="a checkpoint directory")

@@ -1,26 +1,59 @@
-"""Host-side logging between compiled chunks: a terminal line every `time_delta` seconds (like
-acme's TerminalLogger) and a CSV of every logged row."""
+"""Host-side logging between compiled chunks: every row to a CSV (and, when asked, to
+TensorBoard), and a short terminal line every `time_delta` seconds (like acme's TerminalLogger).
+
+A row is a dict with a "kind" ("train" or "eval"), "env_steps" and numbers. The CSV and
+TensorBoard get every field; the terminal line shows a few (`TRAIN_FIELDS` plus the agent's
+`LEARNER_FIELDS`, or `EVAL_FIELDS`), each with its latest value, and leaves out what is not
+known yet (no evaluation so far, no episode ended so far).
+"""
 
 from __future__ import annotations
 
 import csv
+import logging
 import math
 import os
 import time
-from typing import Callable
+from typing import Callable, Sequence
+
+# (row field, terminal text with {} for its value) pairs.
+RETURNS = (("episode_return", "train return {}"), ("eval_return", "eval return {}"))
+TRAIN_FIELDS = (("env_steps", "{} env steps"), ("steps_per_s", "{} steps/s")) + RETURNS
+EVAL_FIELDS = (("env_steps", "{} env steps"), ("eval_return", "eval return {}"),
+               ("eval_return_std", "std {}"), ("eval_length", "episode length {}"))
+# The learner figures that tell a user an agent is healthy, from what its `update` reports
+# (agents/dpg.py, agents/mpo.py): the critic's loss should stay bounded; D4PG's and DDPG's
+# mean Q (over the batch) should follow the returns' scale rather than run away; MPO's
+# temperature should settle, not collapse to its floor or keep growing.
+_DPG = (("critic_loss", "critic loss {}"), ("q_mean", "Q {}"))
+_MPO = (("critic_loss", "critic loss {}"), ("temperature", "temperature {}"))
+LEARNER_FIELDS = {"d4pg": _DPG, "ddpg": _DPG, "mpo": _MPO, "dmpo": _MPO}
+# Fields whose NaN means "none this time" (no episode ended in the chunk): the latest value
+# stands. Any other NaN (a diverged critic, say) is shown as nan.
+KEEP_LATEST = ("episode_return",)
+
+Fields = Sequence[tuple[str, str]]
 
 
 class Logger:
-  """Writes every row to `csv_path`, and prints one every `time_delta` seconds (and the rows
-  passed with force=True). The CSV's columns are those of the first row plus any added later
-  (the file is rewritten when a new column appears)."""
+  """Writes every row to `csv_path` and, with `tensorboard_dir`, to TensorBoard; prints a
+  train row's short line every `time_delta` seconds, and every row passed with force=True.
+
+  The CSV's columns are those of the first row plus any added later (the file is rewritten
+  when a new column appears); a resumed run appends to it. TensorBoard gets each number of a
+  row as the scalar "<kind>/<field>" at step env_steps, in a new event file per run; a run
+  resumed from `start_step` env steps hides what an interrupted run wrote after that step.
+  Use as a context manager, or call `close`, to flush TensorBoard's file.
+  """
 
   def __init__(self, csv_path: str | None, time_delta: float = 10.0,
-               print_fn: Callable[[str], None] = print, label: str = "train"):
-    self.csv_path, self.time_delta, self.print_fn, self.label = (csv_path, time_delta, print_fn,
-                                                                 label)
+               print_fn: Callable[[str], None] = print, learner_fields: Fields = (),
+               tensorboard_dir: str | None = None, start_step: int = 0):
+    self.csv_path, self.time_delta, self.print_fn = csv_path, time_delta, print_fn
+    self.learner_fields = tuple(learner_fields)
     self.rows: list[dict] = []
     self.columns: list[str] = []
+    self.latest: dict[str, float] = {}  # each field's latest value, this run
     self._last_print = -math.inf
     if csv_path:
       os.makedirs(os.path.dirname(os.path.abspath(csv_path)), exist_ok=True)
@@ -29,16 +62,46 @@ class Logger:
           reader = csv.DictReader(f)
           self.columns = list(reader.fieldnames or [])
           self.rows = list(reader)
+    self.tensorboard = _tensorboard_writer(tensorboard_dir, start_step)
 
   def write(self, row: dict, force: bool = False) -> None:
     row = {k: _plain(v) for k, v in row.items()}
     self.rows.append(row)
+    self.latest.update({k: v for k, v in row.items() if _is_number(v)
+                        and not (k in KEEP_LATEST and math.isnan(v))})
     if self.csv_path:
       self._write_csv(row)
+    if self.tensorboard is not None:
+      self._write_tensorboard(row)
     now = time.monotonic()
     if force or now - self._last_print >= self.time_delta:
       self._last_print = now
-      self.print_fn(f"[{self.label}] " + " | ".join(f"{k} = {_fmt(v)}" for k, v in row.items()))
+      self.print_fn(self.line(row))
+
+  def line(self, row: dict) -> str:
+    """The terminal line of `row`: "[kind] 51,200 env steps | ...", from the latest values."""
+    if row["kind"] == "eval":
+      return "[eval] " + self.describe(EVAL_FIELDS)
+    text = "[train] " + self.describe(TRAIN_FIELDS)
+    if not row.get("learning", 1):  # the learner's figures are zeros until it starts
+      return text + " | filling the replay"
+    return text + " | " + self.describe(self.learner_fields)
+
+  def describe(self, fields: Fields, sep: str = " | ") -> str:
+    """`fields` with their latest values; unknown ones are left out."""
+    return sep.join(text.format(_fmt(self.latest[key])) for key, text in fields
+                    if key in self.latest)
+
+  def close(self) -> None:
+    if self.tensorboard is not None:
+      self.tensorboard.close()
+
+  def __enter__(self) -> "Logger":
+    return self
+
+  def __exit__(self, *exc) -> bool:
+    self.close()
+    return False
 
   def _write_csv(self, row: dict) -> None:
     new = [k for k in row if k not in self.columns]
@@ -52,6 +115,35 @@ class Logger:
     with open(self.csv_path, "a", newline="") as f:
       csv.DictWriter(f, self.columns).writerow(row)
 
+  def _write_tensorboard(self, row: dict) -> None:
+    step = int(row["env_steps"])
+    for key, value in row.items():
+      if key != "env_steps" and _is_number(value):
+        self.tensorboard.add_scalar(f"{row['kind']}/{key}", value, step)
+
+
+def _tensorboard_writer(directory: str | None, start_step: int):
+  """A tensorboardX SummaryWriter on `directory` (None without one), writing to disk every
+  10 s. Its event file is new (named by the time in ns, so that two runs started in the same
+  second do not share one); a resumed run purges steps after `start_step`, which its
+  checkpoint never saw."""
+  if directory is None:
+    return None
+  from tensorboardX import SummaryWriter
+  logging.getLogger("tensorboardX.x2num").addFilter(_not_a_nan_notice)
+  return SummaryWriter(directory, purge_step=start_step + 1 if start_step else None,
+                       flush_secs=10, filename_suffix=f".{time.time_ns()}")
+
+
+def _not_a_nan_notice(record: logging.LogRecord) -> bool:
+  """False for tensorboardX's warning on each NaN scalar: NaNs are logged on purpose (as in
+  log.csv), e.g. the train return of a chunk in which no episode ended."""
+  return record.getMessage() != "NaN or Inf found in input tensor."
+
+
+def _is_number(value) -> bool:
+  return isinstance(value, (int, float))
+
 
 def _plain(value):
   try:
@@ -60,7 +152,6 @@ def _plain(value):
     return value
 
 
-def _fmt(value) -> str:
-  if isinstance(value, float):
-    return f"{value:,.0f}" if abs(value) >= 1000 else f"{value:.4g}"
-  return f"{value:,}" if isinstance(value, int) else str(value)
+def _fmt(value: float) -> str:
+  """3 significant digits, or a whole number with thousands' commas from 1,000 on."""
+  return f"{value:,.0f}" if abs(value) >= 999.5 else f"{value:.3g}"

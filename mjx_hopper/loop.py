@@ -9,14 +9,16 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import sys
 import time
-from typing import Any
+from typing import Any, Callable
 
 import jax
 import numpy as np
+from tqdm.auto import tqdm
 
 from mjx_hopper import agents, checkpoint, envs, train
-from mjx_hopper.logger import Logger
+from mjx_hopper.logger import LEARNER_FIELDS, RETURNS, Logger
 
 
 @dataclasses.dataclass(frozen=True)
@@ -35,6 +37,7 @@ class RunConfig:
   eval_episodes: int = 16
   seed: int = 0
   out_dir: str = "runs/train"     # log.csv, config.json and (by default) checkpoints/
+  tensorboard_dir: str | None = None  # also log.csv's scalars as TensorBoard events here
   time_delta: float = 10.0       # seconds between terminal log lines
   checkpoint_minutes: float = 10.0
   keep_checkpoints: int = 3
@@ -81,41 +84,48 @@ def run(cfg: RunConfig, checkpoint_dir: str | None = None, progress: bool = True
         print_fn=print) -> Result:
   """Trains until `total_env_steps`, evaluating every `eval_every` env steps and at the end.
 
-  Writes `out_dir`/log.csv (every chunk's and every evaluation's metrics) and config.json.
-  Checkpoints go to `checkpoint_dir` (default `out_dir`/checkpoints) every
-  `checkpoint_minutes`, at the end, and on Ctrl-C or SIGTERM (after the chunk in flight); a
-  run whose checkpoint_dir already holds one resumes from it.
+  Writes `out_dir`/log.csv (every chunk's and every evaluation's metrics), config.json and,
+  with `cfg.tensorboard_dir`, the same scalars as TensorBoard events. Prints a short line
+  every `time_delta` seconds and each evaluation, above the progress bar. Checkpoints go to
+  `checkpoint_dir` (default `out_dir`/checkpoints) every `checkpoint_minutes`, at the end,
+  and on Ctrl-C or SIGTERM (after the chunk in flight); a run whose checkpoint_dir already
+  holds one resumes from it.
   """
   t_start = time.perf_counter()
+  say = _above_progress_bars(print_fn)
   os.makedirs(cfg.out_dir, exist_ok=True)
   checkpoint_dir = checkpoint_dir or os.path.join(cfg.out_dir, "checkpoints")
   trainer = build(cfg)
   mngr = checkpoint.manager(checkpoint_dir, cfg.keep_checkpoints)
   key = jax.random.PRNGKey(cfg.seed)
-  state = checkpoint.resume(mngr, trainer.init(key), cfg.to_json(), print_fn)
+  state = checkpoint.resume(mngr, trainer.init(key), cfg.to_json(), say)
   with open(os.path.join(cfg.out_dir, "config.json"), "w") as f:  # once resuming is agreed
     json.dump(cfg.to_json(), f, indent=1)
-  logger = Logger(os.path.join(cfg.out_dir, "log.csv"), cfg.time_delta, print_fn)
-  per_chunk = cfg.train.steps_per_iteration * cfg.train.iterations_per_chunk
-  print_fn(f"{cfg.env} with {cfg.agent} ({cfg.preset}): {cfg.train.num_envs} envs on "
-           f"{len(jax.local_devices())} {jax.local_devices()[0].platform} device(s), "
-           f"{per_chunk:,} env steps and "
-           f"{cfg.train.updates_per_iteration * cfg.train.iterations_per_chunk:,} updates "
-           "per chunk")
   env_steps = int(state.iteration) * cfg.train.steps_per_iteration
-  bar = _progress_bar(cfg.total_env_steps, env_steps) if progress else None
+  logger = Logger(os.path.join(cfg.out_dir, "log.csv"), cfg.time_delta, say,
+                  LEARNER_FIELDS[cfg.agent], cfg.tensorboard_dir, start_step=env_steps)
+  per_chunk = cfg.train.steps_per_iteration * cfg.train.iterations_per_chunk
+  say(f"{cfg.env} with {cfg.agent} ({cfg.preset}): {cfg.train.num_envs} envs on "
+      f"{len(jax.local_devices())} {jax.local_devices()[0].platform} device(s), "
+      f"{per_chunk:,} env steps and "
+      f"{cfg.train.updates_per_iteration * cfg.train.iterations_per_chunk:,} updates "
+      "per chunk")
+  bar = (_progress_bar(cfg.total_env_steps, env_steps)
+         if progress and env_steps < cfg.total_env_steps else None)
+  _status(bar, "compiling the training step")
   next_eval = (env_steps // cfg.eval_every + 1) * cfg.eval_every
-  latest_eval, evaluation, last_save = float("nan"), None, time.monotonic()
+  evaluation, last_save = None, time.monotonic()
 
   def evaluate():
+    _status(bar, "evaluating")
     result = jax.device_get(trainer.evaluate(state.agent, jax.random.fold_in(key, env_steps)))
     logger.write({"kind": "eval", "env_steps": env_steps, "wall_s": time.perf_counter() - t_start,
                   "eval_return": float(np.mean(result["return"])),
                   "eval_return_std": float(np.std(result["return"])),
                   "eval_length": float(np.mean(result["length"]))}, force=True)
-    return result, float(np.mean(result["return"]))
+    return result
 
-  with checkpoint.StopRequest() as stop:
+  with checkpoint.StopRequest() as stop, logger:
     deadline = t_start + 60 * cfg.max_minutes if cfg.max_minutes else float("inf")
     while (env_steps < cfg.total_env_steps and not stop.requested
            and time.perf_counter() < deadline):
@@ -130,24 +140,36 @@ def run(cfg: RunConfig, checkpoint_dir: str | None = None, progress: bool = True
       logger.write(row)
       if (env_steps >= next_eval or env_steps >= cfg.total_env_steps
           or time.perf_counter() >= deadline):
-        evaluation, latest_eval = evaluate()
+        evaluation = evaluate()
         next_eval += cfg.eval_every
       if time.monotonic() - last_save >= 60 * cfg.checkpoint_minutes:
         checkpoint.save(mngr, state, cfg.to_json())
         last_save = time.monotonic()
       if bar is not None:
         bar.update(min(env_steps, cfg.total_env_steps) - bar.n)
-        bar.set_postfix_str(f"{row['steps_per_s']:,.0f} steps/s, train return "
-                            f"{row['episode_return']:.1f}, eval return {latest_eval:.1f}")
+        _status(bar, logger.describe(RETURNS, sep=", "))
     if bar is not None:
       bar.close()
     checkpoint.save(mngr, state, cfg.to_json())
     checkpoint.finish(mngr)
-  why = "stopped by a signal" if stop.requested else "done"
-  print_fn(f"{why}: {env_steps:,} env steps in {time.perf_counter() - t_start:.0f} s; "
-           f"evaluation return {latest_eval:.1f} over {cfg.eval_episodes} episodes; "
-           f"log: {logger.csv_path}; checkpoint: {checkpoint_dir}")
+  say(_summary(cfg, stop.requested, env_steps, time.perf_counter() - t_start, evaluation,
+               logger.csv_path, checkpoint_dir))
   return Result(state, trainer, logger.rows, evaluation)
+
+
+def _summary(cfg: RunConfig, stopped: bool, env_steps: int, seconds: float,
+             evaluation: dict | None, csv_path: str, checkpoint_dir: str) -> str:
+  """The run's last line: why it ended, how far it got, its final evaluation and its files."""
+  parts = [f"{'stopped by a signal' if stopped else 'done'}: {env_steps:,} env steps in "
+           f"{seconds:.0f} s"]
+  if evaluation is not None:
+    parts.append(f"evaluation return {np.mean(evaluation['return']):.1f} over "
+                 f"{len(evaluation['return'])} episodes")
+  parts.append(f"log: {csv_path}")
+  if cfg.tensorboard_dir:
+    parts.append(f"TensorBoard: {cfg.tensorboard_dir}")
+  parts.append(f"checkpoint: {checkpoint_dir}")
+  return "; ".join(parts)
 
 
 def restore(directory: str, print_fn=print):
@@ -192,6 +214,22 @@ def load_policy(directory: str):
 
 
 def _progress_bar(total: int, initial: int):
-  from tqdm.auto import tqdm
   return tqdm(total=total, initial=min(initial, total), unit=" env steps", unit_scale=True,
               dynamic_ncols=True)
+
+
+def _status(bar, text: str) -> None:
+  """Shows `text` after the progress bar's counts (nothing without a bar)."""
+  if bar is not None:
+    bar.set_postfix_str(text)
+
+
+def _above_progress_bars(print_fn: Callable[[str], None]) -> Callable[[str], None]:
+  """`print_fn`, writing above any tqdm progress bar on the terminal rather than into its
+  line: tqdm clears the bar, the line is printed (and stdout flushed), tqdm redraws it."""
+
+  def say(line: str) -> None:
+    with tqdm.external_write_mode():
+      print_fn(line)
+      sys.stdout.flush()
+  return say

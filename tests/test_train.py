@@ -9,7 +9,7 @@ import jax
 import numpy as np
 import pytest
 
-from mjx_hopper import cli, loop, train
+from mjx_hopper import cli, logger, loop, train
 
 TINY = loop.RunConfig(
     env="Hopper", agent="d4pg", preset="cpu", episode_steps=30,
@@ -129,7 +129,9 @@ def test_run_logs_checkpoints_and_resumes(tmp_path, capsys):
   assert json.load(open(tmp_path / "run" / "config.json"))["agent_config"]["n_step"] == 3
   # A longer run from the same folder continues from the checkpoint.
   longer = loop.run(dataclasses.replace(cfg, total_env_steps=160), progress=False)
-  assert "resumed from" in capsys.readouterr().out
+  out = capsys.readouterr().out
+  assert "resumed from" in out
+  assert "nan" not in out  # no return is shown before it is known
   assert int(longer.state.iteration) == 2 * int(result.state.iteration)
   # Another config is refused, naming what differs, and the checkpoint is left alone.
   with pytest.raises(ValueError, match="from another config .*agent_config"):
@@ -160,8 +162,13 @@ def test_cli_defaults_are_the_train_config_defaults():
     ("mpo", ["--set", "num_samples=4"]),
     ("dmpo", ["--set", "num_samples=4", "--set", "num_atoms=11"]),
 ])
-def test_every_agent_trains_from_the_same_cli(tmp_path, agent, extra):
+def test_every_agent_trains_from_the_same_cli(tmp_path, capsys, agent, extra):
   cli.main([*TINY_ARGS, "--agent", agent, *extra, "--steps", "80", "--out", str(tmp_path)])
+  # The terminal lines are short: the agent's learner figures, not every logged field.
+  last = [line for line in capsys.readouterr().out.splitlines() if line.startswith("[train]")][-1]
+  for _, text in logger.LEARNER_FIELDS[agent]:
+    assert "| " + text.format("") in last, text
+  assert "q_min" not in last and "nan" not in last
   with open(tmp_path / "log.csv") as f:
     rows = list(csv.DictReader(f))
   train_rows = [r for r in rows if r["kind"] == "train"]

@@ -1,0 +1,193 @@
+"""The host loop's logger: short terminal lines, the full CSV, TensorBoard events, and lines
+written above a progress bar."""
+
+import csv
+import dataclasses
+import io
+import os
+import struct
+import sys
+
+import numpy as np
+from tensorboardX.proto.event_pb2 import Event, SessionLog
+from tensorboardX.record_writer import masked_crc32c
+from tqdm import tqdm
+
+from mjx_hopper import agents, loop
+from mjx_hopper.logger import LEARNER_FIELDS, Logger
+
+NAN = float("nan")
+
+
+def train_row(env_steps, episode_return, learning=1.0, critic_loss=1.23):
+  return {"kind": "train", "env_steps": env_steps, "updates": env_steps // 64,
+          "wall_s": env_steps / 100, "steps_per_s": 1234.4, "episode_return": episode_return,
+          "learning": learning, "critic_loss": critic_loss, "q_mean": 25.67, "q_min": 7.954}
+
+
+def eval_row(env_steps, eval_return):
+  return {"kind": "eval", "env_steps": env_steps, "wall_s": env_steps / 90,
+          "eval_return": eval_return, "eval_return_std": 9.945, "eval_length": 39.19}
+
+
+ROWS = [train_row(1000, NAN, learning=0.0, critic_loss=0.0), train_row(2000, 12.5),
+        eval_row(2000, 310.25), train_row(3000, NAN), train_row(4000, 20.0, critic_loss=NAN)]
+
+
+def read_csv(path):
+  with open(path, newline="") as f:
+    return list(csv.DictReader(f))
+
+
+def test_terminal_lines_are_short_and_leave_out_what_is_not_known():
+  lines = []
+  logger = Logger(None, time_delta=0.0, print_fn=lines.append,
+                  learner_fields=LEARNER_FIELDS["d4pg"])
+  for row in ROWS:
+    logger.write(row)
+  assert lines == [
+      # Before learning, the learner's figures are zeros: none are shown.
+      "[train] 1,000 env steps | 1,234 steps/s | filling the replay",
+      "[train] 2,000 env steps | 1,234 steps/s | train return 12.5 | critic loss 1.23 | Q 25.7",
+      "[eval] 2,000 env steps | eval return 310 | std 9.95 | episode length 39.2",
+      # No episode ended in this chunk: the latest train return stands.
+      "[train] 3,000 env steps | 1,234 steps/s | train return 12.5 | eval return 310 | "
+      "critic loss 1.23 | Q 25.7",
+      # A NaN learner figure is news, not "not known yet".
+      "[train] 4,000 env steps | 1,234 steps/s | train return 20 | eval return 310 | "
+      "critic loss nan | Q 25.7"]
+
+
+def test_lines_are_printed_every_time_delta_and_when_forced():
+  lines = []
+  logger = Logger(None, time_delta=3600.0, print_fn=lines.append)
+  logger.write(ROWS[1])
+  logger.write(ROWS[3])
+  logger.write(ROWS[2], force=True)
+  assert [line.split(" |")[0] for line in lines] == ["[train] 2,000 env steps",
+                                                     "[eval] 2,000 env steps"]
+
+
+def test_every_agent_has_learner_figures():
+  assert sorted(LEARNER_FIELDS) == agents.list_agents()
+
+
+def test_csv_keeps_every_field(tmp_path):
+  path = tmp_path / "log.csv"
+  with Logger(str(path), print_fn=lambda line: None) as logger:
+    for row in ROWS:
+      logger.write(row)
+  rows = read_csv(path)
+  assert list(rows[0]) == list(ROWS[0]) + ["eval_return", "eval_return_std", "eval_length"]
+  for got, want in zip(rows, ROWS):
+    assert {k: v for k, v in got.items() if v != ""} == {k: str(v) for k, v in want.items()}
+
+
+def read_events(directory):
+  """Each event file's events in `directory`, in name order (TensorBoard's reading order). A
+  file is records of: length (u64), its masked CRC (u32), an Event, the Event's masked CRC."""
+  out = []
+  for name in sorted(f for f in os.listdir(directory) if ".tfevents." in f):
+    with open(os.path.join(directory, name), "rb") as f:
+      data = f.read()
+    events, at = [], 0
+    while at < len(data):
+      length, length_crc = struct.unpack_from("<QI", data, at)
+      record = data[at + 12:at + 12 + length]
+      (record_crc,) = struct.unpack_from("<I", data, at + 12 + length)
+      assert (length_crc, record_crc) == (masked_crc32c(data[at:at + 8]), masked_crc32c(record))
+      events.append(Event.FromString(record))
+      at += 16 + length
+    out.append(events)
+  return out
+
+
+def scalars(event_files):
+  """{(tag, step): [values]} as TensorBoard shows them: a SessionLog START at step s (a
+  resumed run's purge_step) hides the scalars read before it at steps >= s."""
+  seen = {}
+  for events in event_files:
+    for event in events:
+      if event.session_log.status == SessionLog.START:
+        seen = {k: v for k, v in seen.items() if k[1] < event.step}
+      for value in event.summary.value:
+        seen.setdefault((value.tag, event.step), []).append(value.simple_value)
+  return seen
+
+
+def csv_scalars(rows):
+  """{(tag, step): [values]} that log.csv's rows should give TensorBoard (as float32)."""
+  out = {}
+  for row in rows:
+    for key, value in row.items():
+      if value != "" and key not in ("kind", "env_steps"):
+        out.setdefault((f"{row['kind']}/{key}", int(row["env_steps"])), []).append(
+            np.float32(value))
+  return out
+
+
+def assert_same(got, want):
+  assert sorted(got) == sorted(want)
+  for key, values in want.items():
+    np.testing.assert_array_equal(got[key], values, err_msg=str(key))  # NaN equals NaN
+
+
+def test_tensorboard_gets_the_csv_scalars_and_survives_a_resume(tmp_path, caplog):
+  csv_path, board = str(tmp_path / "log.csv"), str(tmp_path / "tb")
+  # A run logs up to 3,000 env steps, was last checkpointed at 2,000, and is killed.
+  with Logger(csv_path, print_fn=lambda line: None, tensorboard_dir=board) as logger:
+    for row in ROWS[:4] + [eval_row(3000, 280.0)]:
+      logger.write(row)
+  assert not caplog.records  # no "NaN or Inf found in input tensor." for each NaN
+  first = read_events(board)
+  assert len(first) == 1
+  assert_same(scalars(first), csv_scalars(read_csv(csv_path)))
+  # Resumed from 2,000 env steps, it logs 3,000 and 4,000 again.
+  with Logger(csv_path, print_fn=lambda line: None, tensorboard_dir=board,
+              start_step=2000) as logger:
+    logger.write(train_row(3000, 14.0))
+    logger.write(ROWS[4])
+  both = read_events(board)
+  assert len(both) == 2 and both[0] == first[0]  # appended: the first file is untouched
+  rows = read_csv(csv_path)
+  assert [int(row["env_steps"]) for row in rows] == [1000, 2000, 2000, 3000, 3000, 3000, 4000]
+  # TensorBoard hides the killed run's rows at 3,000 (the CSV keeps both runs' rows).
+  assert_same(scalars(both), csv_scalars(rows[:3] + rows[5:]))
+
+
+def test_run_writes_tensorboard_and_resumes_it(tmp_path):
+  """loop.run with a TensorBoard folder for one chunk writes log.csv's scalars; run again, it
+  resumes at 40 env steps and opens a second event file that purges later steps."""
+  from test_train import TINY
+  cfg = dataclasses.replace(TINY, total_env_steps=40, out_dir=str(tmp_path),
+                            tensorboard_dir=str(tmp_path / "tb"))
+  for _ in range(2):
+    loop.run(cfg, progress=False, print_fn=lambda line: None)
+  first, resumed = read_events(tmp_path / "tb")
+  assert [e.step for e in resumed if e.session_log.status == SessionLog.START] == [41]
+  assert_same(scalars([first, resumed]), csv_scalars(read_csv(tmp_path / "log.csv")))
+
+
+def render(text):
+  """The terminal's rows after `text`: each carriage return goes back to column 0."""
+  rows = []
+  for line in text.split("\n"):
+    row = ""
+    for part in line.split("\r"):
+      row = part + row[len(part):]
+    rows.append(row.rstrip())
+  return rows
+
+
+def test_lines_go_above_the_progress_bar(monkeypatch):
+  terminal = io.StringIO()
+  monkeypatch.setattr(sys, "stdout", terminal)  # the bar and the lines share one terminal
+  say = loop._above_progress_bars(print)
+  bar = tqdm(total=10, file=terminal, ncols=60, bar_format="{l_bar}{bar}| {n}/{total}")
+  bar.update(3)
+  say("[train] 3 env steps")
+  bar.update(2)
+  bar.close()
+  rows = render(terminal.getvalue())
+  assert rows[0] == "[train] 3 env steps"  # not "30%|###...| 3/10[train] 3 env steps"
+  assert rows[1].startswith(" 50%|") and rows[1].endswith("| 5/10") and rows[2:] == [""]
