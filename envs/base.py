@@ -5,7 +5,9 @@ alive. Everything else (the observation, the reward terms, termination, truncati
 lives here, once, with PyBullet's semantics (shared/reference/pybullet-locomotion.md).
 
 The env follows Brax's `Env`/`State` interface: `reset(key)` and `step(state, action)` are pure,
-and jit-, vmap- and shard-able. Per-term rewards are in `state.metrics`.
+and jit-, vmap- and shard-able. Per-term rewards are in `state.metrics`. `step` keeps every key
+a wrapper put in `state.metrics` and `state.info`, and the MJX model is also `env.sys`, so Brax's
+wrappers and trainers run on these envs (docs/brax.md).
 """
 
 from __future__ import annotations
@@ -32,6 +34,9 @@ from mjx_hopper.envs import specs
 ASSETS = os.path.join(os.path.dirname(__file__), "assets")
 REWARD_TERMS = ("alive", "progress", "electricity_cost", "joints_at_limit_cost",
                 "feet_collision_cost")
+# Brax's EpisodeWrapper (which `brax.envs.training.wrap` and Brax's trainers add) keeps this key
+# in `state.info`; under it, the wrapper owns the time limit and `info["steps"]`/"truncation".
+BRAX_EPISODE_KEY = "episode_done"
 
 
 class Robot(struct.PyTreeNode):
@@ -116,7 +121,10 @@ class LocomotionEnv(Env):
       off = (model.geom_bodyid != 0) & ~np.isin(model.geom_bodyid, touching)
       model.geom_contype[off] = model.geom_conaffinity[off] = 0
     self.mj_model = model
-    self.mjx_model = mjx.put_model(model)
+    # This process's first device (under jax.distributed, MJX's default, jax.devices()[0], may
+    # be another process's).
+    device = jax.local_devices()[0]
+    self.mjx_model = mjx.put_model(model, device=device)
 
     joint_ids = [model.joint(n).id for n in self.joints]
     self._qadr = np.array([model.jnt_qposadr[j] for j in joint_ids])
@@ -139,7 +147,7 @@ class LocomotionEnv(Env):
     self._n_parts = int(np.sum(kinds != free)) + len(self._part_bodies) + 1
     self._foot_geom, self._foot_half_length, self._foot_radius, self._foot_mask = (
         self._foot_geoms(model))
-    self._data0 = mjx.make_data(self.mjx_model)
+    self._data0 = mjx.make_data(self.mjx_model, device=device)
 
   def edit_model(self, model: mujoco.MjModel) -> None:
     """Change the MuJoCo model in place before the env is built from it (masses, friction,
@@ -209,6 +217,16 @@ class LocomotionEnv(Env):
   def dt(self) -> float:
     return self.control_dt
 
+  @property
+  def sys(self) -> mjx.Model:
+    """The MJX model, under the name Brax's wrappers use: Brax's
+    DomainRandomizationVmapWrapper sets it to each randomised model while it steps."""
+    return self.mjx_model
+
+  @sys.setter
+  def sys(self, model: mjx.Model) -> None:
+    self.mjx_model = model
+
   def reset(self, rng: jax.Array) -> State:
     """A new episode: every joint at uniform(-0.1, 0.1) rad, zero velocity, root at rest."""
     noise = jax.random.uniform(rng, (self.action_size,), minval=-self.reset_noise,
@@ -233,7 +251,9 @@ class LocomotionEnv(Env):
 
     `state.done` is 1 when the episode ended, by termination or by the time limit;
     `state.info["truncation"]` is 1 when it ended by the time limit only, so that learners
-    bootstrap through it.
+    bootstrap through it. Every other key of `state.metrics` and `state.info` (a wrapper's) is
+    passed on. Under Brax's EpisodeWrapper (`BRAX_EPISODE_KEY` in `state.info`) the wrapper
+    counts the steps and sets the time limit, so this step only reports termination.
     """
     action = jnp.asarray(action)
     if action.shape != (self.action_size,):
@@ -250,17 +270,21 @@ class LocomotionEnv(Env):
     terms = self.reward(state.info["robot"], robot, action)
     reward = sum(terms.values())
     finite = jnp.isfinite(obs).all() & jnp.isfinite(reward) & jnp.isfinite(data.qvel).all()
-    terminated = self.is_done(robot, terms) | ~finite
-    steps = state.info["steps"] + 1
-    truncation = (steps >= self.episode_steps) & ~terminated
-    info = {**state.info, "robot": robot, "feet_contact": self._feet_contact(data),
-            "steps": steps, "truncation": truncation.astype(jnp.float32)}
+    terminated = done = self.is_done(robot, terms) | ~finite
+    info = dict(state.info, robot=robot, feet_contact=self._feet_contact(data))
+    if BRAX_EPISODE_KEY not in state.info:  # a Python test, at trace time
+      steps = state.info["steps"] + 1
+      truncation = (steps >= self.episode_steps) & ~terminated
+      info.update(steps=steps, truncation=truncation.astype(jnp.float32))
+      done = terminated | truncation
+    metrics = dict(state.metrics)
+    metrics.update({k: jnp.where(finite, v, 0.0) for k, v in terms.items()})
     return state.replace(
         pipeline_state=data,
         obs=jnp.where(finite, obs, 0.0),
         reward=jnp.where(finite, reward, 0.0),
-        done=(terminated | truncation).astype(jnp.float32),
-        metrics={k: jnp.where(finite, v, 0.0) for k, v in terms.items()},
+        done=done.astype(jnp.float32),
+        metrics=metrics,
         info=info)
 
   # ---- The task: override these for a custom one ---------------------------------------------

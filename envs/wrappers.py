@@ -5,29 +5,40 @@ import jax.numpy as jnp
 from brax.envs.base import State, Wrapper
 
 
+def _split(rng: jax.Array) -> tuple[jax.Array, jax.Array]:
+  """`jax.random.split(rng)` as (next rng, reset key), over any leading batch axes of `rng`:
+  raw keys (..., 2) uint32, or typed key arrays (...)."""
+  typed = jnp.issubdtype(rng.dtype, jax.dtypes.prng_key)
+  pair = jnp.vectorize(jax.random.split, signature="()->(2)" if typed else "(2)->(2,2)")(rng)
+  return (pair[..., 0], pair[..., 1]) if typed else (pair[..., 0, :], pair[..., 1, :])
+
+
 class AutoReset(Wrapper):
   """Starts a new episode, with a fresh random key, as soon as one ends.
 
-  Wraps one env (vmap it for a batch). After a step that ended an episode, `state.obs` and
+  Wraps one env, or a batch of them with leading axes on every state leaf (Brax's
+  VmapWrapper or DomainRandomizationVmapWrapper, whose models stay with their env across
+  episodes); `jax.vmap` over it works too. After a step that ended an episode, `state.obs` and
   `state.pipeline_state` are the new episode's first ones, while `reward`, `done`, `metrics`
   and `info["truncation"]` describe the step just taken and `info["final_obs"]` holds the true
-  last observation of the ended episode (it equals `obs` on every other step).
+  last observation of the ended episode (it equals `obs` on every other step). Every other key
+  a wrapper keeps in `metrics` and `info` is passed on.
   """
 
   def reset(self, rng: jax.Array) -> State:
-    rng, key = jax.random.split(rng)
+    rng, key = _split(rng)
     state = self.env.reset(key)
     state.info.update(rng=rng, final_obs=state.obs)
     return state
 
   def step(self, state: State, action: jax.Array) -> State:
-    rng, key = jax.random.split(state.info["rng"])
+    rng, key = _split(state.info["rng"])
     stepped = self.env.step(state, action)
     fresh = self.env.reset(key)
     done = stepped.done > 0
 
     def pick(new, old):
-      return jnp.where(done, new, old)
+      return jnp.where(jnp.reshape(done, done.shape + (1,) * (new.ndim - done.ndim)), new, old)
 
     info = dict(stepped.info, rng=rng, final_obs=stepped.obs)
     for k in ("robot", "feet_contact", "steps"):
