@@ -1,0 +1,504 @@
+"""Peers: our best agent, Brax's SAC and Brax's PPO on the same env in one run (one GPU); and
+the seed-era baseline, PyBullet with Stable-Baselines3's SAC, beside our CPU preset (CPU).
+
+    # GPU: D4PG (gpu preset), Brax SAC and Brax PPO at once, 8 minutes each
+    python benchmarks/peers.py --minutes 8 --label h100 --out runs/peers_h100
+    # A Brax tuning run: every combination of the --grid values, all at once
+    python benchmarks/peers.py --trainers sac --minutes 8 --label h100_sac_tuning \\
+        --grid sac:reward_scaling=1,5,30 --grid sac:discounting=0.99,0.997
+    python benchmarks/peers.py --trainers ppo --minutes 8 --label h100_ppo_tuning \\
+        --grid ppo:reward_scaling=1,10 --grid ppo:num_envs+batch_size=4096+2048,2048+1024
+    # CPU: SB3 SAC (rl-zoo settings) on PyBullet's HopperBulletEnv, then our D4PG cpu preset
+    python benchmarks/peers.py --cpu-baseline 10 --label cpu --out runs/peers_cpu
+
+Each run is a process of its own (`--parallel` of them at a time; each gets
+XLA_PYTHON_CLIENT_MEM_FRACTION = 0.9 / parallel of the GPU) that writes OUT/<run>/evals.csv:
+wall_s (seconds since its process was started: imports and compiles included), env_steps,
+eval_return, eval_return_std, eval_length. Every evaluation is the same: our Hopper
+(`envs.make("Hopper")`, 1,000-step episodes), the deterministic policy, --eval-episodes
+episodes. Every process compiles from OUT/jax_cache, empty on a first run (cold compiles).
+At the end a table (time to 1,000, 2,000 and 2,500, best and final return, env steps) is
+printed and written, with every curve, to benchmarks/results/peers_<label>.json. (1,000 is
+about what a Hopper scores by standing through the whole episode: alive 1 a step.)
+
+The Brax trainers start from Brax's own settings for its hopper (SAC: its training notebook's
+`hopper`; PPO: that notebook trains its hopper with SAC, so its locomotion PPO settings, its
+`ant`'s), with evaluation added; `--grid TRAINER:NAME=V1,V2` replaces one (NAME+NAME=V+V,...
+sets several together). Brax's reward differs from ours (PyBullet's: alive 1 a step,
+progress ~ forward speed, electricity cost), so reward_scaling and discounting are the first
+to tune.
+
+--cpu-baseline MINUTES trains SB3's SAC with rl-baselines3-zoo's HopperBulletEnv-v0 settings
+on PyBullet for MINUTES of training (its wall_s is training time: its evaluations pause the
+clock), evaluating it at each quarter on PyBullet and at the end on our Hopper too; then our
+D4PG cpu preset for MINUTES (compile and evaluations on its clock). One after the other, each
+with the whole CPU. It needs the `peers` extra (`pip install -e .[peers]`, with torch's CPU
+build installed first).
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import csv
+import itertools
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+THRESHOLDS = (1000, 2000, 2500)
+EPISODE_STEPS = 1000
+# Brax's training notebook, `hopper` (SAC), and its locomotion PPO (`ant`); eval_every (env
+# steps between evaluations) and num_timesteps (an upper bound: runs stop at --minutes) are ours.
+BRAX = {
+    "sac": dict(num_timesteps=50_000_000, eval_every=25_600, reward_scaling=30,
+                normalize_observations=True, action_repeat=1, discounting=0.997,
+                learning_rate=6e-4, num_envs=128, batch_size=512, grad_updates_per_step=64,
+                max_devices_per_host=1, max_replay_size=1048576, min_replay_size=8192, seed=1),
+    "ppo": dict(num_timesteps=1_000_000_000, eval_every=1_310_720, reward_scaling=10,
+                normalize_observations=True, action_repeat=1, unroll_length=5,
+                num_minibatches=32, num_updates_per_batch=4, discounting=0.97,
+                learning_rate=3e-4, entropy_cost=1e-2, num_envs=4096, batch_size=2048, seed=1),
+}
+OURS_GPU = ("--agent d4pg --preset gpu --num-envs 512 --batch-size 1024 --replay-ratio 4 "
+            "--eval-every 200000")
+OURS_CPU = "--agent d4pg --preset cpu --eval-every 200000"
+# rl-baselines3-zoo, hyperparams/sac.yml: HopperBulletEnv-v0 (its pybullet defaults with a
+# linear learning-rate schedule over n_timesteps).
+RL_ZOO_SAC = dict(n_timesteps=1_000_000, learning_rate=7.3e-4, buffer_size=300_000,
+                  batch_size=256, ent_coef="auto", gamma=0.98, tau=0.02, train_freq=8,
+                  gradient_steps=8, learning_starts=10_000, use_sde=True,
+                  policy_kwargs=dict(log_std_init=-3, net_arch=[400, 300]))
+
+
+class Deadline(Exception):
+  """Raised from a trainer's callback once a run has used its minutes."""
+
+
+# ---- Runs: what to start ---------------------------------------------------------------------
+
+def parse_grid(specs: list[str], trainers: list[str]) -> dict[str, list[dict]]:
+  """{trainer: [settings, ...]}: every combination of the --grid values, per Brax trainer.
+
+  A spec is TRAINER:NAME=V1,V2,... or TRAINER:NAME+NAME=V+V,...; values are Python literals.
+  """
+  axes = {t: [] for t in BRAX}
+  for spec in specs:
+    trainer, _, assignment = spec.partition(":")
+    names, _, values = assignment.partition("=")
+    if trainer not in BRAX or trainer not in trainers or not names or not values:
+      raise SystemExit(f"--grid {spec!r}: want TRAINER:NAME=V1,V2 with TRAINER one of "
+                       f"--trainers' {sorted(set(trainers) & set(BRAX))}")
+    names = names.split("+")
+    known = brax_settings(trainer)
+    for name in set(names) - known:
+      raise SystemExit(f"--grid {spec!r}: {trainer} has no setting {name!r}; it has "
+                       f"{sorted(known)}")
+    options = []
+    for value in values.split(","):
+      parts = [ast.literal_eval(v) for v in value.split("+")]
+      if len(parts) != len(names):
+        raise SystemExit(f"--grid {spec!r}: {value!r} has {len(parts)} values for {names}")
+      options.append(dict(zip(names, parts)))
+    axes[trainer].append(options)
+  return {t: [dict(BRAX[t], **{k: v for o in combo for k, v in o.items()})
+              for combo in itertools.product(*axes[t])] for t in BRAX if t in trainers}
+
+
+def brax_settings(trainer: str) -> set[str]:
+  """The names a Brax trainer's settings may have: its `train` arguments, and eval_every."""
+  import inspect
+  from brax.training.agents.ppo import train as ppo
+  from brax.training.agents.sac import train as sac
+  train = {"sac": sac.train, "ppo": ppo.train}[trainer]
+  return set(inspect.signature(train).parameters) | {"eval_every"}
+
+
+def plan(args) -> list[dict]:
+  """The runs, each {name, trainer, settings, minutes, eval_episodes, limit_s: when the
+  parent stops it}."""
+  if args.cpu_baseline:
+    specs = [("sb3", dict(RL_ZOO_SAC, seed=args.seed)), ("ours", args.ours or OURS_CPU)]
+    minutes = args.cpu_baseline
+  else:
+    trainers = args.trainers.split(",")
+    unknown = sorted(set(trainers) - {"ours", *BRAX})
+    if unknown:
+      raise SystemExit(f"--trainers: unknown {unknown}; choose from ['ours', 'ppo', 'sac']")
+    grid = parse_grid(args.grid, trainers)
+    specs = [("ours", args.ours or OURS_GPU)] if "ours" in trainers else []
+    specs += [(t, s) for t in ("sac", "ppo") if t in trainers for s in grid[t]]
+    minutes = args.minutes
+  runs = []
+  for i, (trainer, settings) in enumerate(specs):
+    if trainer == "ours":
+      settings = settings.split() + ["--seed", str(args.seed)]
+    # SB3's clock leaves out its evaluations (on PyBullet, sequential), so it runs longer.
+    limit_s = 60 * minutes * (1.5 if trainer == "sb3" else 1) + args.grace
+    runs.append({"name": f"{i}_{trainer}", "trainer": trainer, "settings": settings,
+                 "minutes": minutes, "eval_episodes": args.eval_episodes, "limit_s": limit_s})
+  return runs
+
+
+# ---- The parent: start, wait, summarise --------------------------------------------------------
+
+def start(run: dict, out: str, mem_fraction: float) -> subprocess.Popen:
+  folder = os.path.join(out, run["name"])
+  os.makedirs(folder, exist_ok=True)
+  env = dict(os.environ, XLA_PYTHON_CLIENT_MEM_FRACTION=f"{mem_fraction:.3f}",
+             MJX_HOPPER_JAX_CACHE=os.path.join(out, "jax_cache"))
+  run["launch_time"] = time.time()
+  with open(os.path.join(folder, "run.json"), "w") as f:
+    json.dump(run, f, indent=1)
+  return subprocess.Popen([sys.executable, __file__, "--worker", folder], env=env)
+
+
+def wait(procs: dict, limit_s: float) -> None:
+  """Waits for the runs; a run still going `limit_s` after its start is stopped (one
+  SIGTERM: ours saves and exits), and killed if still there 60 s later."""
+  stopped = set()
+  while any(p.poll() is None for p, _ in procs.values()):
+    for name, (proc, started) in procs.items():
+      late = time.time() - started - limit_s
+      if proc.poll() is None and late > 60:
+        proc.kill()
+      elif proc.poll() is None and late > 0 and name not in stopped:
+        proc.send_signal(signal.SIGTERM)
+        stopped.add(name)
+    time.sleep(2)
+
+
+def run_all(runs: list[dict], out: str, parallel: int, mem_fraction: float) -> None:
+  for i in range(0, len(runs), parallel):
+    group = runs[i:i + parallel]
+    print(f"starting {', '.join(r['name'] for r in group)} for {group[0]['minutes']} min",
+          flush=True)
+    procs = {r["name"]: (start(r, out, mem_fraction), time.time()) for r in group}
+    wait(procs, max(r["limit_s"] for r in group))
+    for name, (proc, _) in procs.items():
+      if proc.returncode:
+        print(f"{name} exited with {proc.returncode}; see its output above", flush=True)
+
+
+def evaluations(folder: str) -> list[dict]:
+  """Every evaluation of a run so far: {wall_s (since its process started), env_steps,
+  eval_return, ...}."""
+  path = os.path.join(folder, "evals.csv")
+  rows = []
+  if os.path.exists(path):
+    with open(path) as f:
+      rows = [{k: float(v) for k, v in r.items()} for r in csv.DictReader(f)]
+  loop_log = os.path.join(folder, "log.csv")  # ours: mjx_hopper.loop's log, from its start
+  if os.path.exists(loop_log):
+    offset = read_json(os.path.join(folder, "started.json"))["loop_start_s"]
+    with open(loop_log) as f:
+      rows = [{"wall_s": float(r["wall_s"]) + offset, "env_steps": float(r["env_steps"]),
+               "eval_return": float(r["eval_return"]),
+               "eval_return_std": float(r["eval_return_std"]),
+               "eval_length": float(r["eval_length"])}
+              for r in csv.DictReader(f) if r["kind"] == "eval"]
+  return rows
+
+
+def summarise(runs: list[dict], out: str) -> list[dict]:
+  rows = []
+  for run in runs:
+    folder = os.path.join(out, run["name"])
+    curve = evaluations(folder)
+    meta = read_json(os.path.join(folder, "meta.json"))
+    row = {"name": run["name"], "trainer": run["trainer"], "settings": run["settings"],
+           "minutes": run["minutes"], "eval_episodes": run["eval_episodes"],
+           "device": meta.get("device"), "meta": meta,
+           "best_return": max((e["eval_return"] for e in curve), default=None),
+           "final_return": curve[-1]["eval_return"] if curve else None,
+           "env_steps": int(curve[-1]["env_steps"]) if curve else 0, "curve": curve}
+    for t in THRESHOLDS:
+      hit = next((e for e in curve if e["eval_return"] >= t), None)
+      row[f"to_{t}"] = None if hit is None else {"wall_s": hit["wall_s"],
+                                                  "env_steps": int(hit["env_steps"])}
+    rows.append(row)
+  return rows
+
+
+def settings_text(run: dict) -> str:
+  if run["trainer"] == "ours":
+    return " ".join(run["settings"])
+  base = BRAX.get(run["trainer"], RL_ZOO_SAC)
+  changed = {k: v for k, v in run["settings"].items() if base.get(k) != v}
+  return ", ".join(f"{k}={v}" for k, v in changed.items()) or "defaults"
+
+
+def report(rows: list[dict]) -> None:
+  head = ["run", "trainer", "settings"] + [f"to {t:,} (s / env steps)" for t in THRESHOLDS]
+  print("| " + " | ".join(head + ["best return", "final return", "env steps"]) + " |")
+  print("|" + "---|" * (len(head) + 3))
+  for r in rows:
+    hits = [f"{r[f'to_{t}']['wall_s']:.0f} / {r[f'to_{t}']['env_steps']:,}" if r[f"to_{t}"]
+            else "not reached" for t in THRESHOLDS]
+    best, final = ("none" if r[k] is None else f"{r[k]:.0f}"
+                   for k in ("best_return", "final_return"))
+    print(f"| {r['name']} | {r['trainer']} | {settings_text(r)} | {' | '.join(hits)} | "
+          f"{best} | {final} | {r['env_steps']:,} |")
+  for r in rows:
+    if r["trainer"] == "sb3" and r["meta"].get("train_steps_per_s"):
+      m = r["meta"]
+      print(f"SB3 SAC on PyBullet: {m['train_steps_per_s']:.0f} env steps/s over its training "
+            f"time, {m['learning_steps_per_s']:.1f} once learning (after "
+            f"{RL_ZOO_SAC['learning_starts']:,} random steps); after "
+            f"{m['train_s'] / 60:.1f} min of training: return {m['final_return_pybullet']:.0f} "
+            f"on PyBullet, {m['final_return_ours']:.0f} on our Hopper ({r['eval_episodes']} "
+            "episodes each)")
+
+
+# ---- Workers: one run each ---------------------------------------------------------------------
+
+def log_eval(folder: str, row: dict) -> None:
+  path = os.path.join(folder, "evals.csv")
+  new = not os.path.exists(path)
+  with open(path, "a", newline="") as f:
+    writer = csv.DictWriter(f, fieldnames=list(row))
+    if new:
+      writer.writeheader()
+    writer.writerow(row)
+
+
+def read_json(path: str) -> dict:
+  """The dict in a JSON file, or {} when there is none."""
+  if not os.path.exists(path):
+    return {}
+  with open(path) as f:
+    return json.load(f)
+
+
+def write_meta(folder: str, **meta) -> None:
+  path = os.path.join(folder, "meta.json")
+  old = read_json(path)
+  with open(path, "w") as f:
+    json.dump({**old, **meta}, f, indent=1)
+
+
+def device_put_replicated(tree, devices):
+  """What `jax.device_put_replicated` did, which Brax 0.14's trainers call and jax 0.10
+  removed: each leaf (shape S) as one (len(devices), *S) array, a copy on each device.
+  tests/test_brax.py checks Brax's trainers with this same function."""
+  import jax
+  import jax.numpy as jnp
+  import numpy as np
+  from jax.sharding import Mesh, NamedSharding, PartitionSpec
+  sharding = NamedSharding(Mesh(np.array(devices), ("replica",)), PartitionSpec("replica"))
+  return jax.tree.map(
+      lambda x: jax.device_put(jnp.broadcast_to(x, (len(devices),) + jnp.shape(x)), sharding),
+      tree)
+
+
+def worker_ours(run: dict, folder: str) -> None:
+  """Our agent through the project's CLI (`mjx-hopper train`); its log.csv's wall_s counts
+  from the loop's start, `started.json` says how long after the process's start that was."""
+  from mjx_hopper import cli, loop  # noqa: F401  (loop: imported before the clock is read)
+  loop_start = time.time() - run["launch_time"]
+  with open(os.path.join(folder, "started.json"), "w") as f:
+    json.dump({"loop_start_s": loop_start}, f)
+  minutes = run["minutes"] - loop_start / 60
+  cli.main(["train", *run["settings"], "--steps", str(10**10), "--max-minutes", str(minutes),
+            "--eval-episodes", str(run["eval_episodes"]), "--out", folder, "--no-progress",
+            "--log-every", "30", "--checkpoint-minutes", "10000"])
+  import jax
+  write_meta(folder, device=jax.devices()[0].device_kind, jax=jax.__version__)
+
+
+def worker_brax(run: dict, folder: str) -> None:
+  """Brax's SAC or PPO `train` on our Hopper; evaluations through its progress_fn."""
+  import jax
+  import brax
+  import mjx_hopper
+  from brax.training.agents.ppo import train as ppo
+  from brax.training.agents.sac import train as sac
+  from mjx_hopper import envs
+  mjx_hopper.use_compile_cache()
+  jax.device_put_replicated = device_put_replicated
+  write_meta(folder, device=jax.devices()[0].device_kind, jax=jax.__version__,
+             brax=brax.__version__)
+  settings = dict(run["settings"])
+  eval_every = settings.pop("eval_every")
+  deadline = 60 * run["minutes"]
+
+  def progress(env_steps, metrics):
+    wall = time.time() - run["launch_time"]
+    log_eval(folder, {"wall_s": wall, "env_steps": env_steps,
+                      "eval_return": float(metrics["eval/episode_reward"]),
+                      "eval_return_std": float(metrics["eval/episode_reward_std"]),
+                      "eval_length": float(metrics["eval/avg_episode_length"])})
+    if wall > deadline:
+      raise Deadline
+
+  train = {"sac": sac.train, "ppo": ppo.train}[run["trainer"]]
+  try:
+    train(environment=envs.make("Hopper", episode_steps=EPISODE_STEPS),
+          episode_length=EPISODE_STEPS, num_evals=settings["num_timesteps"] // eval_every + 1,
+          num_eval_envs=run["eval_episodes"], deterministic_eval=True, progress_fn=progress,
+          **settings)
+  except Deadline:
+    pass
+
+
+def bullet_hopper():
+  """PyBullet's HopperBulletEnv as a gymnasium env, with gym's 1,000-step time limit."""
+  import gymnasium
+  import numpy as np
+  from mjx_hopper.envs import pybullet_oracle
+
+  class BulletHopper(gymnasium.Env):
+    def __init__(self):
+      self.env = pybullet_oracle.make("Hopper")
+      self.observation_space = gymnasium.spaces.Box(-np.inf, np.inf, (15,), np.float32)
+      self.action_space = gymnasium.spaces.Box(-1.0, 1.0, (3,), np.float32)
+      self.t = 0
+
+    def reset(self, seed=None, options=None):
+      super().reset(seed=seed)
+      if seed is not None:
+        self.env.seed(seed)
+      self.t = 0
+      return np.asarray(self.env.reset(), np.float32), {}
+
+    def step(self, action):
+      obs, reward, done, _ = self.env.step(action)
+      self.t += 1
+      return (np.asarray(obs, np.float32), float(reward), bool(done),
+              self.t >= EPISODE_STEPS and not done, {})
+
+  return BulletHopper()
+
+
+def returns_on_ours(model, episodes: int, seed: int) -> list[float]:
+  """Each return of `episodes` whole episodes of an SB3 policy (deterministic) on our
+  Hopper, stepped as one batch."""
+  import jax
+  import numpy as np
+  from mjx_hopper import envs
+  env = envs.make("Hopper", episode_steps=EPISODE_STEPS)
+  step = jax.jit(jax.vmap(env.step))
+  state = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(seed), episodes))
+  total, alive = np.zeros(episodes), np.ones(episodes, bool)
+  while alive.any():
+    action, _ = model.predict(np.asarray(state.obs), deterministic=True)
+    state = step(state, action)
+    total += alive * np.asarray(state.reward)
+    alive &= np.asarray(state.done) == 0
+  return total.tolist()
+
+
+def worker_sb3(run: dict, folder: str) -> None:
+  """SB3 SAC with rl-zoo's settings on PyBullet, `minutes` of training; evaluations (on
+  PyBullet, paused clock) at each quarter, and on our Hopper at the end."""
+  import numpy as np
+  import stable_baselines3
+  from stable_baselines3.common.callbacks import BaseCallback
+  from stable_baselines3.common.evaluation import evaluate_policy
+  settings = dict(run["settings"])
+  total, seed = settings.pop("n_timesteps"), settings.pop("seed")
+  rate = settings.pop("learning_rate")
+  env, eval_env = bullet_hopper(), bullet_hopper()
+  model = stable_baselines3.SAC("MlpPolicy", env, learning_rate=lambda left: left * rate,
+                                seed=seed, verbose=0, **settings)
+  budget, checks = 60 * run["minutes"], [0.25, 0.5, 0.75, 1.0]
+
+  class Clock(BaseCallback):
+    """Counts training time only; evaluates at each check, stops at the last."""
+
+    def _on_training_start(self):
+      self.train_s, self.t0, self.learning_from = 0.0, time.time(), None
+
+    def _on_step(self):
+      now = time.time()
+      self.train_s += now - self.t0
+      if self.learning_from is None and self.num_timesteps >= settings["learning_starts"]:
+        self.learning_from = (self.train_s, self.num_timesteps)  # random actions until here
+      if self.train_s >= checks[0] * budget:
+        returns, lengths = evaluate_policy(model, eval_env, run["eval_episodes"],
+                                           deterministic=True, return_episode_rewards=True)
+        log_eval(folder, {"wall_s": self.train_s, "env_steps": self.num_timesteps,
+                          "eval_return": float(np.mean(returns)),
+                          "eval_return_std": float(np.std(returns)),
+                          "eval_length": float(np.mean(lengths))})
+        checks.pop(0)
+      self.t0 = time.time()
+      return bool(checks)
+
+  clock = Clock()
+  model.learn(total_timesteps=total, callback=clock)
+  ours = returns_on_ours(model, run["eval_episodes"], seed)
+  final = evaluations(folder)[-1]
+  learn_s, learn_steps = clock.learning_from or (clock.train_s, model.num_timesteps)
+  write_meta(folder, device="cpu", sb3=stable_baselines3.__version__, train_s=clock.train_s,
+             train_steps_per_s=model.num_timesteps / clock.train_s,
+             learning_steps_per_s=(model.num_timesteps - learn_steps) / max(
+                 clock.train_s - learn_s, 1e-9),
+             final_return_pybullet=final["eval_return"], final_return_ours=float(np.mean(ours)),
+             final_returns_ours=ours)
+
+
+def worker(folder: str) -> None:
+  with open(os.path.join(folder, "run.json")) as f:
+    run = json.load(f)
+  {"ours": worker_ours, "sac": worker_brax, "ppo": worker_brax,
+   "sb3": worker_sb3}[run["trainer"]](run, folder)
+
+
+# ---- Command line ------------------------------------------------------------------------------
+
+def main() -> None:
+  p = argparse.ArgumentParser(description=__doc__,
+                              formatter_class=argparse.RawDescriptionHelpFormatter)
+  p.add_argument("--trainers", default="ours,sac,ppo", help="any of ours, sac, ppo")
+  p.add_argument("--minutes", type=float, default=8.0, help="wall-clock budget of each run")
+  p.add_argument("--grid", action="append", default=[], metavar="TRAINER:NAME=V1,V2",
+                 help="Brax settings to try (repeatable; every combination is a run)")
+  p.add_argument("--ours", default=None,
+                 help=f"`mjx-hopper train` flags of our run (GPU default: {OURS_GPU!r}; "
+                      f"--cpu-baseline: {OURS_CPU!r})")
+  p.add_argument("--eval-episodes", type=int, default=16)
+  p.add_argument("--seed", type=int, default=0, help="our run's and SB3's seed")
+  p.add_argument("--parallel", type=int, default=None,
+                 help="runs at a time (default: all; --cpu-baseline: 1)")
+  p.add_argument("--mem-fraction", type=float, default=None,
+                 help="each run's XLA_PYTHON_CLIENT_MEM_FRACTION (default 0.9 / parallel)")
+  p.add_argument("--grace", type=float, default=60.0,
+                 help="seconds past --minutes before a run is stopped")
+  p.add_argument("--cpu-baseline", type=float, default=None, metavar="MINUTES",
+                 help="SB3 SAC on PyBullet, then our D4PG cpu preset, MINUTES each")
+  p.add_argument("--label", default="run", help="results go to benchmarks/results/"
+                                                "peers_LABEL.json")
+  p.add_argument("--out", default="runs/peers")
+  p.add_argument("--summarise-only", action="store_true",
+                 help="only redo the table and the results file from OUT")
+  p.add_argument("--worker", default=None, help=argparse.SUPPRESS)
+  args = p.parse_args()
+  if args.worker:
+    return worker(args.worker)
+  runs = plan(args)
+  if not args.summarise_only:
+    parallel = 1 if args.cpu_baseline else (args.parallel or len(runs))
+    os.makedirs(args.out, exist_ok=True)
+    run_all(runs, args.out, parallel, args.mem_fraction or 0.9 / parallel)
+  else:
+    for run in runs:
+      saved = read_json(os.path.join(args.out, run["name"], "run.json"))
+      if not saved:
+        raise SystemExit(f"--summarise-only: no {run['name']}/run.json in {args.out}; give "
+                         "the flags of the run that wrote it")
+      run.update(saved)
+  rows = summarise(runs, args.out)
+  report(rows)
+  path = os.path.join(HERE, "results", f"peers_{args.label}.json")
+  with open(path, "w") as f:
+    json.dump({"command": sys.argv, "thresholds": THRESHOLDS, "runs": rows}, f, indent=1)
+  print(f"results: {path}")
+
+
+if __name__ == "__main__":
+  main()
