@@ -17,6 +17,7 @@
 #   bash benchmarks/gpu_session.sh humanoid-armature  # hinge armature, screened
 #   bash benchmarks/gpu_session.sh humanoid-confirm   # the Humanoid as shipped: GPU rows, stability
 #   bash benchmarks/gpu_session.sh mpo-pair0          # MPO and DMPO seed 0, two runs on the GPU
+#   bash benchmarks/gpu_session.sh sweep-throughput   # sweeps of 1 to 64 members, alone on the GPU
 # Every run of a call shares the one GPU (XLA_PYTHON_CLIENT_MEM_FRACTION=0.1 each).
 # The runs write to $WORK; $OUT (default runs/gpu) gets the printed tables and results.tgz (every
 # run's summary, curves and log, without checkpoints).
@@ -179,12 +180,22 @@ for phase in "$@"; do
       stable shipped 10 4096
       for seed in 0 1 2; do stable shipped $seed; done
       ;;
+    sweep-throughput)
+      # Sweeps of 1 to 64 D4PG members (gpu preset, 512 envs and batch 1,024 each), alone on
+      # the GPU, each size in a fresh process (benchmarks/sweep_throughput.py).
+      XLA_PYTHON_CLIENT_MEM_FRACTION=0.9 timeout 560 python3 benchmarks/sweep_throughput.py \
+        --preset gpu --num-envs 512 --batch-size 1024 --replay-size 1000000 --chunk 10 \
+        --chunks 3 --members 1,4,16,64 --cpu-devices 1 --out "$WORK/sweep_throughput_gpu.json" \
+        > "$WORK/sweep_throughput_gpu.txt" 2>&1
+      cat "$WORK/sweep_throughput_gpu.txt"
+      cp "$WORK/sweep_throughput_gpu.json" "$OUT/"
+      ;;
     humanoid-ls)
       # Fewer line-search steps (under vmap MJX's line search runs all of its steps): four
       # variants through the stability check.
       for v in "all 4/4" "all 4/2" "all 3/3" "legs 3/3"; do stable "$BEFORE_ARMATURE $v"; done
       ;;
-    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, humanoid-capture, humanoid-limits, humanoid-armature, humanoid-confirm, mpo-pairN" >&2
+    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, humanoid-capture, humanoid-limits, humanoid-armature, humanoid-confirm, mpo-pairN, sweep-throughput" >&2
        exit 2 ;;
   esac
 done

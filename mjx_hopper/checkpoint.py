@@ -21,7 +21,6 @@ import orbax.checkpoint as ocp
 
 from mjx_hopper import train
 
-ITEMS = ("agent", "trainer", "config")
 PACKAGES = ("mjx_hopper", "jax", "jaxlib", "mujoco", "mujoco-mjx", "flax", "optax",
             "orbax-checkpoint", "brax")
 
@@ -38,15 +37,10 @@ def versions() -> dict[str, str]:
 
 def manager(directory: str, max_to_keep: int = 3) -> ocp.CheckpointManager:
   """A CheckpointManager over `directory` (created if missing), saving asynchronously."""
-  # Under jax.distributed each process saves its own members to its own directory: it is the
-  # only process orbax waits for.
-  me = jax.process_index()
-  os.makedirs(directory, exist_ok=True)
-  options = ocp.CheckpointManagerOptions(
-      max_to_keep=max_to_keep, enable_async_checkpointing=True, create=False,
-      multiprocessing_options=ocp.options.MultiprocessingOptions(
-          primary_host=me, active_processes={me}, barrier_sync_key_prefix=f"process{me}"))
-  return ocp.CheckpointManager(os.path.abspath(directory), options=options, item_names=ITEMS)
+  options = ocp.CheckpointManagerOptions(max_to_keep=max_to_keep,
+                                         enable_async_checkpointing=True)
+  return ocp.CheckpointManager(os.path.abspath(directory), options=options,
+                               item_names=("agent", "trainer", "config"))
 
 
 def _split(state: train.TrainState) -> tuple:
@@ -56,14 +50,8 @@ def _split(state: train.TrainState) -> tuple:
 
 def _nonempty(tree) -> dict:
   """The leaves of `tree` by index, leaving out zero-size ones (orbax cannot write them; MJX's
-  Data has some, such as `act` for models without actuator states). Under jax.distributed
-  they are host (numpy) copies: orbax writes only global arrays of device data, and each
-  process's members live on its own devices."""
-  leaves = jax.tree.leaves(tree)
-  if jax.process_count() > 1:
-    leaves = [np.zeros(x.shape, x.dtype) if isinstance(x, jax.ShapeDtypeStruct)
-              else np.asarray(jax.device_get(x)) for x in leaves]
-  return {str(i): x for i, x in enumerate(leaves) if x.size}
+  Data has some, such as `act` for models without actuator states)."""
+  return {str(i): x for i, x in enumerate(jax.tree.leaves(tree)) if x.size}
 
 
 def _rebuild(like, saved: dict):

@@ -1,7 +1,9 @@
 """The `mjx-hopper` command line.
 
     mjx-hopper train [--env Hopper] [--agent d4pg|ddpg|mpo|dmpo] [--preset cpu] [--out DIR]
-    mjx-hopper eval --checkpoint DIR [--episodes 16] [--video out.mp4]
+    mjx-hopper sweep --seeds 4 --set learning_rate=1e-4,3e-4 [train's flags]
+    mjx-hopper extract --checkpoint DIR --member 3 --out DIR
+    mjx-hopper eval --checkpoint DIR [--member 0] [--episodes 16] [--video out.mp4]
     mjx-hopper demo [--env Hopper] [--num-envs 1024] [--steps 500] [--out runs/demo]
 """
 
@@ -83,25 +85,79 @@ def _overrides(pairs: list[str]) -> dict:
   return out
 
 
+def _sweep_settings(pairs: list[str], agent: str, preset: str) -> tuple[dict, dict]:
+  """(fixed settings, grid) of a sweep's --set pairs: a dynamic setting given several
+  comma-separated values (name=v1,v2) is swept; any other is one value for every member."""
+  from mjx_hopper import sweep
+  try:
+    dynamic = set(sweep.dynamic_settings(agent, preset))
+  except ValueError as error:
+    raise SystemExit(f"mjx-hopper sweep: {error}")
+  fixed, grid = {}, {}
+  for name, value in _overrides(pairs).items():
+    if isinstance(value, tuple) and (name in dynamic or any(isinstance(v, tuple) for v in value)):
+      grid[name] = value
+    else:
+      fixed[name] = value
+  return fixed, grid
+
+
+def _run_config(args: argparse.Namespace, agent_overrides: dict, **sweep):
+  """The RunConfig of train's (and sweep's) flags."""
+  from mjx_hopper import loop, train as train_lib
+  return loop.RunConfig(
+      env=args.env, agent=args.agent, preset=args.preset,
+      agent_overrides=agent_overrides,
+      train=train_lib.TrainConfig(
+          num_envs=args.num_envs, unroll_length=args.unroll_length,
+          batch_size=args.batch_size, replay_ratio=args.replay_ratio,
+          replay_size=args.replay_size, min_replay=args.min_replay,
+          iterations_per_chunk=args.chunk),
+      total_env_steps=args.steps, max_minutes=args.max_minutes, eval_every=args.eval_every,
+      eval_episodes=args.eval_episodes, episode_steps=args.episode_steps, seed=args.seed,
+      out_dir=args.out, tensorboard_dir=args.tensorboard, time_delta=args.log_every,
+      checkpoint_minutes=args.checkpoint_minutes, **sweep)
+
+
 def train(args: argparse.Namespace) -> None:
   """Trains an agent, with progress, a CSV log, checkpoints and a final evaluation."""
-  from mjx_hopper import loop, train as train_lib
+  from mjx_hopper import loop
   try:
-    cfg = loop.RunConfig(
-        env=args.env, agent=args.agent, preset=args.preset,
-        agent_overrides=_overrides(args.set),
-        train=train_lib.TrainConfig(
-            num_envs=args.num_envs, unroll_length=args.unroll_length,
-            batch_size=args.batch_size, replay_ratio=args.replay_ratio,
-            replay_size=args.replay_size, min_replay=args.min_replay,
-            iterations_per_chunk=args.chunk),
-        total_env_steps=args.steps, max_minutes=args.max_minutes, eval_every=args.eval_every,
-        eval_episodes=args.eval_episodes, episode_steps=args.episode_steps, seed=args.seed,
-        out_dir=args.out, tensorboard_dir=args.tensorboard, time_delta=args.log_every,
-        checkpoint_minutes=args.checkpoint_minutes)
+    cfg = _run_config(args, _overrides(args.set))
     loop.run(cfg, checkpoint_dir=args.checkpoint_dir, progress=not args.no_progress)
   except ValueError as error:
     raise SystemExit(f"mjx-hopper train: {error}")
+
+
+def sweep(args: argparse.Namespace) -> None:
+  """Trains a sweep's members at once: log.csv (a row per member per chunk and evaluation),
+  curves.png, a ranking, checkpoints; under jax.distributed, each process its share."""
+  from mjx_hopper import loop
+  if args.seeds < 1:
+    raise SystemExit(f"mjx-hopper sweep: --seeds must be >= 1, got {args.seeds}")
+  process = None
+  if args.distributed or args.coordinator or args.num_processes or args.process_id is not None:
+    process = loop.join_processes(args.coordinator, args.num_processes, args.process_id)
+  fixed, grid = _sweep_settings(args.set, args.agent, args.preset)
+  replay_ratio = fixed.pop("replay_ratio", None)
+  if replay_ratio is not None:
+    args.replay_ratio = replay_ratio
+  try:
+    cfg = _run_config(args, fixed, seeds=tuple(range(args.seed, args.seed + args.seeds)),
+                      grid=grid)
+    loop.run(cfg, checkpoint_dir=args.checkpoint_dir, progress=not args.no_progress,
+             process=process)
+  except ValueError as error:
+    raise SystemExit(f"mjx-hopper sweep: {error}")
+
+
+def extract(args: argparse.Namespace) -> None:
+  """Writes one member of a sweep's checkpoint as a single run's checkpoint."""
+  from mjx_hopper import sweep as sweep_lib
+  try:
+    sweep_lib.extract(args.checkpoint, args.member, args.out)
+  except (ValueError, FileNotFoundError) as error:
+    raise SystemExit(f"mjx-hopper extract: {error}")
 
 
 def evaluate(args: argparse.Namespace) -> None:
@@ -112,7 +168,7 @@ def evaluate(args: argparse.Namespace) -> None:
   from mjx_hopper import loop, train as train_lib
   from mjx_hopper.envs import render
   try:
-    cfg, agent_state, trainer = loop.load_policy(args.checkpoint)
+    cfg, agent_state, trainer = loop.load_policy(args.checkpoint, args.member)
   except (ValueError, FileNotFoundError) as error:
     raise SystemExit(f"mjx-hopper eval: {error}")
   result = jax.device_get(jax.jit(
@@ -135,11 +191,45 @@ def build_parser() -> argparse.ArgumentParser:
                       help="XLA CPU devices to split the env batch over (default: all cores)")
   sub = parser.add_subparsers(dest="command", required=True)
   t = sub.add_parser("train", help="train an agent (progress, CSV log, checkpoints, evaluation)")
+  _add_run_flags(t)
+  w = sub.add_parser("sweep", help="train many seeds and settings at once, in one program")
+  _add_run_flags(w, sweep=True)
+  w.add_argument("--seeds", type=int, default=1, help="members per setting: seeds SEED, ...")
+  w.add_argument("--distributed", action="store_true",
+                 help="run under jax.distributed (each process trains its share of the members)")
+  w.add_argument("--coordinator", default=None, metavar="HOST:PORT",
+                 help="jax.distributed: process 0's address (with --num-processes, "
+                      "--process-id); each process trains its share of the members")
+  w.add_argument("--num-processes", type=int, default=None)
+  w.add_argument("--process-id", type=int, default=None)
+  x = sub.add_parser("extract", help="write one member of a sweep as a single run's checkpoint")
+  x.add_argument("--checkpoint", required=True, help="the sweep's checkpoint directory")
+  x.add_argument("--member", type=int, required=True, help="the member's index (log.csv)")
+  x.add_argument("--out", required=True, help="folder for its checkpoints/ and config.json")
+  e = sub.add_parser("eval", help="evaluate a checkpoint's policy and write an mp4")
+  e.add_argument("--checkpoint", required=True, help="a checkpoint directory")
+  e.add_argument("--member", type=int, default=0, help="which member of a sweep's checkpoint")
+  e.add_argument("--episodes", type=int, default=16)
+  e.add_argument("--seed", type=int, default=0)
+  e.add_argument("--video", default="runs/eval/policy.mp4")
+  p = sub.add_parser("demo", help="batched random rollout, env steps/s, and a video")
+  p.add_argument("--env", default="Hopper")
+  p.add_argument("--num-envs", type=int, default=1024)
+  p.add_argument("--steps", type=int, default=500, help="steps of every env")
+  p.add_argument("--seed", type=int, default=0)
+  p.add_argument("--out", default="runs/demo")
+  return parser
+
+
+def _add_run_flags(t: argparse.ArgumentParser, sweep: bool = False) -> None:
+  """The flags of a training run, shared by train and sweep."""
   t.add_argument("--env", default="Hopper")
   t.add_argument("--agent", default="d4pg", help="d4pg, ddpg, mpo or dmpo")
   t.add_argument("--preset", default="cpu", help="the agent's named settings: seed, cpu, ...")
   t.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
-                 help="override one agent setting, e.g. --set sigma=0.2 (repeatable)")
+                 help=("a setting for every member, or a dynamic one's values to sweep, e.g. "
+                       "--set learning_rate=1e-4,3e-4 (repeatable)") if sweep else
+                 "override one agent setting, e.g. --set sigma=0.2 (repeatable)")
   t.add_argument("--steps", type=int, default=1_000_000, help="total env steps")
   t.add_argument("--max-minutes", type=float, default=None,
                  help="also stop (and save) after this much wall-clock time")
@@ -156,7 +246,8 @@ def build_parser() -> argparse.ArgumentParser:
   t.add_argument("--episode-steps", type=int, default=1000,
                  help="steps before an episode is truncated (PyBullet's 1000)")
   t.add_argument("--seed", type=int, default=0)
-  t.add_argument("--out", default="runs/train", help="folder for log.csv and config.json")
+  t.add_argument("--out", default="runs/sweep" if sweep else "runs/train",
+                 help="folder for log.csv and config.json")
   t.add_argument("--checkpoint-dir", default=None,
                  help="checkpoints (default OUT/checkpoints); resumes when it holds one")
   t.add_argument("--checkpoint-minutes", type=float, default=10.0)
@@ -164,18 +255,6 @@ def build_parser() -> argparse.ArgumentParser:
   t.add_argument("--tensorboard", default=None, metavar="DIR",
                  help="also write log.csv's scalars to DIR as TensorBoard events")
   t.add_argument("--no-progress", action="store_true", help="no progress bar")
-  e = sub.add_parser("eval", help="evaluate a checkpoint's policy and write an mp4")
-  e.add_argument("--checkpoint", required=True, help="a checkpoint directory")
-  e.add_argument("--episodes", type=int, default=16)
-  e.add_argument("--seed", type=int, default=0)
-  e.add_argument("--video", default="runs/eval/policy.mp4")
-  p = sub.add_parser("demo", help="batched random rollout, env steps/s, and a video")
-  p.add_argument("--env", default="Hopper")
-  p.add_argument("--num-envs", type=int, default=1024)
-  p.add_argument("--steps", type=int, default=500, help="steps of every env")
-  p.add_argument("--seed", type=int, default=0)
-  p.add_argument("--out", default="runs/demo")
-  return parser
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -184,6 +263,10 @@ def main(argv: list[str] | None = None) -> None:
   _setup_jax(args.cpu_devices)
   if args.command == "train":
     train(args)
+  elif args.command == "sweep":
+    sweep(args)
+  elif args.command == "extract":
+    extract(args)
   elif args.command == "eval":
     evaluate(args)
   elif args.command == "demo":

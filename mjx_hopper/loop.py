@@ -14,16 +14,21 @@ import time
 from typing import Any, Callable
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 from tqdm.auto import tqdm
 
-from mjx_hopper import agents, checkpoint, envs, train
+from mjx_hopper import agents, checkpoint, envs, sweep, train
 from mjx_hopper.logger import LEARNER_FIELDS, RETURNS, Logger
 
 
 @dataclasses.dataclass(frozen=True)
 class RunConfig:
-  """A whole training run: what to train, how, for how long, and where its files go."""
+  """A whole training run: what to train, how, for how long, and where its files go.
+
+  A sweep is a run of several members: `seeds` (default: just `seed`) times the combinations
+  of `grid`'s values ({dynamic setting: values}; see `mjx_hopper.sweep`), trained at once.
+  """
 
   env: str = "Hopper"
   agent: str = "d4pg"
@@ -36,6 +41,8 @@ class RunConfig:
   eval_every: int = 200_000      # env steps between evaluations
   eval_episodes: int = 16
   seed: int = 0
+  seeds: tuple = ()              # a sweep's seeds (default: (seed,))
+  grid: dict = dataclasses.field(default_factory=dict)  # a sweep's {setting: values}
   out_dir: str = "runs/train"     # log.csv, config.json and (by default) checkpoints/
   tensorboard_dir: str | None = None  # also log.csv's scalars as TensorBoard events here
   time_delta: float = 10.0       # seconds between terminal log lines
@@ -49,9 +56,26 @@ class RunConfig:
     for name in ("total_env_steps", "eval_every", "eval_episodes"):
       if getattr(self, name) < 1:
         raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+    if len(set(self.seeds)) != len(self.seeds) or not all(
+        isinstance(s, int) for s in self.seeds):
+      raise ValueError(f"seeds must be distinct integers, got {list(self.seeds)}")
+    sweep.check_grid(self.agent, self.preset, self.grid, self.train, self.agent_overrides)
+
+  def members(self) -> list[dict]:
+    """Each member's seed and swept values, in member order (one member for a single run)."""
+    return sweep.members(tuple(self.seeds) or (self.seed,), self.grid)
 
   def agent_config(self):
-    return agents.config(self.agent, self.preset, **self.agent_overrides)
+    """The agent's config; in a sweep of n-step values, its n_step is the largest (the
+    window the replay reads), each member using its own."""
+    window = {"n_step": max(self.grid["n_step"])} if "n_step" in self.grid else {}
+    return agents.config(self.agent, self.preset, **{**self.agent_overrides, **window})
+
+  def train_config(self) -> train.TrainConfig:
+    """The trainer's config; in a sweep of replay ratios, the largest (the most updates)."""
+    if "replay_ratio" not in self.grid:
+      return self.train
+    return dataclasses.replace(self.train, replay_ratio=max(self.grid["replay_ratio"]))
 
   def to_json(self) -> dict:
     out = dataclasses.asdict(self)
@@ -63,6 +87,8 @@ class RunConfig:
     fields = {f.name for f in dataclasses.fields(cls)}
     kwargs = {k: v for k, v in saved.items() if k in fields}
     kwargs["train"] = train.TrainConfig(**saved["train"])
+    kwargs["seeds"] = tuple(saved.get("seeds", ()))
+    kwargs["grid"] = {k: tuple(v) for k, v in saved.get("grid", {}).items()}
     return cls(**kwargs)
 
 
@@ -74,14 +100,54 @@ class Result:
   evaluation: dict[str, Any]     # the final evaluation's per-episode arrays
 
 
-def build(cfg: RunConfig) -> train.Trainer:
+def build(cfg: RunConfig, num_members: int | None = None) -> train.Trainer:
+  """The compiled trainer of `cfg`'s members (or of `num_members` of them)."""
   env = envs.make(cfg.env, episode_steps=cfg.episode_steps)
   agent = agents.make(cfg.agent, env.observation_size, env.action_size, cfg.agent_config())
-  return train.make_trainer(env, agent, cfg.train, eval_episodes=cfg.eval_episodes)
+  return train.make_trainer(env, agent, cfg.train_config(), eval_episodes=cfg.eval_episodes,
+                            num_members=num_members or len(cfg.members()),
+                            dynamic_updates="replay_ratio" in cfg.grid)
+
+
+def init(cfg: RunConfig, trainer: train.Trainer, members: list[dict]) -> train.TrainState:
+  """The fresh TrainState of `members` (from `cfg.members()`): each from its own seed's key,
+  with its own swept values, so that a member starts as the single run of its settings."""
+  keys = jnp.stack([jax.random.PRNGKey(m["seed"]) for m in members])
+  return trainer.init(keys, {name: [m[name] for m in members] for name in cfg.grid})
+
+
+def join_processes(coordinator: str | None = None, num_processes: int | None = None,
+                   process_id: int | None = None) -> tuple[int, int]:
+  """(this process's index, the number of processes) of a sweep spread over processes, from
+  JAX's multi-process runtime: `jax.distributed.initialize` with these arguments (None: found
+  under SLURM, Open MPI or Kubernetes) waits for every process and numbers them.
+
+  The members of a sweep never exchange data, so each process then trains its share alone, on
+  its own devices: the runtime is shut down again before JAX starts its devices, so that every
+  array (and orbax's checkpoints) stays local to the process. Call it before any JAX
+  computation."""
+  from jax._src import distributed
+  state = distributed.global_state
+  jax.distributed.initialize(coordinator, num_processes, process_id)
+  index, count = state.process_id, state.num_processes
+  jax.distributed.shutdown()
+  state.process_id, state.num_processes = 0, 1  # what JAX's devices are started with
+  return index, count
+
+
+def process_members(cfg: RunConfig, process: tuple[int, int] | None = None) -> list[int]:
+  """The members this process trains: all of them, or for `process` = (index, count) of a
+  sweep spread over processes (`join_processes`), an even, contiguous share."""
+  index, count = process or (0, 1)
+  total = len(cfg.members())
+  if total % count:
+    raise ValueError(f"{total} members do not split evenly over {count} processes")
+  share = total // count
+  return list(range(index * share, (index + 1) * share))
 
 
 def run(cfg: RunConfig, checkpoint_dir: str | None = None, progress: bool = True,
-        print_fn=print) -> Result:
+        print_fn=print, process: tuple[int, int] | None = None) -> Result:
   """Trains until `total_env_steps`, evaluating every `eval_every` env steps and at the end.
 
   Writes `out_dir`/log.csv (every chunk's and every evaluation's metrics), config.json and,
@@ -93,36 +159,55 @@ def run(cfg: RunConfig, checkpoint_dir: str | None = None, progress: bool = True
   """
   t_start = time.perf_counter()
   say = _above_progress_bars(print_fn)
-  os.makedirs(cfg.out_dir, exist_ok=True)
-  checkpoint_dir = checkpoint_dir or os.path.join(cfg.out_dir, "checkpoints")
-  trainer = build(cfg)
+  everyone, indices = cfg.members(), process_members(cfg, process)
+  members, is_sweep = [everyone[i] for i in indices], len(everyone) > 1
+  out_dir = (os.path.join(cfg.out_dir, f"process{process[0]}") if process and process[1] > 1
+             else cfg.out_dir)
+  os.makedirs(out_dir, exist_ok=True)
+  checkpoint_dir = checkpoint_dir or os.path.join(out_dir, "checkpoints")
+  trainer = build(cfg, len(members))
   mngr = checkpoint.manager(checkpoint_dir, cfg.keep_checkpoints)
-  key = jax.random.PRNGKey(cfg.seed)
-  state = checkpoint.resume(mngr, trainer.init(key), cfg.to_json(), say)
-  with open(os.path.join(cfg.out_dir, "config.json"), "w") as f:  # once resuming is agreed
-    json.dump(cfg.to_json(), f, indent=1)
-  env_steps = int(state.iteration) * cfg.train.steps_per_iteration
-  logger = Logger(os.path.join(cfg.out_dir, "log.csv"), cfg.time_delta, say,
-                  LEARNER_FIELDS[cfg.agent], cfg.tensorboard_dir, start_step=env_steps)
-  per_chunk = cfg.train.steps_per_iteration * cfg.train.iterations_per_chunk
-  say(f"{cfg.env} with {cfg.agent} ({cfg.preset}): {cfg.train.num_envs} envs on "
-      f"{len(jax.local_devices())} {jax.local_devices()[0].platform} device(s), "
-      f"{per_chunk:,} env steps and "
-      f"{cfg.train.updates_per_iteration * cfg.train.iterations_per_chunk:,} updates "
-      "per chunk")
+  saved_config = {**cfg.to_json(), "member_indices": indices}
+  state = checkpoint.resume(mngr, init(cfg, trainer, members), saved_config, say)
+  with open(os.path.join(out_dir, "config.json"), "w") as f:  # once resuming is agreed
+    json.dump(saved_config, f, indent=1)
+  steps_per_iteration = trainer.config.steps_per_iteration
+  env_steps = train.iterations(state) * steps_per_iteration
+  # A sweep's rows (one per member) go to the files only; its terminal lines sum them up.
+  logger = Logger(os.path.join(out_dir, "log.csv"), cfg.time_delta,
+                  (lambda line: None) if is_sweep else say, LEARNER_FIELDS[cfg.agent],
+                  cfg.tensorboard_dir, start_step=env_steps)
+  per_chunk = steps_per_iteration * trainer.config.iterations_per_chunk
+  who = f"{len(members)} members, " if is_sweep else ""
+  say(f"{cfg.env} with {cfg.agent} ({cfg.preset}): {who}{cfg.train.num_envs} envs"
+      f"{' each' if is_sweep else ''} on {len(jax.local_devices())} "
+      f"{jax.local_devices()[0].platform} device(s), {per_chunk:,} env steps and "
+      f"{trainer.config.updates_per_iteration * trainer.config.iterations_per_chunk:,} "
+      f"updates per chunk{' per member' if is_sweep else ''}")
   bar = (_progress_bar(cfg.total_env_steps, env_steps)
          if progress and env_steps < cfg.total_env_steps else None)
   _status(bar, "compiling the training step")
   next_eval = (env_steps // cfg.eval_every + 1) * cfg.eval_every
-  evaluation, last_save = None, time.monotonic()
+  evaluation, last_save, last_line = None, time.monotonic(), -float("inf")
+
+  def tags(m: int) -> dict:
+    """The columns that name member m of this process (none in a single run)."""
+    return {"member": indices[m], **members[m]} if is_sweep else {}
 
   def evaluate():
     _status(bar, "evaluating")
-    result = jax.device_get(trainer.evaluate(state.agent, jax.random.fold_in(key, env_steps)))
-    logger.write({"kind": "eval", "env_steps": env_steps, "wall_s": time.perf_counter() - t_start,
-                  "eval_return": float(np.mean(result["return"])),
-                  "eval_return_std": float(np.std(result["return"])),
-                  "eval_length": float(np.mean(result["length"]))}, force=True)
+    keys = jnp.stack([jax.random.fold_in(jax.random.PRNGKey(m["seed"]), env_steps)
+                      for m in members])
+    result = jax.device_get(trainer.evaluate(state.agent, keys))
+    for m in range(len(members)):
+      logger.write({"kind": "eval", **tags(m), "env_steps": env_steps,
+                    "wall_s": time.perf_counter() - t_start,
+                    "eval_return": float(np.mean(result["return"][m])),
+                    "eval_return_std": float(np.std(result["return"][m])),
+                    "eval_length": float(np.mean(result["length"][m]))}, force=True)
+    if is_sweep:
+      say(f"[eval] {env_steps:,} env steps | " + _members_line(result["return"].mean(-1),
+                                                                members, cfg.grid))
     return result
 
   with checkpoint.StopRequest() as stop, logger:
@@ -132,29 +217,52 @@ def run(cfg: RunConfig, checkpoint_dir: str | None = None, progress: bool = True
       t0 = time.perf_counter()
       state, metrics = trainer.train_chunk(state)
       metrics = jax.device_get(metrics)
-      env_steps = int(state.iteration) * cfg.train.steps_per_iteration
-      row = {"kind": "train", "env_steps": env_steps, "updates": int(state.updates),
-             "wall_s": time.perf_counter() - t_start,
-             "steps_per_s": per_chunk / (time.perf_counter() - t0),
-             **{k: float(v) for k, v in metrics.items()}}
-      logger.write(row)
+      env_steps = train.iterations(state) * steps_per_iteration
+      rate = per_chunk * len(members) / (time.perf_counter() - t0)
+      updates = np.asarray(jax.device_get(state.updates))
+      for m in range(len(members)):
+        logger.write({"kind": "train", **tags(m), "env_steps": env_steps,
+                      "updates": int(updates[m]), "wall_s": time.perf_counter() - t_start,
+                      "steps_per_s": rate, **{k: float(v[m]) for k, v in metrics.items()}})
+      if is_sweep and time.monotonic() - last_line >= cfg.time_delta:
+        last_line = time.monotonic()
+        say(f"[train] {env_steps:,} env steps | {rate:,.0f} steps/s (all members) | train "
+            "return " + _members_line(metrics["episode_return"], members, cfg.grid))
       if (env_steps >= next_eval or env_steps >= cfg.total_env_steps
           or time.perf_counter() >= deadline):
         evaluation = evaluate()
         next_eval += cfg.eval_every
       if time.monotonic() - last_save >= 60 * cfg.checkpoint_minutes:
-        checkpoint.save(mngr, state, cfg.to_json())
+        checkpoint.save(mngr, state, saved_config)
         last_save = time.monotonic()
       if bar is not None:
         bar.update(min(env_steps, cfg.total_env_steps) - bar.n)
-        _status(bar, logger.describe(RETURNS, sep=", "))
+        _status(bar, f"{rate:,.0f} steps/s" if is_sweep
+                else logger.describe(RETURNS, sep=", "))
     if bar is not None:
       bar.close()
-    checkpoint.save(mngr, state, cfg.to_json())
+    checkpoint.save(mngr, state, saved_config)
     checkpoint.finish(mngr)
-  say(_summary(cfg, stop.requested, env_steps, time.perf_counter() - t_start, evaluation,
-               logger.csv_path, checkpoint_dir))
+  if not is_sweep and evaluation is not None:
+    evaluation = jax.tree.map(lambda x: x[0], evaluation)  # a single run is one member
+  if is_sweep:
+    say("ranking by the last evaluation (mean over seeds):\n"
+        + sweep.ranking(logger.rows, cfg.grid))
+    say(f"learning curves: {sweep.plot(logger.rows, cfg.grid, os.path.join(out_dir, 'curves.png'))}")
+  say(_summary(cfg, stop.requested, env_steps, time.perf_counter() - t_start,
+               None if is_sweep else evaluation, logger.csv_path, checkpoint_dir))
   return Result(state, trainer, logger.rows, evaluation)
+
+
+def _members_line(values, members: list[dict], grid: dict) -> str:
+  """'best 2,480 (member 3: seed=1 learning_rate=0.0003), mean 1,920' over finite values."""
+  values = np.asarray(values, np.float64)
+  if not np.isfinite(values).any():
+    return "none yet"
+  best = int(np.nanargmax(np.where(np.isfinite(values), values, -np.inf)))
+  name = " ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}"
+                  for k, v in members[best].items() if k == "seed" or k in grid)
+  return f"best {values[best]:,.1f} ({name}), mean {np.nanmean(values):,.1f}"
 
 
 def _summary(cfg: RunConfig, stopped: bool, env_steps: int, seconds: float,
@@ -180,10 +288,9 @@ def restore(directory: str, print_fn=print):
   mngr = _existing_manager(directory)
 
   def load(step):
-    cfg = RunConfig.from_json(checkpoint.read_config(mngr, step))
-    trainer = build(cfg)
-    fresh = trainer.init(jax.random.PRNGKey(cfg.seed))
-    return cfg, checkpoint.restore(mngr, step, fresh), trainer
+    cfg, members = _saved_run(mngr, step)
+    trainer = build(cfg, len(members))
+    return cfg, checkpoint.restore(mngr, step, init(cfg, trainer, members)), trainer
 
   step, out = checkpoint.load_newest(mngr, load, print_fn)
   print_fn(f"restored {directory}, step {step}")
@@ -199,18 +306,31 @@ def _existing_manager(directory: str):
   return mngr
 
 
-def load_policy(directory: str):
-  """(RunConfig, agent state, Trainer) of the newest readable checkpoint in `directory`; reads
-  only the agent's item, not the replay."""
+def load_policy(directory: str, member: int = 0):
+  """(RunConfig, agent state, Trainer) of the newest readable checkpoint in `directory`: the
+  agent state of its `member`-th member (of a single run: its only one), without the member
+  axis; reads only the agent's item, not the replay."""
   mngr = _existing_manager(directory)
 
   def load(step):
-    cfg = RunConfig.from_json(checkpoint.read_config(mngr, step))
-    trainer = build(cfg)
-    like = jax.eval_shape(trainer.agent.init, jax.random.PRNGKey(0))
-    return cfg, checkpoint.restore_agent(mngr, step, like), trainer
+    cfg, members = _saved_run(mngr, step)
+    if not 0 <= member < len(members):
+      raise checkpoint.ConfigMismatch(f"member {member} is not in {directory}: it holds "
+                                      f"{len(members)} member(s), 0 to {len(members) - 1}")
+    trainer = build(cfg, len(members))
+    like = jax.eval_shape(lambda k: init(cfg, trainer, members).agent, 0)
+    agent_state = checkpoint.restore_agent(mngr, step, like)
+    return cfg, jax.tree.map(lambda x: x[member], agent_state), trainer
 
   return checkpoint.load_newest(mngr, load)[1]
+
+
+def _saved_run(mngr, step) -> tuple[RunConfig, list[dict]]:
+  """The RunConfig saved at `step` and the members its checkpoint holds."""
+  saved = checkpoint.read_config(mngr, step)
+  cfg = RunConfig.from_json(saved)
+  everyone = cfg.members()
+  return cfg, [everyone[i] for i in saved.get("member_indices", range(len(everyone)))]
 
 
 def _progress_bar(total: int, initial: int):
@@ -233,3 +353,16 @@ def _above_progress_bars(print_fn: Callable[[str], None]) -> Callable[[str], Non
       print_fn(line)
       sys.stdout.flush()
   return say
+
+
+def resume(directory: str, progress: bool = True, print_fn=print, **changes) -> Result:
+  """Continues the run whose checkpoints are in `directory`, from its newest readable one,
+  with the config saved beside it: after a restart, the one call that goes on training.
+  `changes` replace config fields that may change between a run and its resumption
+  (total_env_steps, max_minutes, eval_every, ...); one the saved state depends on is refused
+  with the settings that differ."""
+  mngr = _existing_manager(directory)
+  cfg = checkpoint.load_newest(
+      mngr, lambda step: RunConfig.from_json(checkpoint.read_config(mngr, step)), print_fn)[1]
+  return run(dataclasses.replace(cfg, **changes), checkpoint_dir=directory, progress=progress,
+             print_fn=print_fn)

@@ -22,7 +22,8 @@ def state(step: int, rows: int = 256) -> train.TrainState:
       replay=jnp.arange(rows * 64, dtype=jnp.float32).reshape(rows, 64) + step,
       env={"qpos": jnp.full((4, 7), step, jnp.float32)},
       episode_return=jnp.full(4, step, jnp.float32), key=jax.random.PRNGKey(step),
-      iteration=jnp.asarray(step, jnp.int32), updates=jnp.asarray(10 * step, jnp.int32))
+      iteration=jnp.asarray(step, jnp.int32), updates=jnp.asarray(10 * step, jnp.int32),
+      replay_ratio=jnp.asarray(step, jnp.float32))
 
 
 if __name__ == "__main__":

@@ -36,11 +36,17 @@ def trainer():
 
 @pytest.fixture(scope="module")
 def two_chunks(trainer):
-  """Host copies of the state after one and two chunks, and the second chunk's metrics."""
+  """Host copies of the (one member's) state after one and two chunks, and the second chunk's
+  metrics."""
   first, _ = trainer.train_chunk(trainer.init(jax.random.PRNGKey(0)))
-  first_host = jax.device_get(first)
+  first_host = member(first)
   second, metrics = trainer.train_chunk(first)  # donates `first`
-  return first_host, jax.device_get(second), jax.device_get(metrics)
+  return first_host, member(second), member(metrics)
+
+
+def member(tree, i=0):
+  """Member i's part of a trainer's pytree (every leaf has a leading member axis), on the host."""
+  return jax.tree.map(lambda x: x[i], jax.device_get(tree))
 
 
 def test_counters_and_replay_fill(two_chunks):
@@ -75,8 +81,8 @@ def test_state_is_sharded_and_params_replicated(trainer):
   state = trainer.init(jax.random.PRNGKey(0))
   state, _ = trainer.train_chunk(state)
   assert len(jax.devices()) == 2
-  assert state.env.obs.addressable_shards[0].data.shape == (2, 15)
-  assert state.replay.steps.obs.addressable_shards[0].data.shape == (16, 2, 15)
+  assert state.env.obs.addressable_shards[0].data.shape == (1, 2, 15)
+  assert state.replay.steps.obs.addressable_shards[0].data.shape == (1, 16, 2, 15)
   kernel = jax.tree.leaves(state.agent.policy)[0]
   a, b = (np.asarray(s.data) for s in kernel.addressable_shards)
   np.testing.assert_array_equal(a, b)  # data-parallel learner: identical copies
@@ -85,13 +91,13 @@ def test_state_is_sharded_and_params_replicated(trainer):
 def test_same_seed_same_run(trainer, two_chunks):
   first, _, _ = two_chunks
   again, _ = trainer.train_chunk(trainer.init(jax.random.PRNGKey(0)))
-  jax.tree.map(np.testing.assert_array_equal, jax.device_get(again), first)
+  jax.tree.map(np.testing.assert_array_equal, member(again), first)
 
 
 def test_evaluate_runs_whole_episodes(trainer):
   state = trainer.init(jax.random.PRNGKey(0))
-  result = jax.device_get(trainer.evaluate(state.agent, jax.random.PRNGKey(1)))
-  assert result["return"].shape == (4,)
+  result = jax.device_get(trainer.evaluate(state.agent, jax.random.PRNGKey(1)[None]))
+  assert result["return"].shape == (1, 4)
   assert ((result["length"] >= 1) & (result["length"] <= 30)).all()
 
 
@@ -118,27 +124,27 @@ def test_bad_run_config():
 def test_run_logs_checkpoints_and_resumes(tmp_path, capsys):
   cfg = dataclasses.replace(TINY, out_dir=str(tmp_path / "run"))
   result = loop.run(cfg, progress=False)
-  assert int(result.state.iteration) * cfg.train.steps_per_iteration >= 80
+  assert train.iterations(result.state) * cfg.train.steps_per_iteration >= 80
   with open(tmp_path / "run" / "log.csv") as f:
     rows = list(csv.DictReader(f))
   assert {"env_steps", "steps_per_s", "episode_return", "critic_loss", "eval_return"} <= set(
       rows[0])
   assert [r["kind"] for r in rows].count("eval") == 2  # at 40 and at 80 env steps
   steps = sorted(int(p) for p in os.listdir(tmp_path / "run" / "checkpoints") if p.isdigit())
-  assert steps == [int(result.state.iteration)]
+  assert steps == [train.iterations(result.state)]
   assert json.load(open(tmp_path / "run" / "config.json"))["agent_config"]["n_step"] == 3
   # A longer run from the same folder continues from the checkpoint.
   longer = loop.run(dataclasses.replace(cfg, total_env_steps=160), progress=False)
   out = capsys.readouterr().out
   assert "resumed from" in out
   assert "nan" not in out  # no return is shown before it is known
-  assert int(longer.state.iteration) == 2 * int(result.state.iteration)
+  assert train.iterations(longer.state) == 2 * train.iterations(result.state)
   # Another config is refused, naming what differs, and the checkpoint is left alone.
   with pytest.raises(ValueError, match="from another config .*agent_config"):
     loop.run(dataclasses.replace(cfg, agent_overrides={**cfg.agent_overrides, "n_step": 2}),
              progress=False)
-  assert max(int(p) for p in os.listdir(tmp_path / "run" / "checkpoints") if p.isdigit()) == int(
-      longer.state.iteration)
+  assert max(int(p) for p in os.listdir(tmp_path / "run" / "checkpoints") if p.isdigit()) == (
+      train.iterations(longer.state))
   # The CLI's eval loads just the policy and writes a video.
   video = tmp_path / "policy.mp4"
   cli.main(["--cpu-devices", "2", "eval", "--checkpoint", str(tmp_path / "run" / "checkpoints"),
