@@ -18,6 +18,7 @@
 #   bash benchmarks/gpu_session.sh humanoid-confirm   # the Humanoid as shipped: GPU rows, stability
 #   bash benchmarks/gpu_session.sh mpo-pair0          # MPO and DMPO seed 0, two runs on the GPU
 #   bash benchmarks/gpu_session.sh sweep-throughput   # sweeps of 1 to 64 members, alone on the GPU
+#   bash benchmarks/gpu_session.sh peers              # our D4PG, Brax SAC and PPO (tuned), one run
 # Every run of a call shares the one GPU (XLA_PYTHON_CLIENT_MEM_FRACTION=0.1 each).
 # The runs write to $WORK; $OUT (default runs/gpu) gets the printed tables and results.tgz (every
 # run's summary, curves and log, without checkpoints).
@@ -190,12 +191,23 @@ for phase in "$@"; do
       cat "$WORK/sweep_throughput_gpu.txt"
       cp "$WORK/sweep_throughput_gpu.json" "$OUT/"
       ;;
+    peers)
+      # Our D4PG (gpu preset), Brax SAC and Brax PPO on our Hopper, all in one run on the GPU,
+      # with Brax's reward scaling and discount tuned in the same run: 9 runs at once, 7.5 min
+      # each (benchmarks/peers.py).
+      timeout 590 python3 benchmarks/peers.py --minutes 7.5 --grace 30 --label h100 \
+        --out "$WORK/peers" --grid sac:reward_scaling=1,10 --grid sac:discounting=0.99,0.997 \
+        --grid ppo:reward_scaling=1,10 --grid ppo:discounting=0.97,0.99 \
+        > "$WORK/peers.txt" 2>&1
+      tail -30 "$WORK/peers.txt"
+      cp benchmarks/results/peers_h100.json "$OUT/" 2>/dev/null
+      ;;
     humanoid-ls)
       # Fewer line-search steps (under vmap MJX's line search runs all of its steps): four
       # variants through the stability check.
       for v in "all 4/4" "all 4/2" "all 3/3" "legs 3/3"; do stable "$BEFORE_ARMATURE $v"; done
       ;;
-    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, humanoid-capture, humanoid-limits, humanoid-armature, humanoid-confirm, mpo-pairN, sweep-throughput" >&2
+    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, humanoid-capture, humanoid-limits, humanoid-armature, humanoid-confirm, mpo-pairN, sweep-throughput, peers" >&2
        exit 2 ;;
   esac
 done
