@@ -48,9 +48,10 @@ class Logger:
 
   def __init__(self, csv_path: str | None, time_delta: float = 10.0,
                print_fn: Callable[[str], None] = print, learner_fields: Fields = (),
-               tensorboard_dir: str | None = None, start_step: int = 0):
+               tensorboard_dir: str | None = None, start_step: int = 0,
+               id_fields: Sequence[str] = ()):
     self.csv_path, self.time_delta, self.print_fn = csv_path, time_delta, print_fn
-    self.learner_fields = tuple(learner_fields)
+    self.learner_fields, self.id_fields = tuple(learner_fields), tuple(id_fields)
     self.rows: list[dict] = []
     self.columns: list[str] = []
     self.latest: dict[str, float] = {}  # each field's latest value, this run
@@ -116,10 +117,13 @@ class Logger:
       csv.DictWriter(f, self.columns).writerow(row)
 
   def _write_tensorboard(self, row: dict) -> None:
+    """Each number of `row` as "<kind>/<field>"; a sweep member's as "member<i>/<kind>/<field>",
+    leaving out the fields that name the member (`id_fields`)."""
     step = int(row["env_steps"])
+    prefix = f"member{row['member']}/" if "member" in row else ""
     for key, value in row.items():
-      if key != "env_steps" and _is_number(value):
-        self.tensorboard.add_scalar(f"{row['kind']}/{key}", value, step)
+      if key not in ("env_steps", *self.id_fields) and _is_number(value):
+        self.tensorboard.add_scalar(f"{prefix}{row['kind']}/{key}", value, step)
 
 
 def _tensorboard_writer(directory: str | None, start_step: int):

@@ -176,7 +176,8 @@ def run(cfg: RunConfig, checkpoint_dir: str | None = None, progress: bool = True
   # A sweep's rows (one per member) go to the files only; its terminal lines sum them up.
   logger = Logger(os.path.join(out_dir, "log.csv"), cfg.time_delta,
                   (lambda line: None) if is_sweep else say, LEARNER_FIELDS[cfg.agent],
-                  cfg.tensorboard_dir, start_step=env_steps)
+                  cfg.tensorboard_dir, start_step=env_steps,
+                  id_fields=("member", *members[0]) if is_sweep else ())
   per_chunk = steps_per_iteration * trainer.config.iterations_per_chunk
   who = f"{len(members)} members, " if is_sweep else ""
   say(f"{cfg.env} with {cfg.agent} ({cfg.preset}): {who}{cfg.train.num_envs} envs"

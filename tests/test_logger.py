@@ -191,3 +191,13 @@ def test_lines_go_above_the_progress_bar(monkeypatch):
   rows = render(terminal.getvalue())
   assert rows[0] == "[train] 3 env steps"  # not "30%|###...| 3/10[train] 3 env steps"
   assert rows[1].startswith(" 50%|") and rows[1].endswith("| 5/10") and rows[2:] == [""]
+
+
+def test_sweep_members_have_their_own_tensorboard_series(tmp_path):
+  with Logger(None, tensorboard_dir=str(tmp_path), print_fn=lambda line: None,
+              id_fields=("member", "seed", "sigma")) as logger:
+    for member, value in ((0, 10.0), (1, 20.0)):
+      logger.write({"kind": "eval", "member": member, "seed": member, "sigma": 0.1,
+                    "env_steps": 40, "eval_return": value})
+  assert scalars(read_events(str(tmp_path))) == {("member0/eval/eval_return", 40): [10.0],
+                                                 ("member1/eval/eval_return", 40): [20.0]}
