@@ -23,7 +23,7 @@ def zero_policy(action_size: int) -> Policy:
 
 
 def episodes(env: LocomotionEnv, policy: Policy, key: jax.Array, num_episodes: int,
-             record_qpos: bool = False) -> dict[str, jax.Array]:
+             record_qpos: bool = False, record_rewards: bool = False) -> dict[str, jax.Array]:
   """Runs `num_episodes` episodes in parallel, each to its end (at most env.episode_steps).
   Jit it with `env`, `policy` and `num_episodes` static.
 
@@ -33,31 +33,35 @@ def episodes(env: LocomotionEnv, policy: Policy, key: jax.Array, num_episodes: i
 
   Returns per-episode arrays of shape (num_episodes,): "length", "return", and the mean per
   step of each reward term, by name. With `record_qpos`, also "qpos" of episode 0, shape
-  (env.episode_steps + 1, nq), holding its last pose after it ends.
+  (env.episode_steps + 1, nq), holding its last pose after it ends. With `record_rewards`, also
+  "rewards", the reward of every step of every episode, shape (num_episodes, env.episode_steps),
+  0 after an episode's end.
   """
   reset_key, policy_key = jax.random.split(key)
   keys = (jax.random.split(reset_key, num_episodes), jax.random.split(policy_key, num_episodes))
-  result = parallel.per_device(lambda keys: _local_episodes(env, policy, keys, record_qpos),
-                               num_episodes)(keys)
+  result = parallel.per_device(
+      lambda keys: _local_episodes(env, policy, keys, record_qpos, record_rewards),
+      num_episodes)(keys)
   if record_qpos:
     result["qpos"] = result["qpos"][0]
   return result
 
 
-def _local_episodes(env, policy, keys, record_qpos):
+def _local_episodes(env, policy, keys, record_qpos, record_rewards):
   """`episodes` on one device's share, given (reset keys, policy keys), one pair per episode."""
   reset_keys, policy_keys = keys
   state = jax.vmap(env.reset)(reset_keys)
   zeros = jnp.zeros(reset_keys.shape[0])
   totals = {"length": zeros, "return": zeros, **{k: zeros for k in state.metrics}}
   qpos = jnp.zeros((env.episode_steps + 1, env.mj_model.nq)) + state.pipeline_state.qpos[0]
+  rewards = jnp.zeros((reset_keys.shape[0], env.episode_steps)) if record_rewards else None
 
   def running(carry):
-    t, state, _, _ = carry
+    t, state = carry[:2]
     return (t < env.episode_steps) & (state.done == 0).any()
 
   def one_step(carry):
-    t, state, totals, qpos = carry
+    t, state, totals, qpos, rewards = carry
     step_keys = jax.vmap(jax.random.fold_in, (0, None))(policy_keys, t)
     action = jax.vmap(policy)(state.obs, step_keys)
     live = state.done == 0
@@ -68,15 +72,19 @@ def _local_episodes(env, policy, keys, record_qpos):
     if record_qpos:
       later = jnp.arange(qpos.shape[0])[:, None] > t
       qpos = jnp.where(later, nxt.pipeline_state.qpos[0], qpos)
-    return t + 1, nxt, totals, qpos
+    if record_rewards:
+      rewards = rewards.at[:, t].set(live * nxt.reward)
+    return t + 1, nxt, totals, qpos, rewards
 
-  _, _, totals, qpos = jax.lax.while_loop(
-      running, one_step, (jnp.zeros((), jnp.int32), state, totals, qpos))
+  _, _, totals, qpos, rewards = jax.lax.while_loop(
+      running, one_step, (jnp.zeros((), jnp.int32), state, totals, qpos, rewards))
   result = {"length": totals["length"].astype(jnp.int32), "return": totals["return"]}
   for name in state.metrics:
     result[name] = totals[name] / jnp.maximum(totals["length"], 1)
   if record_qpos:
     result["qpos"] = qpos[None]  # one per device; `episodes` keeps the first
+  if record_rewards:
+    result["rewards"] = rewards
   return result
 
 

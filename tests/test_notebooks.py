@@ -1,25 +1,84 @@
-"""The notebooks run top to bottom (in their short mode)."""
+"""The Robolympics notebook runs top to bottom in its short mode (MJX_HOPPER_SHORT=1: tiny
+budgets, nothing installed, no network), and every step of its workflow leaves its mark."""
 
+import json
 import pathlib
 
 import nbformat
 import pytest
 from nbclient import NotebookClient
 
-NOTEBOOKS = sorted((pathlib.Path(__file__).parent.parent / "notebooks").glob("*.ipynb"))
+NOTEBOOK = pathlib.Path(__file__).parent.parent / "notebooks" / "robolympics.ipynb"
+
+# Run in the notebook's kernel after its own cells: what its workflow left behind.
+FACTS = """
+import json
+print("FACTS " + json.dumps({
+    "commands": [" ".join(c) for c in commands],
+    "high_jump_terms": sorted(jumps),
+    "d4pg_log": {kind: columns["env_steps"].tolist()
+                 for kind, columns in notebook.read_log(f"{cfg.out_dir}/log.csv").items()},
+    "checkpoints": sorted(int(s) for s in os.listdir(f"{cfg.out_dir}/checkpoints") if s.isdigit()),
+    "rewards": list(episodes["rewards"].shape),
+    "evaluations": {c.out_dir: len(notebook.read_log(f"{c.out_dir}/log.csv")["eval"]["env_steps"])
+                    for c in (ddpg, dmpo, walker)},
+    "videos": sorted(p for p in os.listdir() if p.endswith(".mp4")),
+}))
+"""
 
 
-@pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.stem for p in NOTEBOOKS])
-def test_notebook_runs(path, tmp_path, monkeypatch):
-  monkeypatch.setenv("MJX_HOPPER_SHORT", "1")  # the kernel also inherits conftest's XLA_FLAGS
-  notebook = nbformat.read(path, as_version=4)
-  # Run in a scratch copy of the folder so outputs (videos) do not land in the repository.
-  for other in path.parent.iterdir():
-    if other.is_file():
-      (tmp_path / other.name).write_bytes(other.read_bytes())
-  NotebookClient(notebook, timeout=600, kernel_name="python3",
-                 resources={"metadata": {"path": str(tmp_path)}}).execute()
-  outputs = "".join(o.get("text", "") for c in notebook.cells for o in c.get("outputs", []))
-  assert "env steps/s" in outputs
-  assert not any(o.get("output_type") == "error" for c in notebook.cells
-                 for o in c.get("outputs", []))
+@pytest.fixture(scope="module")
+def executed(tmp_path_factory):
+  """The notebook's cells with their outputs, and its FACTS, after a run in a scratch folder
+  (so that its runs and videos do not land in the repository)."""
+  notebook = nbformat.read(NOTEBOOK, as_version=4)
+  notebook.cells.append(nbformat.v4.new_code_cell(FACTS))
+  folder = tmp_path_factory.mktemp("robolympics")
+  with pytest.MonkeyPatch.context() as patch:
+    patch.setenv("MJX_HOPPER_SHORT", "1")  # the kernel also inherits conftest's XLA_FLAGS
+    NotebookClient(notebook, timeout=600, kernel_name="python3",
+                   resources={"metadata": {"path": str(folder)}}).execute()
+  facts = json.loads(notebook.cells[-1].outputs[0]["text"].removeprefix("FACTS "))
+  return notebook.cells[:-1], facts
+
+
+def outputs(cells, kind=None):
+  return [o for c in cells if c.cell_type == "code" for o in c.outputs
+          if kind is None or o["output_type"] == kind]
+
+
+def text(cells) -> str:
+  return "".join(o.get("text", "") for o in outputs(cells, "stream"))
+
+
+def test_runs_without_errors_and_installs_nothing(executed):
+  cells, facts = executed
+  assert not outputs(cells, "error")
+  assert not any("pip" in c for c in facts["commands"])  # the checkout's package is in place
+  assert "to install:" in text(cells)
+
+
+def test_custom_task_has_its_own_reward_terms(executed):
+  _, facts = executed
+  assert "height" in facts["high_jump_terms"] and "progress" not in facts["high_jump_terms"]
+
+
+def test_trains_checkpoints_and_resumes_from_the_saved_step(executed):
+  cells, facts = executed
+  log = facts["d4pg_log"]
+  assert log["eval"] == [40, 80, 120, 160]         # 80 env steps, then 80 more after resuming
+  assert max(log["train"]) == 160
+  assert facts["checkpoints"] == [10, 20]          # iterations of 8 env steps
+  assert "resumed from" in text(cells) and "step 10" in text(cells)
+  assert all(count == 2 for count in facts["evaluations"].values())  # DDPG, DMPO, Walker2D
+
+
+def test_shows_frames_plots_videos_and_totals(executed):
+  cells, facts = executed
+  images = [o for o in outputs(cells) if "image/png" in o.get("data", {})]
+  assert len(images) >= 6  # a frame, the reward plot, four learning curves
+  videos = [o for o in outputs(cells) if "<video" in o.get("data", {}).get("text/html", "")]
+  assert len(videos) == 3
+  assert facts["videos"] == ["hopper_d4pg.mp4", "hopper_random.mp4", "walker2d_d4pg.mp4"]
+  assert facts["rewards"] == [5, 30]
+  assert text(cells).count("Total reward in episode") == 5

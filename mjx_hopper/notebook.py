@@ -1,0 +1,126 @@
+"""What the Robolympics notebook shows, each in one call: a recorded evaluation of a trained
+policy, inline videos, the seed's per-step reward plot, a run's learning curve, and the tiny
+settings the tests run the notebook with.
+
+    from mjx_hopper import loop, notebook
+    result = loop.run(cfg)
+    episodes = notebook.evaluate(result.trainer, result.state, num_episodes=5)
+    notebook.video(result.trainer.env, episodes, "policy.mp4")
+    notebook.plot_episode_rewards(episodes)
+    notebook.plot_learning_curve(f"{cfg.out_dir}/log.csv")
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+
+import jax
+import numpy as np
+
+from mjx_hopper import loop, rollout, train
+from mjx_hopper.envs import render
+
+# tests/test_train.py's tiny runs (TINY_ARGS), so that the notebook's short mode and the tests
+# share compiled programs through the persistent compile cache.
+TINY_TRAIN = train.TrainConfig(num_envs=4, unroll_length=2, batch_size=8, replay_ratio=2.0,
+                               replay_size=64, min_replay=24, iterations_per_chunk=5)
+TINY_AGENT = {"policy_layers": (16,), "critic_layers": (16,), "n_step": 3}
+TINY_AGENT_EXTRA = {"d4pg": {"num_atoms": 11}, "mpo": {"num_samples": 4},
+                    "dmpo": {"num_samples": 4, "num_atoms": 11}}
+
+
+def tiny(cfg: loop.RunConfig) -> loop.RunConfig:
+  """`cfg` shrunk to a few seconds of training: 16-unit networks, 4 envs, 80 env steps of
+  30-step episodes, an evaluation of 2 episodes every 40 env steps. Its env, agent, seed and
+  files stay."""
+  overrides = {**TINY_AGENT, **TINY_AGENT_EXTRA.get(cfg.agent, {})}
+  return dataclasses.replace(cfg, agent_overrides=overrides, train=TINY_TRAIN, episode_steps=30,
+                             total_env_steps=80, max_minutes=None, eval_every=40,
+                             eval_episodes=2)
+
+
+def evaluate(trainer: train.Trainer, state: train.TrainState, num_episodes: int,
+             seed: int = 0) -> dict[str, np.ndarray]:
+  """Runs `num_episodes` episodes of the deterministic policy of a single run's `state`, in
+  one compiled call, recording what the notebook shows. Returns host arrays: "return" and
+  "length" (num_episodes,), the mean of each reward term, "rewards" (num_episodes,
+  episode_steps: each step's reward, 0 after the episode's end) and "qpos" (episode 0's poses,
+  (episode_steps + 1, nq))."""
+  env, agent = trainer.env, trainer.agent
+  agent_state = jax.tree.map(lambda x: x[0], state.agent)  # a single run is one member
+
+  @jax.jit
+  def run(agent_state, key):
+    return rollout.episodes(env, lambda obs, _: agent.policy(agent_state, obs), key,
+                            num_episodes, record_qpos=True, record_rewards=True)
+
+  return jax.device_get(run(agent_state, jax.random.PRNGKey(seed)))
+
+
+def video(env, episodes: dict, path: str, width: int = 320, height: int = 240):
+  """Episode 0 of `episodes` (from `evaluate`, or `rollout.episodes` with record_qpos) as an
+  mp4 at `path`, returned as an inline video for the notebook."""
+  from IPython.display import Video
+  qpos = np.asarray(episodes["qpos"])[: int(episodes["length"][0]) + 1]
+  render.write_mp4(path, env.render(qpos, width=width, height=height), fps=1 / env.dt)
+  return Video(path, embed=True, html_attributes="controls loop autoplay muted")
+
+
+def plot_episode_rewards(episodes: dict, ax=None):
+  """The reward of every step, the episodes one after another, a colour each (the seed's
+  plot). Returns the matplotlib Axes."""
+  ax = ax or _axes()
+  start = 0
+  for i, (length, rewards) in enumerate(zip(episodes["length"], episodes["rewards"])):
+    length = int(length)
+    ax.plot(np.arange(start, start + length), rewards[:length], label=f"episode {i}")
+    start += length
+  ax.set(xlabel="step (episodes one after another)", ylabel="reward")
+  ax.grid(True)
+  ax.legend(fontsize="small")
+  return ax
+
+
+def read_log(path: str) -> dict[str, dict[str, np.ndarray]]:
+  """A run's log.csv by kind of row ("train", "eval"): each column as a float array, NaN where
+  a row left it empty."""
+  with open(path, newline="") as f:
+    rows = list(csv.DictReader(f))
+  out = {}
+  for kind in sorted({row["kind"] for row in rows}):
+    mine = [row for row in rows if row["kind"] == kind]
+    out[kind] = {name: np.array([_number(row.get(name)) for row in mine])
+                 for name in mine[0] if name != "kind"}
+  return out
+
+
+def plot_learning_curve(path: str, ax=None):
+  """A run's learning curve from its log.csv: the evaluation return (mean, and its spread over
+  the episodes) and the return of the training episodes, against env steps. Returns the
+  matplotlib Axes."""
+  log = read_log(path)
+  ax = ax or _axes()
+  if "train" in log:
+    ax.plot(log["train"]["env_steps"], log["train"]["episode_return"], alpha=0.4,
+            label="training episodes (exploring)")
+  if "eval" in log:
+    steps, mean, std = (log["eval"][k] for k in ("env_steps", "eval_return", "eval_return_std"))
+    line, = ax.plot(steps, mean, "o-", label="evaluation (deterministic policy)")
+    ax.fill_between(steps, mean - std, mean + std, color=line.get_color(), alpha=0.2)
+  ax.set(xlabel="env steps", ylabel="episode return")
+  ax.grid(True)
+  ax.legend(fontsize="small")
+  return ax
+
+
+def _axes():
+  import matplotlib.pyplot as plt
+  return plt.figure(figsize=(8, 3)).gca()
+
+
+def _number(text) -> float:
+  try:
+    return float(text)
+  except (TypeError, ValueError):
+    return float("nan")
