@@ -282,8 +282,9 @@ def make_trainer(env: LocomotionEnv, agent: Agent, cfg: TrainConfig, eval_episod
       in_shardings=(shardings,),
       out_shardings=(shardings, NamedSharding(mesh, member_spec())), donate_argnums=0)
 
-  def evaluate_members(agent_states, keys):
-    return jax.vmap(lambda s, k: evaluate(env, agent, s, k, eval_episodes))(agent_states, keys)
+  # One member's evaluation as plain code (vmap of one traces much slower), several under vmap.
+  evaluate_members = per_member(lambda s, k: evaluate(env, agent, s, k, eval_episodes),
+                                num_members)
 
   return Trainer(init, train_chunk, jax.jit(evaluate_members), cfg, env, agent, num_members)
 
