@@ -5,8 +5,8 @@ axis of one TrainState in one compiled program.
     cfg = loop.RunConfig(env="Hopper", agent="d4pg", seeds=(0, 1, 2, 3),
                          grid={"learning_rate": (1e-4, 3e-4)}, out_dir="runs/sweep")
     result = loop.run(cfg)                       # 8 members; log.csv has one row per member
-    print(sweep.ranking(result.history))
-    sweep.plot(result.history, "runs/sweep/curves.png")
+    print(sweep.ranking(result.history, cfg.grid))   # loop.run prints it, and
+    sweep.plot(result.history, cfg.grid, "runs/sweep/curves.png")  # writes this, itself
     sweep.extract("runs/sweep/checkpoints", member=3, out_dir="runs/member3")
 
 A single run is a sweep of one member (no seeds or grid). Only dynamic settings can be swept:
@@ -64,13 +64,6 @@ def check_grid(agent: str, preset: str, grid: dict, train_cfg: train.TrainConfig
         dataclasses.replace(train_cfg, **{name: value}).check()
       else:
         agents.config(agent, preset, **{**(overrides or {}), name: value})
-
-
-def max_updates(train_cfg: train.TrainConfig, grid: dict) -> int:
-  """Updates per iteration of the sweep's busiest member."""
-  ratios = grid.get("replay_ratio", (train_cfg.replay_ratio,))
-  return max(dataclasses.replace(train_cfg, replay_ratio=r).updates_per_iteration
-             for r in ratios)
 
 
 def members(seeds: tuple[int, ...], grid: dict) -> list[dict[str, Any]]:
