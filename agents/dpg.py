@@ -23,11 +23,24 @@ class Config(CommonConfig):
   DYNAMIC: ClassVar[tuple[str, ...]] = CommonConfig.DYNAMIC + ("sigma",)
 
   sigma: float = 0.3                 # std of the Gaussian exploration noise
+  # Mixed exploration noise (FastTD3's): env i of n explores at std sigma_min + (sigma -
+  # sigma_min) * i / (n - 1), so that some envs act near the greedy policy and others explore
+  # widely. None: every env at sigma.
+  sigma_min: float | None = None
+  # Critics trained side by side. With 2 or more, clipped double Q (TD3's): each fits the TD
+  # target of the critic whose next-state value is lowest, and the policy ascends the lowest
+  # value, which curbs the overestimation that a deterministic policy exploits.
+  num_critics: int = 1
 
   def __post_init__(self):
     super().__post_init__()
     if not self.sigma >= 0:
       raise ValueError(f"sigma must be >= 0, got {self.sigma}")
+    if self.sigma_min is not None and not 0 <= self.sigma_min <= self.sigma:
+      raise ValueError(f"sigma_min must be None or in [0, sigma={self.sigma}], got "
+                       f"{self.sigma_min}")
+    if not isinstance(self.num_critics, int) or self.num_critics < 1:
+      raise ValueError(f"num_critics must be an integer >= 1, got {self.num_critics!r}")
 
 
 class State(NamedTuple):
@@ -48,13 +61,33 @@ def make(obs_size: int, action_size: int, cfg: Config,
   policy_net = networks.TanhPolicy(cfg.policy_layers, action_size)
   critic_net = networks.Critic(cfg.critic_layers, head_of(defaults).num_outputs)
 
+  ensemble = cfg.num_critics > 1
+
+  def critic_apply(params, obs, action):
+    """(num_critics, ..., outputs): every critic's outputs."""
+    if not ensemble:
+      return critic_net.apply(params, obs, action)[None]
+    return jax.vmap(lambda p: critic_net.apply(p, obs, action))(params)
+
+  def lowest(head, outputs):
+    """(..., outputs) of the critic whose value is lowest, sample by sample."""
+    if not ensemble:
+      return outputs[0]
+    index = jnp.argmin(head.value(outputs), axis=0)
+    index = index.reshape((1,) + index.shape + (1,) * (outputs.ndim - 1 - index.ndim))
+    return jnp.take_along_axis(outputs, index, axis=0)[0]
+
   def init(key, hparams=None):
     hp = defaults if hparams is None else hparams
     opt = optimizer(hp["learning_rate"], hp["max_grad_norm"])
     policy_key, critic_key = jax.random.split(key)
     obs, action = jnp.zeros((1, obs_size)), jnp.zeros((1, action_size))
     policy = policy_net.init(policy_key, obs)
-    critic = critic_net.init(critic_key, obs, action)
+    if ensemble:
+      critic = jax.vmap(lambda k: critic_net.init(k, obs, action))(
+          jax.random.split(critic_key, cfg.num_critics))
+    else:
+      critic = critic_net.init(critic_key, obs, action)
     return State(policy, critic, policy, critic, opt.init(policy), opt.init(critic),
                  jnp.zeros((), jnp.int32), hp)
 
@@ -63,20 +96,25 @@ def make(obs_size: int, action_size: int, cfg: Config,
 
   def act(state, obs, key):
     action = policy(state, obs)
-    noise = state.hparams["sigma"] * jax.random.normal(key, action.shape)
+    sigma = state.hparams["sigma"]
+    if cfg.sigma_min is not None and action.ndim > 1:
+      sigma = jnp.linspace(cfg.sigma_min, sigma, action.shape[0])[:, None]
+    noise = sigma * jax.random.normal(key, action.shape)
     return jnp.clip(action + noise, -1.0, 1.0)
 
   def critic_loss(critic_params, state, batch, head):
     next_action = policy_net.apply(state.target_policy, batch.next_obs)
-    next_out = critic_net.apply(state.target_critic, batch.next_obs, next_action)
-    target = head.target(next_out[None], batch.reward, batch.discount)
-    out = critic_net.apply(critic_params, batch.obs, batch.action)
-    return head.loss(out, jax.lax.stop_gradient(target)).mean(), head.value(out)
+    next_out = lowest(head, critic_apply(state.target_critic, batch.next_obs, next_action))
+    target = jax.lax.stop_gradient(head.target(next_out[None], batch.reward, batch.discount))
+    out = critic_apply(critic_params, batch.obs, batch.action)
+    loss = jax.vmap(lambda o: head.loss(o, target).mean())(out).sum()
+    return loss, head.value(out).min(axis=0)
 
   def policy_loss(policy_params, state, batch, head):
     # As acme's learners, the deterministic policy gradient is taken at the next observations.
     action = policy_net.apply(policy_params, batch.next_obs)
-    return -head.value(critic_net.apply(state.critic, batch.next_obs, action)).mean()
+    values = head.value(critic_apply(state.critic, batch.next_obs, action))
+    return -values.min(axis=0).mean()
 
   def update(state, batch, key, axis_name=None):
     del key  # the update is deterministic given the batch

@@ -19,6 +19,8 @@
 #   bash benchmarks/gpu_session.sh mpo-pair0          # MPO and DMPO seed 0, two runs on the GPU
 #   bash benchmarks/gpu_session.sh sweep-throughput   # sweeps of 1 to 64 members, alone on the GPU
 #   bash benchmarks/gpu_session.sh peers              # our D4PG, Brax SAC and PPO (tuned), one run
+#   bash benchmarks/gpu_session.sh scaling            # the trainer from 512 to 16k envs, alone
+#   bash benchmarks/gpu_session.sh screen-hopper      # GPU trainer layouts and options, 4 at once
 # Every run of a call shares the one GPU (XLA_PYTHON_CLIENT_MEM_FRACTION=0.1 each).
 # The runs write to $WORK; $OUT (default runs/gpu) gets the printed tables and results.tgz (every
 # run's summary, curves and log, without checkpoints).
@@ -202,12 +204,46 @@ for phase in "$@"; do
       tail -30 "$WORK/peers.txt"
       cp benchmarks/results/peers_h100.json "$OUT/" 2>/dev/null
       ;;
+    scaling)
+      # The whole trainer (benchmarks/trainer_scaling.py) from 512 to 16,384 envs at batches up
+      # to 65,536, alone on the GPU; then the Humanoid's physics alone from 512 to 16,384 envs,
+      # and a 16-member sweep with learning off (its env steps against its updates).
+      export XLA_PYTHON_CLIENT_MEM_FRACTION=0.9
+      S=(--updates 2 --chunk 20 --chunks 3 --json "$WORK/scaling.json")
+      timeout 200 python3 benchmarks/trainer_scaling.py --env Hopper "${S[@]}" \
+        --points 512:1024,2048:4096,4096:8192,8192:16384,16384:32768,16384:65536
+      timeout 100 python3 benchmarks/trainer_scaling.py --env Hopper "${S[@]}" \
+        --set num_critics=2 --set "critic_layers=(1024,512,256)" --points 4096:8192,16384:32768
+      timeout 150 python3 benchmarks/trainer_scaling.py --env Humanoid "${S[@]}" \
+        --points 512:1024,4096:8192,16384:32768
+      timeout 150 python3 benchmarks/env_throughput.py --envs Humanoid \
+        --batches 512,2048,8192,16384 --devices 1 --steps-total 2000000 \
+        --json "$WORK/humanoid_physics.json"
+      timeout 150 python3 benchmarks/sweep_throughput.py --preset gpu --num-envs 512 \
+        --batch-size 1024 --replay-size 1000000 --chunk 10 --chunks 3 --members 1,16 \
+        --cpu-devices 1 --collect-only --out "$WORK/sweep_collect_gpu.json"
+      cp "$WORK"/scaling.json "$WORK"/humanoid_physics.json "$WORK"/sweep_collect_gpu.json "$OUT/"
+      ;;
+    screen-hopper)
+      # D4PG on Hopper, four layouts and options at once (0.2 of the GPU's memory each), 3.5 min:
+      # the gpu preset's layout; 4,096 envs stepped once per iteration with 2 updates of 8,192;
+      # the same with clipped double Q and mixed noise; and with 2 updates of 32,768.
+      export XLA_PYTHON_CLIENT_MEM_FRACTION=0.2
+      T=(--agent d4pg --preset gpu --seeds 0 --minutes 3.5 --target 2500)
+      BIG=(--num-envs 4096 --unroll-length 1 --min-replay 40960 --chunk 25 --eval-every 500000)
+      learn screen_base "${T[@]}" "${GPU_TRAIN[@]}" --eval-every 500000
+      learn screen_e4k_b8k "${T[@]}" "${BIG[@]}" --batch-size 8192 --replay-ratio 4
+      learn screen_e4k_b8k_cdq_mixed "${T[@]}" "${BIG[@]}" --batch-size 8192 --replay-ratio 4 \
+        --set num_critics=2 --set sigma=0.4 --set sigma_min=0.05
+      learn screen_e4k_b32k_cdq_mixed "${T[@]}" "${BIG[@]}" --batch-size 32768 --replay-ratio 16 \
+        --set num_critics=2 --set sigma=0.4 --set sigma_min=0.05
+      ;;
     humanoid-ls)
       # Fewer line-search steps (under vmap MJX's line search runs all of its steps): four
       # variants through the stability check.
       for v in "all 4/4" "all 4/2" "all 3/3" "legs 3/3"; do stable "$BEFORE_ARMATURE $v"; done
       ;;
-    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, humanoid-capture, humanoid-limits, humanoid-armature, humanoid-confirm, mpo-pairN, sweep-throughput, peers" >&2
+    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, humanoid-capture, humanoid-limits, humanoid-armature, humanoid-confirm, mpo-pairN, sweep-throughput, peers, scaling, screen-hopper" >&2
        exit 2 ;;
   esac
 done

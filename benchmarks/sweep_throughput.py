@@ -38,8 +38,11 @@ def measure(args) -> dict:
                               replay_size=args.replay_size, min_replay=0,
                               iterations_per_chunk=args.chunk),
       seeds=tuple(range(args.members)) if args.members > 1 else ())
+  # Learning from the first iteration, or with --collect-only never (the replay never fills):
+  # the env steps, the policy's actions and the replay inserts alone.
   cfg = dataclasses.replace(cfg, train=dataclasses.replace(
-      cfg.train, min_replay=cfg.train.steps_per_iteration))
+      cfg.train, min_replay=args.replay_size if args.collect_only
+      else cfg.train.steps_per_iteration))
   trainer = loop.build(cfg)
   state = loop.init(cfg, trainer, cfg.members())
   lowered = trainer.train_chunk.lower(state)
@@ -54,7 +57,8 @@ def measure(args) -> dict:
   jax.block_until_ready(metrics)
   seconds = time.perf_counter() - start
   per_chunk = args.members * cfg.train.steps_per_iteration * args.chunk * args.chunks
-  updates = args.members * cfg.train.updates_per_iteration * args.chunk * args.chunks
+  updates = (0 if args.collect_only else
+             args.members * cfg.train.updates_per_iteration * args.chunk * args.chunks)
   device = jax.local_devices()[0]
   stats = device.memory_stats() if device.platform == "gpu" else None
   memory = (stats["peak_bytes_in_use"] if stats
@@ -77,6 +81,8 @@ def main() -> None:
   p.add_argument("--replay-size", type=int, default=100_000, help="transitions per member")
   p.add_argument("--chunk", type=int, default=5, help="iterations per chunk")
   p.add_argument("--chunks", type=int, default=3, help="timed chunks")
+  p.add_argument("--collect-only", action="store_true",
+                 help="learning off: time the env steps, actions and replay inserts alone")
   p.add_argument("--cpu-devices", type=int, default=os.cpu_count() or 1)
   p.add_argument("--out", default="benchmarks/results/sweep_throughput_cpu.json")
   p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
@@ -90,7 +96,8 @@ def main() -> None:
   env = dict(os.environ, XLA_FLAGS=f"--xla_force_host_platform_device_count={args.cpu_devices}")
   rows = []
   settings = [f"--{name.replace('_', '-')}={value}" for name, value in vars(args).items()
-              if name not in ("members", "worker", "out", "cpu_devices")]
+              if name not in ("members", "worker", "out", "cpu_devices", "collect_only")]
+  settings += ["--collect-only"] if args.collect_only else []
   for members in [int(m) for m in args.members.split(",")]:
     done = subprocess.run([sys.executable, __file__, "--worker", f"--members={members}",
                            *settings], env=env, stdout=subprocess.PIPE, text=True)
@@ -109,7 +116,8 @@ def main() -> None:
                  f"{r['updates_per_s']:,.0f} | {r['memory_gb']:.2f} | {ratio} |")
   print(f"{platform.node()}, {rows[0]['devices'] if rows else '?'} "
         f"{rows[0]['platform'] if rows else ''} device(s), {args.env} {args.agent} "
-        f"({args.preset}), {args.num_envs} envs and batch {args.batch_size} per member\n"
+        f"({args.preset}), {args.num_envs} envs and batch {args.batch_size} per member"
+        f"{', collect only (learning off)' if args.collect_only else ''}\n"
         + "\n".join(lines))
   os.makedirs(os.path.dirname(args.out) or ".", exist_ok=True)
   with open(args.out, "w") as f:

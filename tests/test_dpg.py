@@ -1,6 +1,8 @@
 """D4PG's and DDPG's maths: each critic loss against a slow reference, target updates, the policy
 gradient's sign, exploration, determinism, the seed's networks, and config errors."""
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -72,6 +74,63 @@ def test_critic_loss_matches_reference(name, agent, update):
   loss, q = reference_critic_loss(name, state, batch)
   assert float(metrics["critic_loss"]) == pytest.approx(loss, rel=1e-4)
   assert float(metrics["q_mean"]) == pytest.approx(q, rel=1e-4, abs=1e-5)
+
+
+def test_clipped_double_q_matches_reference(name):
+  """With two critics, each fits the target of the critic whose next value is lowest, and the
+  policy loss is minus the lowest value at the next observations."""
+  cfg = dataclasses.replace(SMALL[name], num_critics=2)
+  agent = agents.make(name, OBS, ACT, cfg)
+  state = agent.init(jax.random.PRNGKey(0))
+  # Different target critics, so that the lowest one differs from sample to sample.
+  state = state._replace(target_critic=jax.tree.map(
+      lambda x: x * jnp.array([1.0, -0.7]).reshape((2,) + (1,) * (x.ndim - 1)),
+      state.target_critic))
+  batch = random_batch(jax.random.PRNGKey(1))
+  _, metrics = jax.jit(agent.update)(state, batch, jax.random.PRNGKey(2))
+
+  net, support = critic_net(name), np.linspace(cfg.vmin, cfg.vmax, cfg.num_atoms) if name == "d4pg" else None
+  policy_net = networks.TanhPolicy(cfg.policy_layers, ACT)
+  critic = lambda params, k, obs, action: np.asarray(
+      net.apply(jax.tree.map(lambda x: x[k], params), obs, action), np.float64)
+
+  def value(out):
+    if name == "ddpg":
+      return out
+    probs = np.exp(out) / np.exp(out).sum(-1, keepdims=True)
+    return (probs * support).sum(-1)
+  next_action = policy_net.apply(state.target_policy, batch.next_obs)
+  next_out = [critic(state.target_critic, k, batch.next_obs, next_action) for k in range(2)]
+  pick = value(next_out[1]) < value(next_out[0])
+  assert 0 < pick.sum() < BATCH  # both critics are picked somewhere
+  chosen = np.where(pick.reshape((-1,) + (1,) * (next_out[0].ndim - 1)), next_out[1], next_out[0])
+  reward, discount = np.asarray(batch.reward), np.asarray(batch.discount)
+  loss = 0.0
+  for k in range(2):
+    out = critic(state.critic, k, batch.obs, batch.action)
+    if name == "ddpg":
+      loss += np.mean(0.5 * (out - (reward + discount * chosen)) ** 2)
+    else:
+      probs = np.exp(chosen) / np.exp(chosen).sum(-1, keepdims=True)
+      target = reference_projection(support, probs, reward, discount)
+      loss += -(target * (out - np.log(np.exp(out).sum(-1, keepdims=True)))).sum(-1).mean()
+  assert float(metrics["critic_loss"]) == pytest.approx(loss, rel=1e-4)
+  action = policy_net.apply(state.policy, batch.next_obs)
+  lowest = np.minimum(*[value(critic(state.critic, k, batch.next_obs, action)) for k in range(2)])
+  assert float(metrics["policy_loss"]) == pytest.approx(-lowest.mean(), rel=1e-4, abs=1e-5)
+
+
+def test_mixed_noise_spreads_sigma_over_envs(name):
+  """With sigma_min, env i of n explores at sigma_min + (sigma - sigma_min) * i / (n - 1)."""
+  cfg = dataclasses.replace(SMALL[name], sigma=0.4, sigma_min=0.05)
+  agent = agents.make(name, OBS, ACT, cfg)
+  state = agent.init(jax.random.PRNGKey(0))
+  obs = jnp.zeros((5, OBS))
+  keys = jax.random.split(jax.random.PRNGKey(1), 4000)
+  actions = jax.vmap(lambda k: agent.act(state, obs, k))(keys)     # (4000, 5, ACT)
+  assert float(jnp.abs(agent.policy(state, obs)).max()) < 0.3      # clipping rarely bites
+  std = np.asarray(jnp.std(actions - agent.policy(state, obs), axis=(0, 2)))
+  np.testing.assert_allclose(std, np.linspace(0.05, 0.4, 5), rtol=0.06)
 
 
 def test_targets_are_copied_every_period(name, agent, update):
@@ -152,6 +211,8 @@ def test_bad_common_config(name, bad, message):
     ("d4pg", {"num_atoms": 1}, "need vmin < vmax and an integer num_atoms >= 2"),
     ("d4pg", {"vmin": 5.0, "vmax": 5.0}, "need vmin < vmax"),
     ("ddpg", {"sigma": -0.1}, "sigma must be >= 0, got -0.1"),
+    ("d4pg", {"sigma_min": 0.5}, r"sigma_min must be None or in \[0, sigma=0.3\], got 0.5"),
+    ("ddpg", {"num_critics": 0}, "num_critics must be an integer >= 1, got 0"),
 ])
 def test_bad_agent_config(name, bad, message):
   with pytest.raises(ValueError, match=message):
