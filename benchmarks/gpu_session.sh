@@ -21,6 +21,8 @@
 #   bash benchmarks/gpu_session.sh peers              # our D4PG, Brax SAC and PPO (tuned), one run
 #   bash benchmarks/gpu_session.sh scaling            # the trainer from 512 to 16k envs, alone
 #   bash benchmarks/gpu_session.sh screen-hopper      # GPU trainer layouts and options, 4 at once
+#   bash benchmarks/gpu_session.sh tts-Hopper         # benchmarks/time_to_score.py Hopper --kind gpu
+#   bash benchmarks/gpu_session.sh tts-Walker2D tts-Ant   # ... two robots sharing the GPU
 # Every run of a call shares the one GPU (XLA_PYTHON_CLIENT_MEM_FRACTION=0.1 each).
 # The runs write to $WORK; $OUT (default runs/gpu) gets the printed tables and results.tgz (every
 # run's summary, curves and log, without checkpoints).
@@ -238,12 +240,22 @@ for phase in "$@"; do
       learn screen_e4k_b32k_cdq_mixed "${T[@]}" "${BIG[@]}" --batch-size 32768 --replay-ratio 16 \
         --set num_critics=2 --set sigma=0.4 --set sigma_min=0.05
       ;;
+    tts-*)
+      # benchmarks/time_to_score.py ROBOT --kind gpu (3 seeds in one program, until each
+      # reaches the robot's target or its budget runs out), in the background; the tts phases
+      # of one call share the GPU, each with an even share of its memory. TTS_ARGS adds flags.
+      robot=${phase#tts-}
+      n=$(printf '%s\n' "$@" | grep -c '^tts-')
+      XLA_PYTHON_CLIENT_MEM_FRACTION=$(python3 -c "print(round(0.9 / $n, 3))") \
+        python3 benchmarks/time_to_score.py "$robot" --kind gpu --cpu-devices 1 \
+        --out "$WORK/tts_$robot" ${TTS_ARGS:-} > "$WORK/tts_$robot.txt" 2>&1 &
+      ;;
     humanoid-ls)
       # Fewer line-search steps (under vmap MJX's line search runs all of its steps): four
       # variants through the stability check.
       for v in "all 4/4" "all 4/2" "all 3/3" "legs 3/3"; do stable "$BEFORE_ARMATURE $v"; done
       ;;
-    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, humanoid-capture, humanoid-limits, humanoid-armature, humanoid-confirm, mpo-pairN, sweep-throughput, peers, scaling, screen-hopper" >&2
+    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, humanoid-capture, humanoid-limits, humanoid-armature, humanoid-confirm, mpo-pairN, sweep-throughput, peers, scaling, screen-hopper, tts-ROBOT" >&2
        exit 2 ;;
   esac
 done

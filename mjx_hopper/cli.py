@@ -1,6 +1,6 @@
 """The `mjx-hopper` command line.
 
-    mjx-hopper train [--env Hopper] [--agent d4pg|ddpg|mpo|dmpo] [--preset cpu] [--out DIR]
+    mjx-hopper train [--env Hopper] [--agent d4pg|ddpg|mpo|dmpo] [--preset cpu|gpu] [--out DIR]
     mjx-hopper sweep --seeds 4 --set learning_rate=1e-4,3e-4 [train's flags]
     mjx-hopper extract --checkpoint DIR --member 3 --out DIR
     mjx-hopper eval --checkpoint DIR [--member 0] [--episodes 16] [--video out.mp4]
@@ -103,17 +103,27 @@ def _sweep_settings(pairs: list[str], agent: str, preset: str) -> tuple[dict, di
 
 
 def _run_config(args: argparse.Namespace, agent_overrides: dict, **sweep):
-  """The RunConfig of train's (and sweep's) flags."""
-  from mjx_hopper import loop, train as train_lib
+  """The RunConfig of train's (and sweep's) flags: the robot's preset (`mjx_hopper.presets`)
+  when it has one of this --preset for this agent, else the agent's preset with the trainer's
+  defaults; then every flag given, and --set, replace its settings."""
+  import dataclasses
+
+  from mjx_hopper import loop, presets, train as train_lib
+  agent = args.agent or "d4pg"
+  robot = presets.PRESETS.get((args.env, args.preset))
+  robot = robot if robot is not None and robot.agent == agent else None
+  flags = dict(num_envs=args.num_envs, unroll_length=args.unroll_length,
+               batch_size=args.batch_size, replay_ratio=args.replay_ratio,
+               replay_size=args.replay_size, min_replay=args.min_replay,
+               iterations_per_chunk=args.chunk)
+  trainer = dataclasses.replace(robot.train if robot else train_lib.TrainConfig(),
+                                **{k: v for k, v in flags.items() if v is not None})
+  eval_every = args.eval_every or (robot.eval_every if robot else 200_000)
   return loop.RunConfig(
-      env=args.env, agent=args.agent, preset=args.preset,
-      agent_overrides=agent_overrides,
-      train=train_lib.TrainConfig(
-          num_envs=args.num_envs, unroll_length=args.unroll_length,
-          batch_size=args.batch_size, replay_ratio=args.replay_ratio,
-          replay_size=args.replay_size, min_replay=args.min_replay,
-          iterations_per_chunk=args.chunk),
-      total_env_steps=args.steps, max_minutes=args.max_minutes, eval_every=args.eval_every,
+      env=args.env, agent=agent, preset=args.preset,
+      agent_overrides={**(robot.agent_overrides if robot else {}), **agent_overrides},
+      train=trainer, total_env_steps=args.steps, max_minutes=args.max_minutes,
+      stop_at_return=args.stop_at_return, eval_every=eval_every,
       eval_episodes=args.eval_episodes, episode_steps=args.episode_steps, seed=args.seed,
       out_dir=args.out, tensorboard_dir=args.tensorboard, time_delta=args.log_every,
       checkpoint_minutes=args.checkpoint_minutes, **sweep)
@@ -138,7 +148,7 @@ def sweep(args: argparse.Namespace) -> None:
   process = None
   if args.distributed or args.coordinator or args.num_processes or args.process_id is not None:
     process = loop.join_processes(args.coordinator, args.num_processes, args.process_id)
-  fixed, grid = _sweep_settings(args.set, args.agent, args.preset)
+  fixed, grid = _sweep_settings(args.set, args.agent or "d4pg", args.preset)
   replay_ratio = fixed.pop("replay_ratio", None)
   if replay_ratio is not None:
     args.replay_ratio = replay_ratio
@@ -224,8 +234,10 @@ def build_parser() -> argparse.ArgumentParser:
 def _add_run_flags(t: argparse.ArgumentParser, sweep: bool = False) -> None:
   """The flags of a training run, shared by train and sweep."""
   t.add_argument("--env", default="Hopper")
-  t.add_argument("--agent", default="d4pg", help="d4pg, ddpg, mpo or dmpo")
-  t.add_argument("--preset", default="cpu", help="the agent's named settings: seed, cpu, ...")
+  t.add_argument("--agent", default=None, help="d4pg (default), ddpg, mpo or dmpo")
+  t.add_argument("--preset", default="cpu",
+                 help="named settings: cpu or gpu (the robot's, mjx_hopper.presets, for its "
+                      "agent; the agent's own for another), or the agent's seed")
   t.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                  help=("a setting for every member, or a dynamic one's values to sweep, e.g. "
                        "--set learning_rate=1e-4,3e-4 (repeatable)") if sweep else
@@ -233,15 +245,21 @@ def _add_run_flags(t: argparse.ArgumentParser, sweep: bool = False) -> None:
   t.add_argument("--steps", type=int, default=1_000_000, help="total env steps")
   t.add_argument("--max-minutes", type=float, default=None,
                  help="also stop (and save) after this much wall-clock time")
-  t.add_argument("--num-envs", type=int, default=512)
-  t.add_argument("--unroll-length", type=int, default=4, help="env steps per env per iteration")
-  t.add_argument("--batch-size", type=int, default=256)
-  t.add_argument("--replay-ratio", type=float, default=4.0,
+  t.add_argument("--stop-at-return", type=float, default=None, metavar="RETURN",
+                 help="also stop once an evaluation (of every member) reaches RETURN")
+  # The trainer's layout: by default the preset's (for cpu, 512 envs, unroll 4, batch 256,
+  # replay ratio 4, replay 1M, 20k before learning, 25 iterations per chunk).
+  t.add_argument("--num-envs", type=int, default=None)
+  t.add_argument("--unroll-length", type=int, default=None,
+                 help="env steps per env per iteration")
+  t.add_argument("--batch-size", type=int, default=None)
+  t.add_argument("--replay-ratio", type=float, default=None,
                  help="samples drawn per transition inserted")
-  t.add_argument("--replay-size", type=int, default=1_000_000)
-  t.add_argument("--min-replay", type=int, default=20_000)
-  t.add_argument("--chunk", type=int, default=25, help="iterations per compiled chunk")
-  t.add_argument("--eval-every", type=int, default=200_000, help="env steps between evaluations")
+  t.add_argument("--replay-size", type=int, default=None)
+  t.add_argument("--min-replay", type=int, default=None)
+  t.add_argument("--chunk", type=int, default=None, help="iterations per compiled chunk")
+  t.add_argument("--eval-every", type=int, default=None,
+                 help="env steps between evaluations (cpu: 200,000)")
   t.add_argument("--eval-episodes", type=int, default=16)
   t.add_argument("--episode-steps", type=int, default=1000,
                  help="steps before an episode is truncated (PyBullet's 1000)")

@@ -37,6 +37,7 @@ class RunConfig:
   train: train.TrainConfig = train.TrainConfig()
   total_env_steps: int = 1_000_000
   max_minutes: float | None = None  # also stop (and save) after this much wall-clock time
+  stop_at_return: float | None = None  # also stop once every member's evaluation reached this
   episode_steps: int = 1000
   eval_every: int = 200_000      # env steps between evaluations
   eval_episodes: int = 16
@@ -190,6 +191,7 @@ def run(cfg: RunConfig, checkpoint_dir: str | None = None, progress: bool = True
   _status(bar, "compiling the training step")
   next_eval = (env_steps // cfg.eval_every + 1) * cfg.eval_every
   evaluation, last_save, last_line = None, time.monotonic(), -float("inf")
+  reached = np.zeros(len(members), bool)  # members whose evaluation reached stop_at_return
 
   def tags(m: int) -> dict:
     """The columns that name member m of this process (none in a single run)."""
@@ -214,7 +216,7 @@ def run(cfg: RunConfig, checkpoint_dir: str | None = None, progress: bool = True
   with checkpoint.StopRequest() as stop, logger:
     deadline = t_start + 60 * cfg.max_minutes if cfg.max_minutes else float("inf")
     while (env_steps < cfg.total_env_steps and not stop.requested
-           and time.perf_counter() < deadline):
+           and time.perf_counter() < deadline and not reached.all()):
       t0 = time.perf_counter()
       state, metrics = trainer.train_chunk(state)
       metrics = jax.device_get(metrics)
@@ -233,6 +235,8 @@ def run(cfg: RunConfig, checkpoint_dir: str | None = None, progress: bool = True
           or time.perf_counter() >= deadline):
         evaluation = evaluate()
         next_eval += cfg.eval_every
+        if cfg.stop_at_return is not None:
+          reached |= np.asarray(evaluation["return"]).mean(-1) >= cfg.stop_at_return
       if time.monotonic() - last_save >= 60 * cfg.checkpoint_minutes:
         checkpoint.save(mngr, state, saved_config)
         last_save = time.monotonic()
@@ -250,7 +254,9 @@ def run(cfg: RunConfig, checkpoint_dir: str | None = None, progress: bool = True
     say("ranking by the last evaluation (mean over seeds):\n"
         + sweep.ranking(logger.rows, cfg.grid))
     say(f"learning curves: {sweep.plot(logger.rows, cfg.grid, os.path.join(out_dir, 'curves.png'))}")
-  say(_summary(cfg, stop.requested, env_steps, time.perf_counter() - t_start,
+  say(_summary(cfg, "stopped by a signal" if stop.requested else
+               f"every member reached {cfg.stop_at_return:g}" if reached.all() else "done",
+               env_steps, time.perf_counter() - t_start,
                None if is_sweep else evaluation, logger.csv_path, checkpoint_dir))
   return Result(state, trainer, logger.rows, evaluation)
 
@@ -266,11 +272,10 @@ def _members_line(values, members: list[dict], grid: dict) -> str:
   return f"best {values[best]:,.1f} ({name}), mean {np.nanmean(values):,.1f}"
 
 
-def _summary(cfg: RunConfig, stopped: bool, env_steps: int, seconds: float,
+def _summary(cfg: RunConfig, why: str, env_steps: int, seconds: float,
              evaluation: dict | None, csv_path: str, checkpoint_dir: str) -> str:
   """The run's last line: why it ended, how far it got, its final evaluation and its files."""
-  parts = [f"{'stopped by a signal' if stopped else 'done'}: {env_steps:,} env steps in "
-           f"{seconds:.0f} s"]
+  parts = [f"{why}: {env_steps:,} env steps in {seconds:.0f} s"]
   if evaluation is not None:
     parts.append(f"evaluation return {np.mean(evaluation['return']):.1f} over "
                  f"{len(evaluation['return'])} episodes")

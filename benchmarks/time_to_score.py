@@ -1,0 +1,199 @@
+"""Time to score: one robot trained with its preset (mjx_hopper.presets), 3 seeds, until each
+reaches the robot's target or the time budget runs out. One command per row of BENCHMARKS.md.
+
+    python benchmarks/time_to_score.py Hopper --kind gpu              # on one GPU
+    python benchmarks/time_to_score.py Hopper --kind cpu              # on the 2-core CPU
+    python benchmarks/time_to_score.py Walker2D --render-only runs/time_to_score/Walker2D_gpu
+
+The seeds train as one sweep (one compiled program, every seed's envs at once) unless
+--sequential, which runs them one after another, each with the machine to itself. Recorded per
+seed: the wall-clock time to the first evaluation at or above the target (compile included,
+from the start of the process's work), the env steps by then, the best evaluation, and the last
+evaluation, which is the final one: deterministic, over 20 episodes. Writes OUT/summary.json,
+OUT/score_curves.png (return against wall-clock seconds and against env steps), and the joint
+angles of one final episode of the best seed (episode.npz), rendered to OUT/frame.png and
+OUT/robot.gif where a renderer works (--render-only renders them later from episode.npz).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import dataclasses
+import json
+import os
+import platform
+import time
+
+import numpy as np
+
+
+def evaluations(path: str) -> dict[int, list[dict]]:
+  """Each member's evaluation rows of a log.csv, in order."""
+  out: dict[int, list[dict]] = {}
+  with open(path) as f:
+    for row in csv.DictReader(f):
+      if row["kind"] == "eval":
+        out.setdefault(int(row.get("member") or 0), []).append(
+            {"env_steps": int(row["env_steps"]), "wall_s": float(row["wall_s"]),
+             "eval_return": float(row["eval_return"]),
+             "eval_length": float(row["eval_length"])})
+  return out
+
+
+def summarise(rows: list[dict], target: float, offset_s: float = 0.0) -> dict:
+  """One seed's figures from its evaluation rows; `offset_s` is added to every wall time
+  (the seconds spent before the run's clock started)."""
+  hit = next((r for r in rows if r["eval_return"] >= target), None)
+  return {"target_wall_s": hit["wall_s"] + offset_s if hit else None,
+          "target_env_steps": hit["env_steps"] if hit else None,
+          "best_return": max(r["eval_return"] for r in rows),
+          "final_return": rows[-1]["eval_return"], "final_length": rows[-1]["eval_length"],
+          "env_steps": rows[-1]["env_steps"], "wall_s": rows[-1]["wall_s"] + offset_s,
+          "curve": [{**r, "wall_s": r["wall_s"] + offset_s} for r in rows]}
+
+
+def plot(seeds: dict, robot: str, target: float, title: str, path: str) -> None:
+  import matplotlib
+  matplotlib.use("Agg")
+  import matplotlib.pyplot as plt
+  fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+  for seed, s in seeds.items():
+    wall = [p["wall_s"] for p in s["curve"]]
+    steps = [p["env_steps"] for p in s["curve"]]
+    ret = [p["eval_return"] for p in s["curve"]]
+    axes[0].plot(wall, ret, marker=".", label=f"seed {seed}")
+    axes[1].plot(steps, ret, marker=".", label=f"seed {seed}")
+  for ax, label in zip(axes, ("wall-clock seconds (compile included)", "env steps")):
+    ax.axhline(target, color="grey", ls="--", lw=1)
+    ax.set_xlabel(label)
+    ax.set_ylabel("evaluation return")
+    ax.grid(alpha=0.3)
+  axes[0].legend()
+  fig.suptitle(f"{robot}: {title}")
+  fig.tight_layout()
+  fig.savefig(path, dpi=100)
+  plt.close(fig)
+
+
+def record_episode(checkpoint_dir: str, member: int, path: str) -> dict:
+  """Runs one deterministic episode of `member`'s final policy and saves its qpos."""
+  import jax
+
+  from mjx_hopper import loop, train
+  cfg, agent_state, trainer = loop.load_policy(checkpoint_dir, member)
+  result = jax.device_get(jax.jit(lambda s, k: train.evaluate(
+      trainer.env, trainer.agent, s, k, 1, record_qpos=True))(agent_state, jax.random.PRNGKey(7)))
+  length = int(result["length"][0])
+  np.savez(path, qpos=np.asarray(result["qpos"][:length + 1]), env=cfg.env,
+           episode_return=float(result["return"][0]))
+  return {"episode_return": float(result["return"][0]), "episode_length": length}
+
+
+def render(out: str) -> list[str]:
+  """frame.png (the episode's frame three quarters of the way through) and robot.gif (every
+  4th step, at most 250 frames) from OUT/episode.npz."""
+  from PIL import Image  # matplotlib's dependency
+
+  from mjx_hopper import envs
+  from mjx_hopper.envs import render as render_lib
+  saved = np.load(os.path.join(out, "episode.npz"))
+  env = envs.make(str(saved["env"]))
+  qpos = saved["qpos"][::4][:250]
+  frames = render_lib.render_frames(env.mj_model, qpos, width=320, height=240)
+  paths = [os.path.join(out, "frame.png"), os.path.join(out, "robot.gif")]
+  images = [Image.fromarray(frame) for frame in frames]
+  images[(3 * len(images)) // 4].save(paths[0])
+  images[0].save(paths[1], save_all=True, append_images=images[1:],
+                 duration=round(4 * env.dt * 1000), loop=0)
+  return paths
+
+
+def main() -> None:
+  p = argparse.ArgumentParser(description=__doc__,
+                              formatter_class=argparse.RawDescriptionHelpFormatter)
+  p.add_argument("robot")
+  p.add_argument("--kind", default="gpu", help="the robot preset: gpu or cpu")
+  p.add_argument("--seeds", default="0,1,2")
+  p.add_argument("--minutes", type=float, default=None,
+                 help="wall-clock budget (default: the preset's, its target's time)")
+  p.add_argument("--target", type=float, default=None, help="default: the preset's")
+  p.add_argument("--run-on", action="store_true",
+                 help="run out the budget instead of stopping once every seed reached the target")
+  p.add_argument("--sequential", action="store_true",
+                 help="one seed after another, each with the machine to itself")
+  p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                 help="an agent setting replacing the preset's")
+  p.add_argument("--cpu-devices", type=int, default=os.cpu_count() or 1)
+  p.add_argument("--label", default="")
+  p.add_argument("--out", default=None, help="default: runs/time_to_score/ROBOT_KIND")
+  p.add_argument("--render-only", metavar="OUT", default=None,
+                 help="only render OUT/episode.npz to frame.png and robot.gif")
+  args = p.parse_args()
+  if args.render_only:
+    print("\n".join(render(args.render_only)))
+    return
+  os.environ["XLA_FLAGS"] = " ".join(
+      [f for f in os.environ.get("XLA_FLAGS", "").split()
+       if not f.startswith("--xla_force_host_platform_device_count")]
+      + [f"--xla_force_host_platform_device_count={args.cpu_devices}"])
+  t0 = time.perf_counter()
+  import jax
+
+  import mjx_hopper
+  from mjx_hopper import cli, loop, presets
+  mjx_hopper.use_compile_cache()
+  preset = presets.get(args.robot, args.kind)
+  target = preset.target if args.target is None else args.target
+  minutes = preset.minutes if args.minutes is None else args.minutes
+  out = args.out or os.path.join("runs", "time_to_score", f"{args.robot}_{args.kind}")
+  overrides = cli._overrides(args.set)
+  seeds = [int(s) for s in args.seeds.split(",")]
+  groups = [[s] for s in seeds] if args.sequential else [seeds]
+  results, offsets = {}, {}
+  for group in groups:
+    group_out = os.path.join(out, f"seed_{group[0]}") if args.sequential else out
+    cfg = presets.run_config(
+        args.robot, args.kind, agent_overrides=overrides, seed=group[0],
+        seeds=tuple(group) if len(group) > 1 else (), total_env_steps=10**12,
+        max_minutes=minutes, stop_at_return=None if args.run_on else target,
+        eval_episodes=20, out_dir=group_out, checkpoint_minutes=10**6)
+    start = time.perf_counter()
+    offset = start - t0 if group is groups[0] else 0.0   # imports, before the run's clock
+    loop.run(cfg, progress=False)
+    rows = evaluations(os.path.join(group_out, "log.csv"))
+    for m, seed in enumerate(group):
+      results[seed] = summarise(rows[m], target, offset)
+      offsets[seed] = (group_out, m)
+  best = max(results, key=lambda s: results[s]["final_return"])
+  episode = record_episode(os.path.join(offsets[best][0], "checkpoints"), offsets[best][1],
+                           os.path.join(out, "episode.npz"))
+  device = jax.local_devices()[0]
+  summary = {"robot": args.robot, "kind": args.kind, "target": target, "minutes": minutes,
+             "agent": cfg.agent, "agent_preset": cfg.preset, "agent_overrides": cfg.agent_overrides,
+             "train": dataclasses.asdict(cfg.train), "sequential": args.sequential,
+             "device": f"{device.platform} {device.device_kind}", "machine": platform.node(),
+             "date": time.strftime("%Y-%m-%d"), "label": args.label,
+             "best_seed": best, "best_seed_episode": episode, "seeds": results}
+  with open(os.path.join(out, "summary.json"), "w") as f:
+    json.dump(summary, f, indent=1)
+  plot(results, args.robot, target,
+       f"{cfg.agent} {args.kind} preset, {len(seeds)} seeds{' one after another' if args.sequential else ' at once'}"
+       f"{', ' + args.label if args.label else ''}", os.path.join(out, "score_curves.png"))
+  try:
+    rendered = render(out)
+  except Exception as error:  # no renderer here: episode.npz keeps the episode for later
+    rendered = [f"not rendered ({type(error).__name__}: {error}); run with --render-only {out}"]
+  print(f"\n{args.robot}, {args.kind} preset, target {target:g}, budget {minutes:g} min, "
+        f"{summary['device']}")
+  print("| seed | time to target (s) | env steps to target | best | final (20 episodes) |")
+  print("|---|---|---|---|---|")
+  for seed, s in results.items():
+    hit = f"{s['target_wall_s']:.0f}" if s["target_wall_s"] is not None else "not reached"
+    steps = f"{s['target_env_steps']:,}" if s["target_env_steps"] is not None else "-"
+    print(f"| {seed} | {hit} | {steps} | {s['best_return']:,.0f} | {s['final_return']:,.0f} |")
+  print(f"files: {out}/summary.json, score_curves.png, episode.npz; " + ", ".join(rendered))
+
+
+if __name__ == "__main__":
+  main()

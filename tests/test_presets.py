@@ -1,0 +1,73 @@
+"""The per-robot presets, how the CLI starts from them, and stopping a run at a target return."""
+
+import dataclasses
+
+import pytest
+
+from mjx_hopper import agents, cli, envs, loop, presets, train
+
+
+def test_every_robot_has_a_valid_gpu_and_cpu_preset():
+  for env in envs.list_envs():
+    for kind in presets.KINDS:
+      preset = presets.get(env, kind)
+      preset.train.check(num_devices=1)
+      agents.config(preset.agent, preset.agent_preset, **preset.agent_overrides)
+      assert preset.why and preset.target > 0 and preset.minutes > 0
+      cfg = presets.run_config(env, kind, max_minutes=1.0)
+      assert (cfg.env, cfg.agent, cfg.train, cfg.max_minutes) == (env, preset.agent,
+                                                                   preset.train, 1.0)
+  # The 2-core CPU's Hopper preset is what the README's main job runs.
+  assert presets.get("Hopper", "cpu").train == train.TrainConfig()
+
+
+def test_run_config_merges_agent_overrides():
+  cfg = presets.run_config("Ant", "gpu", agent_overrides={"sigma": 0.2})
+  assert cfg.agent_overrides == {**presets.get("Ant", "gpu").agent_overrides, "sigma": 0.2}
+
+
+@pytest.mark.parametrize("env, kind, message", [
+    ("Hoper", "gpu", r"unknown env 'Hoper'; valid envs are \['Ant', "),
+    ("Hopper", "tpu", r"unknown robot preset 'tpu'; valid presets are \['gpu', 'cpu'\]"),
+])
+def test_bad_preset_names(env, kind, message):
+  with pytest.raises(ValueError, match=message):
+    presets.get(env, kind)
+
+
+def run_config(*flags):
+  return cli._run_config(cli.build_parser().parse_args(["train", *flags]), {})
+
+
+def test_cli_starts_from_the_robot_preset():
+  walker = presets.get("Walker2D", "gpu")
+  cfg = run_config("--env", "Walker2D", "--preset", "gpu")
+  assert (cfg.train, cfg.eval_every) == (walker.train, walker.eval_every)
+  assert cfg.agent_overrides == walker.agent_overrides
+  # A flag replaces its one setting and keeps the rest of the preset's.
+  cfg = run_config("--env", "Walker2D", "--preset", "gpu", "--num-envs", "1024")
+  assert cfg.train == dataclasses.replace(walker.train, num_envs=1024)
+  # Another agent than the preset's gets its own preset and the trainer's defaults.
+  cfg = run_config("--env", "Walker2D", "--preset", "gpu", "--agent", "ddpg")
+  assert (cfg.agent, cfg.preset, cfg.train, cfg.agent_overrides) == (
+      "ddpg", "gpu", train.TrainConfig(), {})
+  # With no flags: D4PG's cpu preset and the trainer's defaults (the README's main job).
+  cfg = run_config()
+  assert (cfg.agent, cfg.preset, cfg.train, cfg.eval_every) == (
+      "d4pg", "cpu", train.TrainConfig(), 200_000)
+
+
+TINY = loop.RunConfig(
+    env="Hopper", agent="d4pg", preset="cpu", episode_steps=30,
+    agent_overrides={"policy_layers": (16,), "critic_layers": (16,), "num_atoms": 11,
+                     "n_step": 3},
+    train=train.TrainConfig(num_envs=4, unroll_length=2, batch_size=8, replay_ratio=2.0,
+                            replay_size=64, min_replay=24, iterations_per_chunk=5),
+    total_env_steps=10**6, eval_every=40, eval_episodes=2, time_delta=0.0)
+
+
+def test_run_stops_once_every_member_reaches_the_target(tmp_path, capsys):
+  cfg = dataclasses.replace(TINY, out_dir=str(tmp_path), stop_at_return=-1e9, seeds=(0, 1))
+  result = loop.run(cfg, progress=False)
+  assert train.iterations(result.state) * cfg.train.steps_per_iteration == 40  # one eval
+  assert "every member reached -1e+09: 40 env steps" in capsys.readouterr().out
