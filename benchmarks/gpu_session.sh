@@ -20,10 +20,16 @@
 #   bash benchmarks/gpu_session.sh sweep-throughput   # sweeps of 1 to 64 members, alone on the GPU
 #   bash benchmarks/gpu_session.sh peers              # our D4PG, Brax SAC and PPO (tuned), one run
 #   bash benchmarks/gpu_session.sh scaling            # the trainer from 512 to 16k envs, alone
+#   bash benchmarks/gpu_session.sh sweep-collect      # a 16-member sweep's env steps alone
 #   bash benchmarks/gpu_session.sh screen-hopper      # GPU trainer layouts and options, 4 at once
+#   bash benchmarks/gpu_session.sh screen-humanoid    # the Humanoid's gpu preset and variants, 4 at once
 #   bash benchmarks/gpu_session.sh tts-Hopper         # benchmarks/time_to_score.py Hopper --kind gpu
 #   bash benchmarks/gpu_session.sh tts-Walker2D tts-Ant   # ... two robots sharing the GPU
-# Every run of a call shares the one GPU (XLA_PYTHON_CLIENT_MEM_FRACTION=0.1 each).
+# Every run of a call shares the one GPU (XLA_PYTHON_CLIENT_MEM_FRACTION=0.1 each). The device
+# tool's calls run it as
+#   timeout 570 bash benchmarks/gpu_session.sh PHASES > $OUT/session.log 2>&1;
+#   tar czf $OUT/results.tgz --exclude checkpoints -C /tmp/gpu_runs .
+# so that a call that runs out of time still brings back what it printed and wrote.
 # The runs write to $WORK; $OUT (default runs/gpu) gets the printed tables and results.tgz (every
 # run's summary, curves and log, without checkpoints).
 set -uo pipefail
@@ -208,23 +214,25 @@ for phase in "$@"; do
       ;;
     scaling)
       # The whole trainer (benchmarks/trainer_scaling.py) from 512 to 16,384 envs at batches up
-      # to 65,536, alone on the GPU; then the Humanoid's physics alone from 512 to 16,384 envs,
-      # and a 16-member sweep with learning off (its env steps against its updates).
+      # to 65,536, alone on the GPU (about 20 s of compiling per point); then the Humanoid's
+      # physics alone from 512 to 16,384 envs.
       export XLA_PYTHON_CLIENT_MEM_FRACTION=0.9
       S=(--updates 2 --chunk 20 --chunks 3 --json "$WORK/scaling.json")
-      timeout 200 python3 benchmarks/trainer_scaling.py --env Hopper "${S[@]}" \
-        --points 512:1024,2048:4096,4096:8192,8192:16384,16384:32768,16384:65536
-      timeout 100 python3 benchmarks/trainer_scaling.py --env Hopper "${S[@]}" \
-        --set num_critics=2 --set "critic_layers=(1024,512,256)" --points 4096:8192,16384:32768
-      timeout 150 python3 benchmarks/trainer_scaling.py --env Humanoid "${S[@]}" \
-        --points 512:1024,4096:8192,16384:32768
-      timeout 150 python3 benchmarks/env_throughput.py --envs Humanoid \
-        --batches 512,2048,8192,16384 --devices 1 --steps-total 2000000 \
+      timeout 170 python3 benchmarks/trainer_scaling.py --env Hopper "${S[@]}" \
+        --points 512:1024,4096:8192,16384:32768,16384:65536
+      timeout 120 python3 benchmarks/env_throughput.py --envs Humanoid \
+        --batches 512,4096,16384 --devices 1 --steps-total 1000000 \
         --json "$WORK/humanoid_physics.json"
-      timeout 150 python3 benchmarks/sweep_throughput.py --preset gpu --num-envs 512 \
-        --batch-size 1024 --replay-size 1000000 --chunk 10 --chunks 3 --members 1,16 \
-        --cpu-devices 1 --collect-only --out "$WORK/sweep_collect_gpu.json"
-      cp "$WORK"/scaling.json "$WORK"/humanoid_physics.json "$WORK"/sweep_collect_gpu.json "$OUT/"
+      cp "$WORK"/scaling.json "$WORK"/humanoid_physics.json "$OUT/"
+      ;;
+    sweep-collect)
+      # A 1- and a 16-member sweep with learning off: the env steps, actions and replay inserts
+      # alone, against sweep-throughput's whole iterations (issue 16).
+      XLA_PYTHON_CLIENT_MEM_FRACTION=0.9 timeout 100 python3 benchmarks/sweep_throughput.py \
+        --preset gpu --num-envs 512 --batch-size 1024 --replay-size 1000000 --chunk 10 \
+        --chunks 3 --members 1,16 --cpu-devices 1 --collect-only \
+        --out "$WORK/sweep_collect_gpu.json"
+      cp "$WORK/sweep_collect_gpu.json" "$OUT/"
       ;;
     screen-hopper)
       # D4PG on Hopper, four layouts and options at once (0.2 of the GPU's memory each), 3.5 min:
@@ -240,13 +248,28 @@ for phase in "$@"; do
       learn screen_e4k_b32k_cdq_mixed "${T[@]}" "${BIG[@]}" --batch-size 32768 --replay-ratio 16 \
         --set num_critics=2 --set sigma=0.4 --set sigma_min=0.05
       ;;
+    screen-humanoid)
+      # D4PG on the Humanoid from its gpu preset (mjx_hopper.presets), four variants at once
+      # (0.2 of the GPU's memory each), ${SCREEN_MINUTES:-7} min: the preset; larger networks;
+      # 2 updates of 32,768; and n-step 3 with discount 0.97.
+      export XLA_PYTHON_CLIENT_MEM_FRACTION=0.2
+      H=(--env Humanoid --agent d4pg --preset gpu --seeds 0 --minutes "${SCREEN_MINUTES:-7}"
+         --target 2500 --num-envs 4096 --unroll-length 1 --min-replay 40960 --chunk 50
+         --eval-every 1000000 --set num_critics=2 --set sigma=0.4 --set sigma_min=0.05)
+      learn hum_preset "${H[@]}" --batch-size 8192 --replay-ratio 4
+      learn hum_big_nets "${H[@]}" --batch-size 8192 --replay-ratio 4 \
+        --set "critic_layers=(1024,512,256)" --set "policy_layers=(512,256,128)"
+      learn hum_b32k "${H[@]}" --batch-size 32768 --replay-ratio 16
+      learn hum_n3_g097 "${H[@]}" --batch-size 8192 --replay-ratio 4 --set n_step=3 \
+        --set discount=0.97
+      ;;
     tts-*)
       # benchmarks/time_to_score.py ROBOT --kind gpu (3 seeds in one program, until each
       # reaches the robot's target or its budget runs out), in the background; the tts phases
       # of one call share the GPU, each with an even share of its memory. TTS_ARGS adds flags.
       robot=${phase#tts-}
       n=$(printf '%s\n' "$@" | grep -c '^tts-')
-      XLA_PYTHON_CLIENT_MEM_FRACTION=$(python3 -c "print(round(0.9 / $n, 3))") \
+      XLA_PYTHON_CLIENT_MEM_FRACTION=$(python3 -c "print(round(0.9 / $n, 3))") timeout 560 \
         python3 benchmarks/time_to_score.py "$robot" --kind gpu --cpu-devices 1 \
         --out "$WORK/tts_$robot" ${TTS_ARGS:-} > "$WORK/tts_$robot.txt" 2>&1 &
       ;;
@@ -255,7 +278,7 @@ for phase in "$@"; do
       # variants through the stability check.
       for v in "all 4/4" "all 4/2" "all 3/3" "legs 3/3"; do stable "$BEFORE_ARMATURE $v"; done
       ;;
-    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, humanoid-capture, humanoid-limits, humanoid-armature, humanoid-confirm, mpo-pairN, sweep-throughput, peers, scaling, screen-hopper, tts-ROBOT" >&2
+    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, humanoid-capture, humanoid-limits, humanoid-armature, humanoid-confirm, mpo-pairN, sweep-throughput, peers, scaling, sweep-collect, screen-hopper, screen-humanoid, tts-ROBOT" >&2
        exit 2 ;;
   esac
 done
