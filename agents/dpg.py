@@ -64,18 +64,22 @@ def make(obs_size: int, action_size: int, cfg: Config,
   ensemble = cfg.num_critics > 1
 
   def critic_apply(params, obs, action):
-    """(num_critics, ..., outputs): every critic's outputs."""
+    """Every critic's outputs: (num_critics, ..., outputs), or (..., outputs) for one."""
     if not ensemble:
-      return critic_net.apply(params, obs, action)[None]
+      return critic_net.apply(params, obs, action)
     return jax.vmap(lambda p: critic_net.apply(p, obs, action))(params)
 
   def lowest(head, outputs):
     """(..., outputs) of the critic whose value is lowest, sample by sample."""
     if not ensemble:
-      return outputs[0]
+      return outputs
     index = jnp.argmin(head.value(outputs), axis=0)
     index = index.reshape((1,) + index.shape + (1,) * (outputs.ndim - 1 - index.ndim))
     return jnp.take_along_axis(outputs, index, axis=0)[0]
+
+  def lowest_value(head, outputs):
+    values = head.value(outputs)
+    return values.min(axis=0) if ensemble else values
 
   def init(key, hparams=None):
     hp = defaults if hparams is None else hparams
@@ -107,14 +111,14 @@ def make(obs_size: int, action_size: int, cfg: Config,
     next_out = lowest(head, critic_apply(state.target_critic, batch.next_obs, next_action))
     target = jax.lax.stop_gradient(head.target(next_out[None], batch.reward, batch.discount))
     out = critic_apply(critic_params, batch.obs, batch.action)
-    loss = jax.vmap(lambda o: head.loss(o, target).mean())(out).sum()
-    return loss, head.value(out).min(axis=0)
+    if ensemble:  # the critics' losses add up: each fits the same target
+      return jax.vmap(lambda o: head.loss(o, target).mean())(out).sum(), lowest_value(head, out)
+    return head.loss(out, target).mean(), head.value(out)
 
   def policy_loss(policy_params, state, batch, head):
     # As acme's learners, the deterministic policy gradient is taken at the next observations.
     action = policy_net.apply(policy_params, batch.next_obs)
-    values = head.value(critic_apply(state.critic, batch.next_obs, action))
-    return -values.min(axis=0).mean()
+    return -lowest_value(head, critic_apply(state.critic, batch.next_obs, action)).mean()
 
   def update(state, batch, key, axis_name=None):
     del key  # the update is deterministic given the batch
