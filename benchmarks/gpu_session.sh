@@ -235,33 +235,47 @@ for phase in "$@"; do
       cp "$WORK/sweep_collect_gpu.json" "$OUT/"
       ;;
     screen-hopper)
-      # D4PG on Hopper, four layouts and options at once (0.2 of the GPU's memory each), 3.5 min:
-      # the gpu preset's layout; 4,096 envs stepped once per iteration with 2 updates of 8,192;
-      # the same with clipped double Q and mixed noise; and with 2 updates of 32,768.
+      # D4PG on Hopper, four layouts and options at once (0.2 of the GPU's memory each),
+      # ${SCREEN_MINUTES:-3} min: the old gpu preset's layout (512 envs, unroll 4, batch 1,024,
+      # ratio 4) with one critic and sigma 0.3; 2,048 envs stepped once per iteration with 8
+      # updates of 8,192 (ratio 32), with clipped double Q and mixed noise, and without; and
+      # 1,024 envs with the same updates (ratio 64).
       export XLA_PYTHON_CLIENT_MEM_FRACTION=0.2
-      T=(--agent d4pg --preset gpu --seeds 0 --minutes 3.5 --target 2500)
-      BIG=(--num-envs 4096 --unroll-length 1 --min-replay 40960 --chunk 25 --eval-every 500000)
-      learn screen_base "${T[@]}" "${GPU_TRAIN[@]}" --eval-every 500000
-      learn screen_e4k_b8k "${T[@]}" "${BIG[@]}" --batch-size 8192 --replay-ratio 4
-      learn screen_e4k_b8k_cdq_mixed "${T[@]}" "${BIG[@]}" --batch-size 8192 --replay-ratio 4 \
-        --set num_critics=2 --set sigma=0.4 --set sigma_min=0.05
-      learn screen_e4k_b32k_cdq_mixed "${T[@]}" "${BIG[@]}" --batch-size 32768 --replay-ratio 16 \
-        --set num_critics=2 --set sigma=0.4 --set sigma_min=0.05
+      T=(--agent d4pg --preset gpu --seeds 0 --minutes "${SCREEN_MINUTES:-3}" --target 2500
+         --eval-every 500000)
+      PLAIN=(--set num_critics=1 --set sigma=0.3 --set sigma_min=None)
+      BIG=(--unroll-length 1 --min-replay 40960 --chunk 50 --batch-size 8192)
+      learn screen_old_layout "${T[@]}" "${GPU_TRAIN[@]}" "${PLAIN[@]}" --eval-every 500000
+      learn screen_e2k_r32 "${T[@]}" "${BIG[@]}" --num-envs 2048 --replay-ratio 32
+      learn screen_e2k_r32_plain "${T[@]}" "${BIG[@]}" --num-envs 2048 --replay-ratio 32 \
+        "${PLAIN[@]}"
+      learn screen_e1k_r64 "${T[@]}" "${BIG[@]}" --num-envs 1024 --replay-ratio 64
+      ;;
+    scaling-rest)
+      # The scaling phase's points that its first call had no time for.
+      export XLA_PYTHON_CLIENT_MEM_FRACTION=0.9
+      timeout 250 python3 benchmarks/trainer_scaling.py --env Hopper --updates 2 --chunk 20 \
+        --chunks 3 --json "$WORK/scaling.json" --points 16384:32768,16384:65536,2048:8192
+      cp "$WORK"/scaling.json "$OUT/"
       ;;
     screen-humanoid)
-      # D4PG on the Humanoid from its gpu preset (mjx_hopper.presets), four variants at once
-      # (0.2 of the GPU's memory each), ${SCREEN_MINUTES:-7} min: the preset; larger networks;
-      # 2 updates of 32,768; and n-step 3 with discount 0.97.
+      # D4PG on the Humanoid, clipped double Q and mixed noise (the gpu preset's options), four
+      # layouts at once (0.2 of the GPU's memory each), ${SCREEN_MINUTES:-6.5} min: 4,096 envs
+      # with 2 updates of 8,192 per step of every env (replay ratio 4); the same with batches
+      # of 32,768 (ratio 16); FastTD3's layout, 1,024 envs and 2 updates of 32,768 (ratio 64);
+      # and the second with FastTD3's larger networks.
       export XLA_PYTHON_CLIENT_MEM_FRACTION=0.2
-      H=(--env Humanoid --agent d4pg --preset gpu --seeds 0 --minutes "${SCREEN_MINUTES:-7}"
-         --target 2500 --num-envs 4096 --unroll-length 1 --min-replay 40960 --chunk 50
-         --eval-every 1000000 --set num_critics=2 --set sigma=0.4 --set sigma_min=0.05)
-      learn hum_preset "${H[@]}" --batch-size 8192 --replay-ratio 4
-      learn hum_big_nets "${H[@]}" --batch-size 8192 --replay-ratio 4 \
-        --set "critic_layers=(1024,512,256)" --set "policy_layers=(512,256,128)"
-      learn hum_b32k "${H[@]}" --batch-size 32768 --replay-ratio 16
-      learn hum_n3_g097 "${H[@]}" --batch-size 8192 --replay-ratio 4 --set n_step=3 \
-        --set discount=0.97
+      H=(--env Humanoid --agent d4pg --preset gpu --seeds 0 --minutes "${SCREEN_MINUTES:-6.5}"
+         --target 2500 --unroll-length 1 --chunk 50 --eval-every 1000000 --set num_critics=2
+         --set sigma=0.4 --set sigma_min=0.05)
+      learn hum_e4k_b8k "${H[@]}" --num-envs 4096 --min-replay 40960 --batch-size 8192 \
+        --replay-ratio 4
+      learn hum_e4k_b32k "${H[@]}" --num-envs 4096 --min-replay 40960 --batch-size 32768 \
+        --replay-ratio 16
+      learn hum_e1k_b32k "${H[@]}" --num-envs 1024 --min-replay 40960 --batch-size 32768 \
+        --replay-ratio 64 --eval-every 500000
+      learn hum_e4k_b32k_big "${H[@]}" --num-envs 4096 --min-replay 40960 --batch-size 32768 \
+        --replay-ratio 16 --set "critic_layers=(1024,512,256)" --set "policy_layers=(512,256,128)"
       ;;
     tts-*)
       # benchmarks/time_to_score.py ROBOT --kind gpu (3 seeds in one program, until each
@@ -278,7 +292,7 @@ for phase in "$@"; do
       # variants through the stability check.
       for v in "all 4/4" "all 4/2" "all 3/3" "legs 3/3"; do stable "$BEFORE_ARMATURE $v"; done
       ;;
-    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, humanoid-capture, humanoid-limits, humanoid-armature, humanoid-confirm, mpo-pairN, sweep-throughput, peers, scaling, sweep-collect, screen-hopper, screen-humanoid, tts-ROBOT" >&2
+    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, humanoid-capture, humanoid-limits, humanoid-armature, humanoid-confirm, mpo-pairN, sweep-throughput, peers, scaling, scaling-rest, sweep-collect, screen-hopper, screen-humanoid, tts-ROBOT" >&2
        exit 2 ;;
   esac
 done
