@@ -22,7 +22,7 @@
 #   bash benchmarks/gpu_session.sh scaling            # the trainer from 512 to 16k envs, alone
 #   bash benchmarks/gpu_session.sh sweep-collect      # a 16-member sweep's env steps alone
 #   bash benchmarks/gpu_session.sh screen-hopper      # GPU trainer layouts and options, 4 at once
-#   bash benchmarks/gpu_session.sh screen-humanoid    # the Humanoid's gpu preset and variants, 4 at once
+#   bash benchmarks/gpu_session.sh screen-humanoid    # the Humanoid's layouts and options, with Hopper's
 #   bash benchmarks/gpu_session.sh tts-Hopper         # benchmarks/time_to_score.py Hopper --kind gpu
 #   bash benchmarks/gpu_session.sh tts-Walker2D tts-Ant   # ... two robots sharing the GPU
 # Every run of a call shares the one GPU (XLA_PYTHON_CLIENT_MEM_FRACTION=0.1 each). The device
@@ -259,23 +259,31 @@ for phase in "$@"; do
       cp "$WORK"/scaling.json "$OUT/"
       ;;
     screen-humanoid)
-      # D4PG on the Humanoid, clipped double Q and mixed noise (the gpu preset's options), four
-      # layouts at once (0.2 of the GPU's memory each), ${SCREEN_MINUTES:-6.5} min: 4,096 envs
-      # with 2 updates of 8,192 per step of every env (replay ratio 4); the same with batches
-      # of 32,768 (ratio 16); FastTD3's layout, 1,024 envs and 2 updates of 32,768 (ratio 64);
-      # and the second with FastTD3's larger networks.
-      export XLA_PYTHON_CLIENT_MEM_FRACTION=0.2
-      H=(--env Humanoid --agent d4pg --preset gpu --seeds 0 --minutes "${SCREEN_MINUTES:-6.5}"
-         --target 2500 --unroll-length 1 --chunk 50 --eval-every 1000000 --set num_critics=2
-         --set sigma=0.4 --set sigma_min=0.05)
-      learn hum_e4k_b8k "${H[@]}" --num-envs 4096 --min-replay 40960 --batch-size 8192 \
-        --replay-ratio 4
-      learn hum_e4k_b32k "${H[@]}" --num-envs 4096 --min-replay 40960 --batch-size 32768 \
-        --replay-ratio 16
-      learn hum_e1k_b32k "${H[@]}" --num-envs 1024 --min-replay 40960 --batch-size 32768 \
-        --replay-ratio 64 --eval-every 500000
-      learn hum_e4k_b32k_big "${H[@]}" --num-envs 4096 --min-replay 40960 --batch-size 32768 \
-        --replay-ratio 16 --set "critic_layers=(1024,512,256)" --set "policy_layers=(512,256,128)"
+      # Six runs at once (0.13 of the GPU's memory each). Hopper for 3 min, in the layout that
+      # learned fastest in screen-hopper (1,024 envs stepped once per iteration, 8 updates of
+      # 8,192: ratio 64), seed 0 (stuck there with both options), with one option at a time:
+      # neither, clipped double Q alone, mixed noise alone. The Humanoid for
+      # ${SCREEN_MINUTES:-7} min: that layout with neither option and with both; 4,096 envs with
+      # 2 updates of 32,768 (ratio 16) with neither; and the first with FastTD3's larger networks.
+      export XLA_PYTHON_CLIENT_MEM_FRACTION=0.13
+      PLAIN=(--set num_critics=1 --set sigma=0.3 --set sigma_min=None)
+      CDQ_ONLY=(--set num_critics=2 --set sigma=0.3 --set sigma_min=None)
+      MIXED_ONLY=(--set num_critics=1 --set sigma=0.4 --set sigma_min=0.05)
+      BOTH=(--set num_critics=2 --set sigma=0.4 --set sigma_min=0.05)
+      E1K=(--num-envs 1024 --unroll-length 1 --min-replay 40960 --chunk 50 --batch-size 8192
+           --replay-ratio 64 --eval-every 500000)
+      T=(--agent d4pg --preset gpu --seeds 0 --minutes 3 --target 2500)
+      learn hop_e1k_r64_plain "${T[@]}" "${E1K[@]}" "${PLAIN[@]}"
+      learn hop_e1k_r64_cdq "${T[@]}" "${E1K[@]}" "${CDQ_ONLY[@]}"
+      learn hop_e1k_r64_mixed "${T[@]}" "${E1K[@]}" "${MIXED_ONLY[@]}"
+      H=(--env Humanoid --agent d4pg --preset gpu --seeds 0 --minutes "${SCREEN_MINUTES:-7}"
+         --target 2500)
+      learn hum_e1k_r64_plain "${H[@]}" "${E1K[@]}" "${PLAIN[@]}"
+      learn hum_e1k_r64_both "${H[@]}" "${E1K[@]}" "${BOTH[@]}"
+      learn hum_e4k_b32k_r16_plain "${H[@]}" "${PLAIN[@]}" --num-envs 4096 --unroll-length 1 \
+        --min-replay 40960 --chunk 50 --batch-size 32768 --replay-ratio 16 --eval-every 1000000
+      learn hum_e1k_r64_plain_big "${H[@]}" "${E1K[@]}" "${PLAIN[@]}" \
+        --set "critic_layers=(1024,512,256)" --set "policy_layers=(512,256,128)"
       ;;
     tts-*)
       # benchmarks/time_to_score.py ROBOT --kind gpu (3 seeds in one program, until each

@@ -6,6 +6,7 @@
 
 from __future__ import annotations
 
+import concurrent.futures
 import dataclasses
 import json
 import os
@@ -197,11 +198,22 @@ def run(cfg: RunConfig, checkpoint_dir: str | None = None, progress: bool = True
     """The columns that name member m of this process (none in a single run)."""
     return {"member": indices[m], **members[m]} if is_sweep else {}
 
+  def eval_keys():
+    return jnp.stack([jax.random.fold_in(jax.random.PRNGKey(m["seed"]), env_steps)
+                      for m in members])
+
+  # The evaluation compiles in a thread while the training chunk compiles and runs (from the
+  # shapes alone: the chunk donates the state's buffers).
+  keys = eval_keys()
+  shapes = (jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=x.sharding),
+                         state.agent), jax.ShapeDtypeStruct(keys.shape, keys.dtype))
+  compiling = concurrent.futures.ThreadPoolExecutor(1)
+  evaluator = compiling.submit(lambda: trainer.evaluate.lower(*shapes).compile())
+  compiling.shutdown(wait=False)
+
   def evaluate():
     _status(bar, "evaluating")
-    keys = jnp.stack([jax.random.fold_in(jax.random.PRNGKey(m["seed"]), env_steps)
-                      for m in members])
-    result = jax.device_get(trainer.evaluate(state.agent, keys))
+    result = jax.device_get(evaluator.result()(state.agent, eval_keys()))
     for m in range(len(members)):
       logger.write({"kind": "eval", **tags(m), "env_steps": env_steps,
                     "wall_s": time.perf_counter() - t_start,
