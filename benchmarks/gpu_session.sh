@@ -259,7 +259,7 @@ for phase in "$@"; do
       cp "$WORK"/scaling.json "$OUT/"
       ;;
     screen-humanoid)
-      # Six runs at once (0.13 of the GPU's memory each). Hopper for 3 min, in the layout that
+      # Seven runs at once (0.13 of the GPU's memory each). Hopper for 3 min, in the layout that
       # learned fastest in screen-hopper (1,024 envs stepped once per iteration, 8 updates of
       # 8,192: ratio 64), seed 0 (stuck there with both options), with one option at a time:
       # neither, clipped double Q alone, mixed noise alone. The Humanoid for
