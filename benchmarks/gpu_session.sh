@@ -23,6 +23,7 @@
 #   bash benchmarks/gpu_session.sh sweep-collect      # a 16-member sweep's env steps alone
 #   bash benchmarks/gpu_session.sh screen-hopper      # GPU trainer layouts and options, 4 at once
 #   bash benchmarks/gpu_session.sh screen-humanoid    # the Humanoid's layouts and options, with Hopper's
+#   bash benchmarks/gpu_session.sh humanoid-solve     # the Humanoid's solve, its share of a step
 #   bash benchmarks/gpu_session.sh tts-Hopper         # benchmarks/time_to_score.py Hopper --kind gpu
 #   bash benchmarks/gpu_session.sh tts-Walker2D tts-Ant   # ... two robots sharing the GPU
 # Every run of a call shares the one GPU (XLA_PYTHON_CLIENT_MEM_FRACTION=0.1 each). The device
@@ -285,6 +286,15 @@ for phase in "$@"; do
       learn hum_e1k_r64_plain_big "${H[@]}" "${E1K[@]}" "${PLAIN[@]}" \
         --set "critic_layers=(1024,512,256)" --set "policy_layers=(512,256,128)"
       ;;
+    humanoid-solve)
+      # What the Humanoid's step spends in the constraint solve, alone on the GPU at 16,384
+      # envs: the shipped model (3 Newton iterations, 3 line-search steps), 1 and 1, and 1 and 1
+      # with floor contacts for the legs only.
+      XLA_PYTHON_CLIENT_MEM_FRACTION=0.9 timeout 150 python3 \
+        benchmarks/research/humanoid_options.py --num-envs 16384 --steps 100 \
+        --variants "shipped;1/1;legs 1/1" > "$WORK/humanoid_solve.txt" 2>&1
+      cat "$WORK/humanoid_solve.txt"
+      ;;
     tts-*)
       # benchmarks/time_to_score.py ROBOT --kind gpu (3 seeds in one program, until each
       # reaches the robot's target or its budget runs out), in the background; the tts phases
@@ -300,7 +310,7 @@ for phase in "$@"; do
       # variants through the stability check.
       for v in "all 4/4" "all 4/2" "all 3/3" "legs 3/3"; do stable "$BEFORE_ARMATURE $v"; done
       ;;
-    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, humanoid-capture, humanoid-limits, humanoid-armature, humanoid-confirm, mpo-pairN, sweep-throughput, peers, scaling, scaling-rest, sweep-collect, screen-hopper, screen-humanoid, tts-ROBOT" >&2
+    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, humanoid-capture, humanoid-limits, humanoid-armature, humanoid-confirm, mpo-pairN, sweep-throughput, peers, scaling, scaling-rest, sweep-collect, screen-hopper, screen-humanoid, humanoid-solve, tts-ROBOT" >&2
        exit 2 ;;
   esac
 done
