@@ -26,6 +26,7 @@
 #   bash benchmarks/gpu_session.sh humanoid-solve     # the Humanoid's solve, its share of a step
 #   bash benchmarks/gpu_session.sh tts-Hopper         # benchmarks/time_to_score.py Hopper --kind gpu
 #   bash benchmarks/gpu_session.sh tts-Walker2D tts-Ant   # ... two robots sharing the GPU
+#   bash benchmarks/gpu_session.sh tts-Hopper wait tts-Ant  # ... one after the other
 # Every run of a call shares the one GPU (XLA_PYTHON_CLIENT_MEM_FRACTION=0.1 each). The device
 # tool's calls run it as
 #   timeout 570 bash benchmarks/gpu_session.sh PHASES > $OUT/session.log 2>&1;
@@ -295,22 +296,27 @@ for phase in "$@"; do
         --variants "shipped;1/1;legs 1/1" > "$WORK/humanoid_solve.txt" 2>&1
       cat "$WORK/humanoid_solve.txt"
       ;;
+    wait)  # waits for the runs started before it (tts phases run in the background)
+      wait
+      ;;
     tts-*)
       # benchmarks/time_to_score.py ROBOT --kind gpu (3 seeds in one program, until each
       # reaches the robot's target or its budget runs out), in the background; the tts phases
-      # of one call share the GPU, each with an even share of its memory. TTS_ARGS adds flags.
-      robot=${phase#tts-}
+      # of one call share the GPU, each with an even share of its memory. tts-ROBOT:M gives it
+      # a budget of M minutes instead of its preset's; TTS_ARGS adds flags.
+      robot=${phase#tts-}; minutes=
+      if [[ $robot == *:* ]]; then minutes="--minutes ${robot#*:}"; robot=${robot%%:*}; fi
       n=$(printf '%s\n' "$@" | grep -c '^tts-')
       XLA_PYTHON_CLIENT_MEM_FRACTION=$(python3 -c "print(round(0.9 / $n, 3))") timeout 560 \
         python3 benchmarks/time_to_score.py "$robot" --kind gpu --cpu-devices 1 \
-        --out "$WORK/tts_$robot" ${TTS_ARGS:-} > "$WORK/tts_$robot.txt" 2>&1 &
+        --out "$WORK/tts_$robot" $minutes ${TTS_ARGS:-} > "$WORK/tts_$robot.txt" 2>&1 &
       ;;
     humanoid-ls)
       # Fewer line-search steps (under vmap MJX's line search runs all of its steps): four
       # variants through the stability check.
       for v in "all 4/4" "all 4/2" "all 3/3" "legs 3/3"; do stable "$BEFORE_ARMATURE $v"; done
       ;;
-    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, humanoid-capture, humanoid-limits, humanoid-armature, humanoid-confirm, mpo-pairN, sweep-throughput, peers, scaling, scaling-rest, sweep-collect, screen-hopper, screen-humanoid, humanoid-solve, tts-ROBOT" >&2
+    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, humanoid-capture, humanoid-limits, humanoid-armature, humanoid-confirm, mpo-pairN, sweep-throughput, peers, scaling, scaling-rest, sweep-collect, screen-hopper, screen-humanoid, humanoid-solve, tts-ROBOT, wait" >&2
        exit 2 ;;
   esac
 done
