@@ -1,6 +1,6 @@
 """Per-robot settings, chosen by measurement: for each robot, a `gpu` and a `cpu` preset of the
-agent, its settings and the trainer's layout. BENCHMARKS.md ("Per-robot presets") has the runs
-behind each choice.
+agent, its settings and the trainer's layout. BENCHMARKS.md ("Every robot, time to score") has
+what each reaches, and docs/benchmark-history.md ("The GPU presets") the runs behind them.
 
     from mjx_hopper import loop, presets
     cfg = presets.run_config("Walker2D", "gpu", max_minutes=5)
@@ -39,9 +39,9 @@ _CPU = dict(agent="d4pg", agent_preset="cpu", agent_overrides={}, train=train.Tr
 
 # One GPU: few envs and many updates. 1,024 envs stepped once per iteration feed 8 updates of
 # 8,192 transitions (replay ratio 64, FastTD3's layout), and the envs explore at stds spread
-# from 0.05 to 0.4 (mixed noise). Screened on one H100 (BENCHMARKS.md, "GPU trainer"): on Hopper
-# this layout passed 2,000 in 1.7M env steps where 512 envs x unroll 4 with 8 updates of 1,024
-# needed 4.4M, and on the Humanoid it learned (390 in 3M env steps) where 4,096 envs with 2
+# from 0.05 to 0.4 (mixed noise). Screened on one H100 (docs/benchmark-history.md, "The GPU
+# presets"): on Hopper this layout passed 2,000 in 1.7M env steps where 512 envs x unroll 4 with
+# 8 updates of 1,024 needed 4.4M, and on the Humanoid it learned (390 in 3M env steps) where 4,096 envs with 2
 # updates of 32,768 did not (94 in 12M). Clipped double Q (num_critics=2) is left off: it
 # slowed Hopper (117 against 635 in the same 3 minutes) and the Humanoid (336 against 390).
 _GPU_TRAIN = train.TrainConfig(num_envs=1024, unroll_length=1, batch_size=8192,
