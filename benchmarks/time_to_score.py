@@ -177,8 +177,9 @@ def main() -> None:
              "best_seed": best, "best_seed_episode": episode, "seeds": results}
   with open(os.path.join(out, "summary.json"), "w") as f:
     json.dump(summary, f, indent=1)
+  how = "one after another" if args.sequential else "at once"
   plot(results, args.robot, target,
-       f"{cfg.agent} {args.kind} preset, {len(seeds)} seeds{' one after another' if args.sequential else ' at once'}"
+       f"{cfg.agent} {args.kind} preset, {len(seeds)} seeds {how}"
        f"{', ' + args.label if args.label else ''}", os.path.join(out, "score_curves.png"))
   try:
     rendered = render(out)

@@ -89,7 +89,8 @@ def test_clipped_double_q_matches_reference(name):
   batch = random_batch(jax.random.PRNGKey(1))
   _, metrics = jax.jit(agent.update)(state, batch, jax.random.PRNGKey(2))
 
-  net, support = critic_net(name), np.linspace(cfg.vmin, cfg.vmax, cfg.num_atoms) if name == "d4pg" else None
+  net = critic_net(name)
+  support = np.linspace(cfg.vmin, cfg.vmax, cfg.num_atoms) if name == "d4pg" else None
   policy_net = networks.TanhPolicy(cfg.policy_layers, ACT)
   critic = lambda params, k, obs, action: np.asarray(
       net.apply(jax.tree.map(lambda x: x[k], params), obs, action), np.float64)
