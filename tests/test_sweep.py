@@ -13,8 +13,16 @@ import jax
 import numpy as np
 import pytest
 
-from mjx_hopper import checkpoint, loop, sweep, train
-from test_train import TINY, TINY_ARGS, member
+from mjx_hopper import checkpoint, cli, loop, sweep, train
+from test_train import TINY, TINY_ARGS, member, shared_builds
+
+
+@pytest.fixture(scope="module", autouse=True)
+def builds():
+  """One trainer per config for the module: a run, its resumption, `loop.restore` and
+  `sweep.extract` of one sweep share the compiled trainer rather than tracing it again."""
+  with shared_builds():
+    yield
 
 
 def run_chunks(trainer, state, chunks=2):
@@ -106,7 +114,6 @@ def test_bad_sweep_specs(grid, message):
 def test_bad_seeds_and_cli_spec(capsys):
   with pytest.raises(ValueError, match=r"seeds must be distinct integers, got \[1, 1\]"):
     dataclasses.replace(TINY, seeds=(1, 1))
-  from mjx_hopper import cli
   with pytest.raises(SystemExit, match="'critic_layers' is structural"):
     cli.main([*TINY_ARGS[:2], "sweep", *TINY_ARGS[3:], "--set", "critic_layers=(16,),(32,)"])
 
@@ -130,8 +137,11 @@ def free_port():
 
 def test_two_processes_give_one_process_results(tmp_path):
   # jax.distributed: two processes of one CPU device each train one member each; one process
-  # with two devices trains both, one per device: the same program per member.
-  args = [*TINY_ARGS[2:], "--seeds", "2", "--steps", "40"]
+  # with two devices (this one) trains both, one per device: the same program per member.
+  # TINY's evaluation and atoms, so that this process's run is the trainer of
+  # test_member_is_bit_identical_to_its_single_run's two members, already compiled.
+  args = [*TINY_ARGS[2:], "--seeds", "2", "--steps", "40", "--eval-episodes",
+          str(TINY.eval_episodes), "--set", f"num_atoms={TINY.agent_overrides['num_atoms']}"]
   args[args.index("train")] = "sweep"
   address = f"127.0.0.1:{free_port()}"
   procs = [subprocess.Popen([sys.executable, "-m", "mjx_hopper.cli", "--cpu-devices", "1", *args,
@@ -142,8 +152,7 @@ def test_two_processes_give_one_process_results(tmp_path):
   for proc in procs:
     out, _ = proc.communicate(timeout=600)
     assert proc.returncode == 0, out
-  subprocess.run([sys.executable, "-m", "mjx_hopper.cli", "--cpu-devices", "2", *args, "--out",
-                  str(tmp_path / "one")], check=True, stdout=subprocess.DEVNULL)
+  cli.main(["--cpu-devices", "2", *args, "--out", str(tmp_path / "one")])
   _, both, _ = loop.restore(str(tmp_path / "one" / "checkpoints"))
   for i in range(2):
     folder = tmp_path / "two" / f"process{i}"
