@@ -198,15 +198,6 @@ def test_run_logs_checkpoints_and_resumes(tmp_path, capsys):
   assert video.stat().st_size > 1000
 
 
-def test_cli_defaults_are_the_train_config_defaults():
-  args = cli.build_parser().parse_args(["train"])
-  got = train.TrainConfig(num_envs=args.num_envs, unroll_length=args.unroll_length,
-                          batch_size=args.batch_size, replay_ratio=args.replay_ratio,
-                          replay_size=args.replay_size, min_replay=args.min_replay,
-                          iterations_per_chunk=args.chunk)
-  assert got == train.TrainConfig()
-
-
 # D4PG's CLI run is test_checkpoint.py's bit-exact test (the same settings, in fresh processes).
 @pytest.mark.parametrize("agent, extra", [
     ("ddpg", []),
