@@ -299,8 +299,9 @@ for phase in "$@"; do
       wait
       ;;
     tts-*)
-      # benchmarks/time_to_score.py ROBOT --kind gpu (3 seeds in one program, until each
-      # reaches the robot's target or its budget runs out), in the background; the tts phases
+      # benchmarks/time_to_score.py ROBOT --kind gpu (3 seeds one after another, each until it
+      # reaches the robot's target or its budget runs out; the rows of 2026-11-24 ran them at
+      # once, TTS_ARGS=--at-once), in the background; the tts phases
       # of one call share the GPU, each with an even share of its memory. tts-ROBOT:M gives it
       # a budget of M minutes instead of its preset's; TTS_ARGS adds flags.
       robot=${phase#tts-}; minutes=

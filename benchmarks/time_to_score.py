@@ -5,8 +5,10 @@ reaches the robot's target or the time budget runs out. One command per row of B
     python benchmarks/time_to_score.py Hopper --kind cpu              # on the 2-core CPU
     python benchmarks/time_to_score.py Walker2D --render-only runs/time_to_score/Walker2D_gpu
 
-The seeds train as one sweep (one compiled program, every seed's envs at once) unless
---sequential, which runs them one after another, each with the machine to itself. Recorded per
+The seeds run one after another, each with the machine to itself, or with --at-once as one
+sweep (one compiled program, every seed's envs at once: one compile, but where one seed already
+fills the learner, as the gpu presets do, each seed then trains at about 1/S of its speed
+alone). Recorded per
 seed: the wall-clock time to the first evaluation at or above the target (compile included,
 from the start of the process's work), the env steps by then, the best evaluation, and the last
 evaluation, which is the final one: deterministic, over 20 episodes. Writes OUT/summary.json,
@@ -120,8 +122,8 @@ def main() -> None:
   p.add_argument("--target", type=float, default=None, help="default: the preset's")
   p.add_argument("--run-on", action="store_true",
                  help="run out the budget instead of stopping once every seed reached the target")
-  p.add_argument("--sequential", action="store_true",
-                 help="one seed after another, each with the machine to itself")
+  p.add_argument("--at-once", action="store_true",
+                 help="the seeds as one sweep (one program) instead of one after another")
   p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                  help="an agent setting replacing the preset's")
   p.add_argument("--cpu-devices", type=int, default=os.cpu_count() or 1)
@@ -149,10 +151,10 @@ def main() -> None:
   out = args.out or os.path.join("runs", "time_to_score", f"{args.robot}_{args.kind}")
   overrides = cli._overrides(args.set)
   seeds = [int(s) for s in args.seeds.split(",")]
-  groups = [[s] for s in seeds] if args.sequential else [seeds]
+  groups = [seeds] if args.at_once else [[s] for s in seeds]
   results, offsets = {}, {}
   for group in groups:
-    group_out = os.path.join(out, f"seed_{group[0]}") if args.sequential else out
+    group_out = out if args.at_once else os.path.join(out, f"seed_{group[0]}")
     cfg = presets.run_config(
         args.robot, args.kind, agent_overrides=overrides, seed=group[0],
         seeds=tuple(group) if len(group) > 1 else (), total_env_steps=10**12,
@@ -171,13 +173,13 @@ def main() -> None:
   device = jax.local_devices()[0]
   summary = {"robot": args.robot, "kind": args.kind, "target": target, "minutes": minutes,
              "agent": cfg.agent, "agent_preset": cfg.preset, "agent_overrides": cfg.agent_overrides,
-             "train": dataclasses.asdict(cfg.train), "sequential": args.sequential,
+             "train": dataclasses.asdict(cfg.train), "at_once": args.at_once,
              "device": f"{device.platform} {device.device_kind}", "machine": platform.node(),
              "date": time.strftime("%Y-%m-%d"), "label": args.label,
              "best_seed": best, "best_seed_episode": episode, "seeds": results}
   with open(os.path.join(out, "summary.json"), "w") as f:
     json.dump(summary, f, indent=1)
-  how = "one after another" if args.sequential else "at once"
+  how = "at once" if args.at_once else "one after another"
   plot(results, args.robot, target,
        f"{cfg.agent} {args.kind} preset, {len(seeds)} seeds {how}"
        f"{', ' + args.label if args.label else ''}", os.path.join(out, "score_curves.png"))
