@@ -5,6 +5,7 @@ import dataclasses
 import pytest
 
 from mjx_hopper import agents, cli, envs, loop, presets, train
+from test_train import TINY  # a tiny Hopper run: 4 envs, eval every 40 env steps
 
 
 def test_every_robot_has_a_valid_gpu_and_cpu_preset():
@@ -57,17 +58,9 @@ def test_cli_starts_from_the_robot_preset():
       "d4pg", "cpu", train.TrainConfig(), 200_000)
 
 
-TINY = loop.RunConfig(
-    env="Hopper", agent="d4pg", preset="cpu", episode_steps=30,
-    agent_overrides={"policy_layers": (16,), "critic_layers": (16,), "num_atoms": 11,
-                     "n_step": 3},
-    train=train.TrainConfig(num_envs=4, unroll_length=2, batch_size=8, replay_ratio=2.0,
-                            replay_size=64, min_replay=24, iterations_per_chunk=5),
-    total_env_steps=10**6, eval_every=40, eval_episodes=2, time_delta=0.0)
-
-
 def test_run_stops_once_every_member_reaches_the_target(tmp_path, capsys):
-  cfg = dataclasses.replace(TINY, out_dir=str(tmp_path), stop_at_return=-1e9, seeds=(0, 1))
+  cfg = dataclasses.replace(TINY, out_dir=str(tmp_path), stop_at_return=-1e9, seeds=(0, 1),
+                            total_env_steps=10**6)
   result = loop.run(cfg, progress=False)
   assert train.iterations(result.state) * cfg.train.steps_per_iteration == 40  # one eval
   assert "every member reached -1e+09: 40 env steps" in capsys.readouterr().out
