@@ -145,30 +145,36 @@ def main() -> None:
   import mjx_hopper
   from mjx_hopper import cli, loop, presets
   mjx_hopper.use_compile_cache()
-  preset = presets.get(args.robot, args.kind)
+  try:
+    preset = presets.get(args.robot, args.kind)
+  except ValueError as error:
+    raise SystemExit(f"time_to_score: {error}")
   target = preset.target if args.target is None else args.target
   minutes = preset.minutes if args.minutes is None else args.minutes
   out = args.out or os.path.join("runs", "time_to_score", f"{args.robot}_{args.kind}")
   overrides = cli._overrides(args.set)
   seeds = [int(s) for s in args.seeds.split(",")]
   groups = [seeds] if args.at_once else [[s] for s in seeds]
-  results, offsets = {}, {}
-  for group in groups:
-    group_out = out if args.at_once else os.path.join(out, f"seed_{group[0]}")
+  folders = [out if args.at_once else os.path.join(out, f"seed_{g[0]}") for g in groups]
+  for folder in folders:  # a run there would resume, and its times would mean nothing
+    if os.path.exists(os.path.join(folder, "checkpoints")):
+      raise SystemExit(f"time_to_score: {folder} already holds a run; choose another --out "
+                       "or remove it")
+  results, where = {}, {}
+  for group, group_out in zip(groups, folders):
     cfg = presets.run_config(
         args.robot, args.kind, agent_overrides=overrides, seed=group[0],
         seeds=tuple(group) if len(group) > 1 else (), total_env_steps=10**12,
         max_minutes=minutes, stop_at_return=None if args.run_on else target,
         eval_episodes=20, out_dir=group_out, checkpoint_minutes=10**6)
-    start = time.perf_counter()
-    offset = start - t0 if group is groups[0] else 0.0   # imports, before the run's clock
+    offset = time.perf_counter() - t0 if group is groups[0] else 0.0  # imports, before the run
     loop.run(cfg, progress=False)
     rows = evaluations(os.path.join(group_out, "log.csv"))
     for m, seed in enumerate(group):
       results[seed] = summarise(rows[m], target, offset)
-      offsets[seed] = (group_out, m)
+      where[seed] = (group_out, m)
   best = max(results, key=lambda s: results[s]["final_return"])
-  episode = record_episode(os.path.join(offsets[best][0], "checkpoints"), offsets[best][1],
+  episode = record_episode(os.path.join(where[best][0], "checkpoints"), where[best][1],
                            os.path.join(out, "episode.npz"))
   device = jax.local_devices()[0]
   summary = {"robot": args.robot, "kind": args.kind, "target": target, "minutes": minutes,
