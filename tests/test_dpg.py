@@ -1,5 +1,6 @@
-"""D4PG's and DDPG's maths: each critic loss against a slow reference, target updates, the policy
-gradient's sign, exploration, determinism, the seed's networks, and config errors."""
+"""D4PG's and DDPG's maths: each critic loss against a slow reference (with one critic and with
+clipped double Q), target updates, the policy gradient's sign, exploration (one std, and mixed
+over envs), determinism, the seed's networks, and config errors."""
 
 import dataclasses
 
