@@ -207,7 +207,7 @@ def run(cfg: RunConfig, checkpoint_dir: str | None = None, progress: bool = True
   keys = eval_keys()
   shapes = (jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=x.sharding),
                          state.agent), jax.ShapeDtypeStruct(keys.shape, keys.dtype))
-  compiling = concurrent.futures.ThreadPoolExecutor(1)
+  compiling, evaluator = concurrent.futures.ThreadPoolExecutor(1), None
   if env_steps < cfg.total_env_steps:  # else nothing is left to train or evaluate
     evaluator = compiling.submit(lambda: trainer.evaluate.lower(*shapes).compile())
   compiling.shutdown(wait=False)
