@@ -266,7 +266,8 @@ def run(cfg: RunConfig, checkpoint_dir: str | None = None, progress: bool = True
   if is_sweep:
     say("ranking by the last evaluation (mean over seeds):\n"
         + sweep.ranking(logger.rows, cfg.grid))
-    say(f"learning curves: {sweep.plot(logger.rows, cfg.grid, os.path.join(out_dir, 'curves.png'))}")
+    curves = sweep.plot(logger.rows, cfg.grid, os.path.join(out_dir, "curves.png"))
+    say(f"learning curves: {curves}")
   say(_summary(cfg, "stopped by a signal" if stop.requested else
                f"every member reached {cfg.stop_at_return:g}" if reached.all() else "done",
                env_steps, time.perf_counter() - t_start,
@@ -275,7 +276,7 @@ def run(cfg: RunConfig, checkpoint_dir: str | None = None, progress: bool = True
 
 
 def _members_line(values, members: list[dict], grid: dict) -> str:
-  """'best 2,480 (member 3: seed=1 learning_rate=0.0003), mean 1,920' over finite values."""
+  """'best 2,480 (seed=1 learning_rate=0.0003), mean 1,920' over finite values."""
   values = np.asarray(values, np.float64)
   if not np.isfinite(values).any():
     return "none yet"
@@ -381,7 +382,6 @@ def resume(directory: str, progress: bool = True, print_fn=print, **changes) -> 
   (total_env_steps, max_minutes, eval_every, ...); one the saved state depends on is refused
   with the settings that differ."""
   mngr = _existing_manager(directory)
-  cfg = checkpoint.load_newest(
-      mngr, lambda step: RunConfig.from_json(checkpoint.read_config(mngr, step)), print_fn)[1]
+  cfg = checkpoint.load_newest(mngr, lambda step: _saved_run(mngr, step)[0], print_fn)[1]
   return run(dataclasses.replace(cfg, **changes), checkpoint_dir=directory, progress=progress,
              print_fn=print_fn)

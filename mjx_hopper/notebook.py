@@ -21,8 +21,9 @@ import numpy as np
 from mjx_hopper import loop, rollout, train
 from mjx_hopper.envs import render
 
-# tests/test_train.py's tiny runs (TINY_ARGS), so that the notebook's short mode and the tests
-# share compiled programs through the persistent compile cache.
+# The tiny runs of the notebook's short mode, which tests/test_train.py's TINY run (and its
+# TINY_ARGS on the command line) also use, so that they share compiled programs through the
+# persistent compile cache.
 TINY_TRAIN = train.TrainConfig(num_envs=4, unroll_length=2, batch_size=8, replay_ratio=2.0,
                                replay_size=64, min_replay=24, iterations_per_chunk=5)
 TINY_AGENT = {"policy_layers": (16,), "critic_layers": (16,), "n_step": 3}

@@ -36,6 +36,7 @@ class Preset:
 # settings"). The other robots have not been tuned on the CPU: they start from the Hopper's.
 _CPU = dict(agent="d4pg", agent_preset="cpu", agent_overrides={}, train=train.TrainConfig(),
             eval_every=200_000)
+_CPU_UNTUNED = "the Hopper's CPU settings, not tuned for this robot"
 
 # One GPU: few envs and many updates. 1,024 envs stepped once per iteration feed 8 updates of
 # 8,192 transitions (replay ratio 64, FastTD3's layout), and the envs explore at stds spread
@@ -58,17 +59,13 @@ PRESETS: dict[tuple[str, str], Preset] = {
         "D4PG cpu preset, 512 envs, batch 256, replay ratio 4: 2,000 in 5.5 to 9 minutes on "
         "2 cores (3 seeds)")),
     ("Hopper", "gpu"): Preset(**_GPU, target=2500.0, minutes=1.5, why=_GPU_WHY),
-    ("Walker2D", "cpu"): Preset(**_CPU, target=2500.0, minutes=60.0,
-                                why="the Hopper's CPU settings, not tuned for this robot"),
+    ("Walker2D", "cpu"): Preset(**_CPU, target=2500.0, minutes=60.0, why=_CPU_UNTUNED),
     ("Walker2D", "gpu"): Preset(**_GPU, target=2500.0, minutes=4.0, why=_GPU_WHY),
-    ("HalfCheetah", "cpu"): Preset(**_CPU, target=3000.0, minutes=60.0,
-                                   why="the Hopper's CPU settings, not tuned for this robot"),
+    ("HalfCheetah", "cpu"): Preset(**_CPU, target=3000.0, minutes=60.0, why=_CPU_UNTUNED),
     ("HalfCheetah", "gpu"): Preset(**_GPU, target=3000.0, minutes=5.0, why=_GPU_WHY),
-    ("Ant", "cpu"): Preset(**_CPU, target=3000.0, minutes=60.0,
-                           why="the Hopper's CPU settings, not tuned for this robot"),
+    ("Ant", "cpu"): Preset(**_CPU, target=3000.0, minutes=60.0, why=_CPU_UNTUNED),
     ("Ant", "gpu"): Preset(**_GPU, target=3000.0, minutes=5.0, why=_GPU_WHY),
-    ("Humanoid", "cpu"): Preset(**_CPU, target=2500.0, minutes=60.0,
-                                why="the Hopper's CPU settings, not tuned for this robot"),
+    ("Humanoid", "cpu"): Preset(**_CPU, target=2500.0, minutes=60.0, why=_CPU_UNTUNED),
     # FastTD3's larger networks: 468 against 390 in the same 7 minutes of the screen (one seed).
     ("Humanoid", "gpu"): Preset(**{**_GPU, "agent_overrides": {
         **_GPU["agent_overrides"], "critic_layers": (1024, 512, 256),

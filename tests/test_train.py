@@ -10,15 +10,12 @@ import jax
 import numpy as np
 import pytest
 
-from mjx_hopper import cli, logger, loop, train
+from mjx_hopper import cli, logger, loop, notebook, train
 
-TINY = loop.RunConfig(
-    env="Hopper", agent="d4pg", preset="cpu", episode_steps=30,
-    agent_overrides={"policy_layers": (16,), "critic_layers": (16,), "num_atoms": 11,
-                     "n_step": 3},
-    train=train.TrainConfig(num_envs=4, unroll_length=2, batch_size=8, replay_ratio=2.0,
-                            replay_size=64, min_replay=24, iterations_per_chunk=5),
-    total_env_steps=80, eval_every=40, eval_episodes=4, time_delta=0.0)
+# The notebook's short mode (notebook.tiny), with 4 evaluation episodes.
+TINY = dataclasses.replace(
+    notebook.tiny(loop.RunConfig(env="Hopper", agent="d4pg", preset="cpu")), eval_episodes=4,
+    time_delta=0.0)
 
 
 # TINY's settings on the command line, for a given agent.
