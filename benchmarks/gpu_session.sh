@@ -27,6 +27,8 @@
 #   bash benchmarks/gpu_session.sh tts-Hopper         # benchmarks/time_to_score.py Hopper --kind gpu
 #   bash benchmarks/gpu_session.sh tts-Walker2D tts-Ant   # ... two robots sharing the GPU
 #   bash benchmarks/gpu_session.sh tts-Hopper wait tts-Ant  # ... one after the other
+#   bash benchmarks/gpu_session.sh hopper-cold        # Hopper's seeds each compiled afresh
+#   bash benchmarks/gpu_session.sh cpu-tune2          # CPU layouts for Hopper, emulated
 # Every run of a call shares the one GPU (XLA_PYTHON_CLIENT_MEM_FRACTION=0.1 each). The device
 # tool's calls run it as
 #   timeout 570 bash benchmarks/gpu_session.sh PHASES > $OUT/session.log 2>&1;
@@ -311,12 +313,40 @@ for phase in "$@"; do
         python3 benchmarks/time_to_score.py "$robot" --kind gpu --cpu-devices 1 \
         --out "$WORK/tts_$robot" $minutes ${TTS_ARGS:-} > "$WORK/tts_$robot.txt" 2>&1 &
       ;;
+    hopper-cold)
+      # time_to_score.py Hopper as a first run on a new machine: every seed compiled afresh (no
+      # compile cache); then seed 0 again with XLA's GPU autotuning off, for its compile time.
+      T=(benchmarks/time_to_score.py Hopper --kind gpu --cpu-devices 1 --no-compile-cache
+         --minutes 1.8)
+      XLA_PYTHON_CLIENT_MEM_FRACTION=0.9 timeout 380 python3 "${T[@]}" \
+        --out "$WORK/tts_Hopper_cold" > "$WORK/tts_Hopper_cold.txt" 2>&1
+      XLA_FLAGS=--xla_gpu_autotune_level=0 XLA_PYTHON_CLIENT_MEM_FRACTION=0.9 timeout 145 \
+        python3 "${T[@]}" --seeds 0 --label "autotune off" --out "$WORK/tts_Hopper_cold_noautotune" \
+        > "$WORK/tts_Hopper_cold_noautotune.txt" 2>&1
+      ;;
+    cpu-tune2)
+      # D4PG's cpu preset on Hopper with more updates per env step and mixed noise, 2 seeds each
+      # (one program), until 2,000 or 5M env steps, six at once: the env steps and updates each
+      # needs, which the 2-core CPU's costs per env step and per update turn into its minutes.
+      export XLA_PYTHON_CLIENT_MEM_FRACTION=0.15
+      T=(benchmarks/time_to_score.py Hopper --kind cpu --cpu-devices 1 --seeds 0,1 --at-once
+         --minutes 8 --env-steps 5000000)
+      MIXED=(--set sigma=0.4 --set sigma_min=0.05)
+      tune() { local name=$1; shift; timeout 560 python3 "${T[@]}" --out "$WORK/$name" --label "$name" \
+        "$@" > "$WORK/$name.txt" 2>&1 & }
+      tune cpu_r4
+      tune cpu_r4_mixed "${MIXED[@]}"
+      tune cpu_r8 --train replay_ratio=8
+      tune cpu_r8_mixed --train replay_ratio=8 "${MIXED[@]}"
+      tune cpu_r16 --train replay_ratio=16
+      tune cpu_r8_b512 --train replay_ratio=8 --train batch_size=512
+      ;;
     humanoid-ls)
       # Fewer line-search steps (under vmap MJX's line search runs all of its steps): four
       # variants through the stability check.
       for v in "all 4/4" "all 4/2" "all 3/3" "legs 3/3"; do stable "$BEFORE_ARMATURE $v"; done
       ;;
-    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, humanoid-capture, humanoid-limits, humanoid-armature, humanoid-confirm, mpo-pairN, sweep-throughput, peers, scaling, scaling-rest, sweep-collect, screen-hopper, screen-humanoid, humanoid-solve, tts-ROBOT, wait" >&2
+    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, humanoid-capture, humanoid-limits, humanoid-armature, humanoid-confirm, mpo-pairN, sweep-throughput, peers, scaling, scaling-rest, sweep-collect, screen-hopper, screen-humanoid, humanoid-solve, tts-ROBOT, hopper-cold, cpu-tune2, wait" >&2
        exit 2 ;;
   esac
 done

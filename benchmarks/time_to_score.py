@@ -119,6 +119,9 @@ def main() -> None:
   p.add_argument("--seeds", default="0,1,2")
   p.add_argument("--minutes", type=float, default=None,
                  help="wall-clock budget (default: the preset's, its target's time)")
+  p.add_argument("--env-steps", type=int, default=None,
+                 help="also stop each seed at this many env steps (a budget that does not depend "
+                 "on the machine's speed, for runs standing in for a slower machine's)")
   p.add_argument("--target", type=float, default=None, help="default: the preset's")
   p.add_argument("--run-on", action="store_true",
                  help="run out the budget instead of stopping once every seed reached the target")
@@ -126,6 +129,11 @@ def main() -> None:
                  help="the seeds as one sweep (one program) instead of one after another")
   p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                  help="an agent setting replacing the preset's")
+  p.add_argument("--train", action="append", default=[], metavar="NAME=VALUE",
+                 help="a TrainConfig setting replacing the preset's (replay_ratio=8, ...)")
+  p.add_argument("--no-compile-cache", action="store_true",
+                 help="compile every seed afresh, as a first run on a new machine does (by "
+                 "default the compile cache loads the programs of the seeds after the first)")
   p.add_argument("--cpu-devices", type=int, default=os.cpu_count() or 1)
   p.add_argument("--label", default="")
   p.add_argument("--out", default=None, help="default: runs/time_to_score/ROBOT_KIND")
@@ -144,7 +152,8 @@ def main() -> None:
 
   import mjx_hopper
   from mjx_hopper import cli, loop, presets
-  mjx_hopper.use_compile_cache()
+  if not args.no_compile_cache:
+    mjx_hopper.use_compile_cache()
   try:
     preset = presets.get(args.robot, args.kind)
   except ValueError as error:
@@ -153,6 +162,10 @@ def main() -> None:
   minutes = preset.minutes if args.minutes is None else args.minutes
   out = args.out or os.path.join("runs", "time_to_score", f"{args.robot}_{args.kind}")
   overrides = cli._overrides(args.set)
+  try:
+    layout = dataclasses.replace(preset.train, **cli._overrides(args.train))
+  except (TypeError, ValueError) as error:
+    raise SystemExit(f"time_to_score: --train: {error}")
   seeds = [int(s) for s in args.seeds.split(",")]
   groups = [seeds] if args.at_once else [[s] for s in seeds]
   folders = [out if args.at_once else os.path.join(out, f"seed_{g[0]}") for g in groups]
@@ -163,8 +176,9 @@ def main() -> None:
   results, where = {}, {}
   for group, group_out in zip(groups, folders):
     cfg = presets.run_config(
-        args.robot, args.kind, agent_overrides=overrides, seed=group[0],
-        seeds=tuple(group) if len(group) > 1 else (), total_env_steps=10**12,
+        args.robot, args.kind, agent_overrides=overrides, train=layout, seed=group[0],
+        seeds=tuple(group) if len(group) > 1 else (),
+        total_env_steps=args.env_steps or 10**12,
         max_minutes=minutes, stop_at_return=None if args.run_on else target,
         eval_episodes=20, out_dir=group_out, checkpoint_minutes=10**6)
     offset = time.perf_counter() - t0 if group is groups[0] else 0.0  # imports, before the run
@@ -178,6 +192,7 @@ def main() -> None:
                            os.path.join(out, "episode.npz"))
   device = jax.local_devices()[0]
   summary = {"robot": args.robot, "kind": args.kind, "target": target, "minutes": minutes,
+             "env_steps_budget": args.env_steps,
              "agent": cfg.agent, "agent_preset": cfg.preset, "agent_overrides": cfg.agent_overrides,
              "train": dataclasses.asdict(cfg.train), "at_once": args.at_once,
              "device": f"{device.platform} {device.device_kind}", "machine": platform.node(),
@@ -187,13 +202,14 @@ def main() -> None:
     json.dump(summary, f, indent=1)
   how = "at once" if args.at_once else "one after another"
   plot(results, args.robot, target,
-       f"{cfg.agent} {args.kind} preset, {len(seeds)} seeds {how}"
+       f"{cfg.agent} {args.kind} preset, {len(seeds)} seed{'s' if len(seeds) > 1 else ''} {how}"
        f"{', ' + args.label if args.label else ''}", os.path.join(out, "score_curves.png"))
   try:
     rendered = render(out)
   except Exception as error:  # no renderer here: episode.npz keeps the episode for later
     rendered = [f"not rendered ({type(error).__name__}: {error}); run with --render-only {out}"]
-  print(f"\n{args.robot}, {args.kind} preset, target {target:g}, budget {minutes:g} min, "
+  steps = f" or {args.env_steps:,} env steps" if args.env_steps else ""
+  print(f"\n{args.robot}, {args.kind} preset, target {target:g}, budget {minutes:g} min{steps}, "
         f"{summary['device']}")
   print("| seed | time to target (s) | env steps to target | best | final (20 episodes) |")
   print("|---|---|---|---|---|")

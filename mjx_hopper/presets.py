@@ -85,10 +85,11 @@ def get(env: str, kind: str) -> Preset:
 
 def run_config(env: str, kind: str, **changes):
   """The `loop.RunConfig` of robot `env`'s `kind` preset, with fields replaced by `changes`
-  (agent_overrides are merged into the preset's)."""
+  (agent_overrides are merged into the preset's; `train` replaces its TrainConfig)."""
   from mjx_hopper import loop
   preset = get(env, kind)
   overrides = {**preset.agent_overrides, **changes.pop("agent_overrides", {})}
-  return loop.RunConfig(env=env, agent=preset.agent, preset=preset.agent_preset,
-                        agent_overrides=overrides, train=preset.train,
-                        eval_every=preset.eval_every, **changes)
+  return loop.RunConfig(**{
+      "env": env, "agent": preset.agent, "preset": preset.agent_preset,
+      "agent_overrides": overrides, "train": preset.train, "eval_every": preset.eval_every,
+      **changes})

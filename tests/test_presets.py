@@ -25,6 +25,9 @@ def test_every_robot_has_a_valid_gpu_and_cpu_preset():
 def test_run_config_merges_agent_overrides():
   cfg = presets.run_config("Ant", "gpu", agent_overrides={"sigma": 0.2})
   assert cfg.agent_overrides == {**presets.get("Ant", "gpu").agent_overrides, "sigma": 0.2}
+  layout = train.TrainConfig(replay_ratio=8.0)
+  cfg = presets.run_config("Ant", "cpu", train=layout, seed=3)
+  assert (cfg.train, cfg.seed, cfg.eval_every) == (layout, 3, presets.get("Ant", "cpu").eval_every)
 
 
 @pytest.mark.parametrize("env, kind, message", [
