@@ -45,7 +45,7 @@ _CPU_UNTUNED = "the Hopper's CPU settings, not tuned for this robot"
 # 8 updates of 1,024 needed 4.4M, and on the Humanoid it learned (390 in 3M env steps) where
 # 4,096 envs with 2 updates of 32,768 did not (94 in 12M). Clipped double Q (num_critics=2) is
 # left off: it slowed Hopper (117 against 635 in the same 3 minutes) and the Humanoid (336
-# against 390). With these presets the Humanoid passes 2,500 in about 6 minutes on an H100.
+# against 390). Alone on an H100 they passed every target but Hopper's 90 s (BENCHMARKS.md).
 _GPU_TRAIN = train.TrainConfig(num_envs=1024, unroll_length=1, batch_size=8192,
                                replay_ratio=64.0, replay_size=4_000_000, min_replay=40_960,
                                iterations_per_chunk=50)
