@@ -13,13 +13,14 @@ OUT/summary.json and OUT/curves.png.
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import os
 import signal
 import subprocess
 import sys
 import time
+
+import time_to_score  # this folder's: reading log.csv, the per-seed figures and their plot
 
 
 def one_seed(args, seed: int) -> None:
@@ -35,53 +36,26 @@ def one_seed(args, seed: int) -> None:
            + sum((["--set", s] for s in args.set), []))
 
 
-def evaluations(args, seed: int) -> list[tuple[int, float, float]]:
-  """(env steps, wall s, eval return) of each evaluation in a seed's log so far."""
+def evaluations(args, seed: int) -> list[dict]:
+  """A seed's evaluation rows so far (time_to_score.evaluations), none before its log exists."""
   path = os.path.join(args.out, f"seed_{seed}", "log.csv")
-  if not os.path.exists(path):
-    return []
-  with open(path) as f:
-    return [(int(r["env_steps"]), float(r["wall_s"]), float(r["eval_return"]))
-            for r in csv.DictReader(f) if r["kind"] == "eval"]
+  return time_to_score.evaluations(path).get(0, []) if os.path.exists(path) else []
 
 
 def reached(args, seed: int) -> bool:
   try:
-    return any(p[2] >= args.target for p in evaluations(args, seed))
+    return any(r["eval_return"] >= args.target for r in evaluations(args, seed))
   except (ValueError, KeyError):  # a row being written as we read
     return False
 
 
 def summarise(args, seeds: list[int]) -> dict:
   summary = {"env": args.env, "agent": args.agent, "preset": args.preset, "target": args.target,
-             "seeds": {}}
-  curves = {}
-  for seed in seeds:
-    points = evaluations(args, seed)
-    curves[seed] = points
-    hit = next((p for p in points if p[2] >= args.target), None)
-    summary["seeds"][seed] = {
-        "curve": [{"env_steps": p[0], "wall_s": p[1], "eval_return": p[2]} for p in points],
-        "best_return": max(p[2] for p in points), "final_return": points[-1][2],
-        "env_steps": points[-1][0], "wall_s": points[-1][1],
-        "target_env_steps": hit[0] if hit else None, "target_wall_s": hit[1] if hit else None}
-  import matplotlib
-  matplotlib.use("Agg")
-  import matplotlib.pyplot as plt
-  fig, axes = plt.subplots(1, 2, figsize=(11, 4))
-  for seed, points in curves.items():
-    steps, wall, ret = zip(*points)
-    axes[0].plot(steps, ret, label=f"seed {seed}")
-    axes[1].plot(wall, ret, label=f"seed {seed}")
-  for ax, label in zip(axes, ("env steps", "wall-clock seconds (compile included)")):
-    ax.axhline(args.target, color="grey", ls="--", lw=1)
-    ax.set_xlabel(label)
-    ax.set_ylabel("evaluation return")
-    ax.grid(alpha=0.3)
-  axes[0].legend()
-  fig.suptitle(f"{args.env} / {args.agent} ({args.preset}): {args.label}")
-  fig.tight_layout()
-  fig.savefig(os.path.join(args.out, "curves.png"), dpi=100)
+             "seeds": {seed: time_to_score.summarise(evaluations(args, seed), args.target)
+                       for seed in seeds}}
+  time_to_score.plot(summary["seeds"], args.env, args.target,
+                     f"{args.agent} ({args.preset}){': ' + args.label if args.label else ''}",
+                     os.path.join(args.out, "curves.png"))
   with open(os.path.join(args.out, "summary.json"), "w") as f:
     json.dump(summary, f, indent=1)
   return summary

@@ -164,6 +164,7 @@ def main() -> None:
   overrides = cli._overrides(args.set)
   try:
     layout = dataclasses.replace(preset.train, **cli._overrides(args.train))
+    layout.check()
   except (TypeError, ValueError) as error:
     raise SystemExit(f"time_to_score: --train: {error}")
   seeds = [int(s) for s in args.seeds.split(",")]

@@ -4,15 +4,17 @@
 
 Inside the trainer an update's cost is the slope of the chunk's time per iteration over the
 updates per iteration: the cpu layout (512 envs x unroll 4, batch 256) at replay ratio 4 and 8
-(8 and 16 updates), and with learning off (min_replay = replay_size) for the collection alone.
-Alone it is a jitted scan of 8 (sample + update) on the same agent state and replay buffer.
-One CPU device (the trainer's rate on two devices was measured the same).
+(32 and 64 updates of 256 per 2,048 env steps), and with learning off (min_replay =
+replay_size) for the collection alone. Alone it is a jitted scan of 8 (sample + update) on the
+same agent state and replay buffer. One CPU device (the trainer's rate on two devices was
+measured the same).
 
-On the 2-core AMD EPYC, 2026-11-24: an update cost 29-37 ms inside the trainer against 4.9-5.4
-ms alone, in three runs of this script. A hand-written probe of the same trainers, one config
-per process, measured 16-18 ms inside (collection 112 ms per iteration, here 168-212 ms): the
-gap between the two is not explained yet, and either way an update inside the trainer costs
-three times or more what it costs alone.
+On the 2-core AMD EPYC, 2026-11-24, two runs: an update cost 6.9 and 8.1 ms inside the trainer,
+4.2 and 5.9 ms alone. A hand-written probe of the same trainers, one config per process,
+measured 4.2-4.4 ms inside. So an update costs about the same inside the trainer as alone, and
+at ratio 4 the 32 updates of an iteration take longer than its 2,048 env steps. This script's
+trainers run slower than the probe's (207 against 112 ms per iteration of collection), which
+is not explained.
 """
 
 from __future__ import annotations
@@ -47,7 +49,7 @@ def main() -> None:
   from mjx_hopper import loop, presets, replay
   mjx_hopper.use_compile_cache()
   base = presets.get(args.env, "cpu").train
-  iteration_s, agent_state, buffer, agent = {}, None, None, None
+  iteration_s, updates = {}, {}
   for name, changes in [("collect only", dict(min_replay=base.replay_size)),
                         ("ratio 4", dict(replay_ratio=4.0)), ("ratio 8", dict(replay_ratio=8.0))]:
     cfg = presets.run_config(args.env, "cpu", train=dataclasses.replace(
@@ -61,6 +63,7 @@ def main() -> None:
       state, metrics = trainer.train_chunk(state)
     jax.block_until_ready(metrics)
     iteration_s[name] = (time.perf_counter() - start) / (10 * args.chunks)
+    updates[name] = cfg.train.updates_per_iteration
     agent_state = jax.tree.map(lambda x: x[0], state.agent)
     buffer, agent = jax.tree.map(lambda x: x[0], state.replay), trainer.agent
   hp = agent_state.hparams
@@ -73,7 +76,6 @@ def main() -> None:
       return agent.update(s, batch, k)
     return jax.lax.scan(one, agent_state, jax.random.split(key, 8))
   alone = per_call(eight_updates, agent_state, buffer, jax.random.PRNGKey(0), repeats=10) / 8
-  updates = {"ratio 4": 8, "ratio 8": 16}
   inside = (iteration_s["ratio 8"] - iteration_s["ratio 4"]) / (updates["ratio 8"] -
                                                                    updates["ratio 4"])
   print(f"{args.env}, D4PG cpu preset, batch {base.batch_size}, {jax.devices()[0].device_kind}")
