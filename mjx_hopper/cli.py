@@ -118,7 +118,7 @@ def _run_config(args: argparse.Namespace, agent_overrides: dict, **sweep):
                iterations_per_chunk=args.chunk)
   trainer = dataclasses.replace(robot.train if robot else train_lib.TrainConfig(),
                                 **{k: v for k, v in flags.items() if v is not None})
-  eval_every = args.eval_every or (robot.eval_every if robot else 200_000)
+  eval_every = args.eval_every or (robot.eval_every if robot else loop.RunConfig.eval_every)
   return loop.RunConfig(
       env=args.env, agent=agent, preset=args.preset,
       agent_overrides={**(robot.agent_overrides if robot else {}), **agent_overrides},
