@@ -29,6 +29,8 @@
 #   bash benchmarks/gpu_session.sh tts-Hopper wait tts-Ant  # ... one after the other
 #   bash benchmarks/gpu_session.sh hopper-cold        # Hopper's seeds each compiled afresh
 #   bash benchmarks/gpu_session.sh cpu-tune2          # CPU layouts for Hopper, emulated
+#   bash benchmarks/gpu_session.sh cpu-tune3          # ... with smaller networks
+#   bash benchmarks/gpu_session.sh member-layout      # members' envs nested or flat, alone
 # Every run of a call shares the one GPU (XLA_PYTHON_CLIENT_MEM_FRACTION=0.1 each). The device
 # tool's calls run it as
 #   timeout 570 bash benchmarks/gpu_session.sh PHASES > $OUT/session.log 2>&1;
@@ -341,12 +343,37 @@ for phase in "$@"; do
       tune cpu_r16 --train replay_ratio=16
       tune cpu_r8_b512 --train replay_ratio=8 --train batch_size=512
       ;;
+    cpu-tune3)
+      # cpu-tune2's best (mixed noise) with the networks halved in width, 128-128 (about a
+      # third of an update's cost on the CPU), at ratios 4, 8 and 16; and at full width,
+      # ratio 16 with mixed noise and ratio 8 with batch 128. 2 seeds each, six at once.
+      export XLA_PYTHON_CLIENT_MEM_FRACTION=0.15
+      T=(benchmarks/time_to_score.py Hopper --kind cpu --cpu-devices 1 --seeds 0,1 --at-once
+         --minutes 8 --env-steps 5000000 --set sigma=0.4 --set sigma_min=0.05)
+      SMALL=(--set "policy_layers=(128,128)" --set "critic_layers=(128,128)")
+      tune() { local name=$1; shift; timeout 560 python3 "${T[@]}" --out "$WORK/$name" --label "$name" \
+        "$@" > "$WORK/$name.txt" 2>&1 & }
+      tune cpu_r4_mixed_w128 "${SMALL[@]}"
+      tune cpu_r8_mixed_w128 --train replay_ratio=8 "${SMALL[@]}"
+      tune cpu_r16_mixed_w128 --train replay_ratio=16 "${SMALL[@]}"
+      tune cpu_r16_mixed --train replay_ratio=16
+      tune cpu_r8_mixed_b128 --train replay_ratio=8 --train batch_size=128
+      tune cpu_r8_mixed_w128_b512 --train replay_ratio=8 --train batch_size=512 "${SMALL[@]}"
+      ;;
+    member-layout)
+      # A sweep's envs stepped nested under a member vmap or as one flat batch (the trainer's
+      # way since 2026-11-24), the physics alone on the GPU.
+      XLA_PYTHON_CLIENT_MEM_FRACTION=0.9 timeout 150 python3 \
+        benchmarks/research/member_step_layout.py --members 1,4,16 --envs 512 \
+        > "$WORK/member_layout.txt" 2>&1
+      cat "$WORK/member_layout.txt"
+      ;;
     humanoid-ls)
       # Fewer line-search steps (under vmap MJX's line search runs all of its steps): four
       # variants through the stability check.
       for v in "all 4/4" "all 4/2" "all 3/3" "legs 3/3"; do stable "$BEFORE_ARMATURE $v"; done
       ;;
-    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, humanoid-capture, humanoid-limits, humanoid-armature, humanoid-confirm, mpo-pairN, sweep-throughput, peers, scaling, scaling-rest, sweep-collect, screen-hopper, screen-humanoid, humanoid-solve, tts-ROBOT, hopper-cold, cpu-tune2, wait" >&2
+    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, humanoid-capture, humanoid-limits, humanoid-armature, humanoid-confirm, mpo-pairN, sweep-throughput, peers, scaling, scaling-rest, sweep-collect, screen-hopper, screen-humanoid, humanoid-solve, tts-ROBOT, hopper-cold, cpu-tune2, cpu-tune3, member-layout, wait" >&2
        exit 2 ;;
   esac
 done

@@ -204,23 +204,39 @@ def make_trainer(env: LocomotionEnv, agent: Agent, cfg: TrainConfig, eval_episod
                for k, v in values.items()}
     return compiled_init(keys, batched)
 
+  def members(fn):
+    return per_member(fn, local_members)
+
+  def step_envs(env_state, action):
+    """Steps this device's envs of every local member as one flat batch (members x envs):
+    under a member vmap the physics would be a nested batch, which a GPU steps about half as
+    fast (BENCHMARKS.md, "Sweep throughput")."""
+    flat = jax.tree.map(lambda x: x.reshape((x.shape[0] * x.shape[1],) + x.shape[2:]),
+                        (env_state, action))
+    out = jax.vmap(train_env.step)(*flat)
+    return jax.tree.map(
+        lambda x: x.reshape((local_members, x.shape[0] // local_members) + x.shape[1:]), out)
+
   def collect(agent_state, env_state, episode_return, key):
-    """unroll_length steps of this device's envs: (env, return, steps (T, n, ...), ended
-    episodes' (count, return sum))."""
+    """unroll_length steps of this device's envs, every leaf with the local members' leading
+    axis: (env, return, steps (members, T, n, ...), ended episodes' (count, return sum)
+    (members,))."""
     def one(carry, step_key):
       env_state, ep_return = carry
-      action = agent.act(agent_state, env_state.obs, step_key)
-      nxt = jax.vmap(train_env.step)(env_state, action)
+      action = members(agent.act)(agent_state, env_state.obs, step_key)
+      nxt = step_envs(env_state, action)
       terminated = nxt.done * (1.0 - nxt.info["truncation"])
       step = replay.Step(obs=env_state.obs, action=action, reward=nxt.reward,
                          discount=1.0 - terminated, done=nxt.done,
                          next_obs=nxt.info["final_obs"])
       ep_return = ep_return + nxt.reward
-      ended = (jnp.sum(nxt.done), jnp.sum(nxt.done * ep_return))
+      ended = (jnp.sum(nxt.done, -1), jnp.sum(nxt.done * ep_return, -1))
       return (nxt, ep_return * (1.0 - nxt.done)), (step, ended)
+    step_keys = jnp.swapaxes(members(lambda k: jax.random.split(k, cfg.unroll_length))(key), 0, 1)
     (env_state, episode_return), (steps, ended) = jax.lax.scan(
-        one, (env_state, episode_return), jax.random.split(key, cfg.unroll_length))
-    return env_state, episode_return, steps, jax.tree.map(jnp.sum, ended)
+        one, (env_state, episode_return), step_keys)
+    steps = jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), steps)
+    return env_state, episode_return, steps, jax.tree.map(lambda x: jnp.sum(x, 0), ended)
 
   def learn(agent_state, buffer, key, n_updates):
     """`max_updates` updates, of which the first `n_updates` count (all, unless
@@ -248,11 +264,8 @@ def make_trainer(env: LocomotionEnv, agent: Agent, cfg: TrainConfig, eval_episod
   metric_shapes = jax.eval_shape(lambda s: agent.update(s, example, key0)[1],
                                  jax.eval_shape(agent.init, key0))
 
-  def iteration(state: TrainState, _):
-    key, act_key, learn_key = jax.random.split(state.key, 3)
-    act_key = jax.random.fold_in(act_key, device_index())
-    env_state, ep_return, steps, (ended, ended_return) = collect(
-        state.agent, state.env, state.episode_return, act_key)
+  def finish(state, env_state, ep_return, steps, key, learn_key):
+    """One member's replay insert and learning after its collection."""
     buffer = replay.insert(state.replay, steps)
     learning = buffer.filled >= min_rows
     n_updates = (jnp.round(state.replay_ratio * cfg.steps_per_iteration / cfg.batch_size)
@@ -263,21 +276,32 @@ def make_trainer(env: LocomotionEnv, agent: Agent, cfg: TrainConfig, eval_episod
     new = state._replace(agent=agent_state, replay=buffer, env=env_state,
                          episode_return=ep_return, key=key, iteration=state.iteration + 1,
                          updates=state.updates + learning * n_updates)
+    return new, (metrics, learning)
+
+  def iteration(state: TrainState, _):
+    """One iteration of the local members (every leaf with their leading axis): their envs
+    stepped together, then each member's insert and updates."""
+    key, act_key, learn_key = members(lambda k: tuple(jax.random.split(k, 3)))(state.key)
+    act_key = members(lambda k: jax.random.fold_in(k, device_index()))(act_key)
+    env_state, ep_return, steps, (ended, ended_return) = collect(
+        state.agent, state.env, state.episode_return, act_key)
+    new, (metrics, learning) = members(finish)(state, env_state, ep_return, steps, key,
+                                               learn_key)
     return new, (metrics, learning, total(ended), total(ended_return))
 
   def chunk(state: TrainState):
     state, (metrics, learning, ended, ended_return) = jax.lax.scan(
         iteration, state, None, length=cfg.iterations_per_chunk)
-    weight = learning / jnp.maximum(learning.sum(), 1)
-    out = {k: jnp.sum(v * weight) for k, v in metrics.items()}
-    out.update(episodes=ended.sum(), episode_return=ended_return.sum() / ended.sum(),
+    weight = learning / jnp.maximum(learning.sum(0), 1)
+    out = {k: jnp.sum(v * weight, 0) for k, v in metrics.items()}
+    out.update(episodes=ended.sum(0), episode_return=ended_return.sum(0) / ended.sum(0),
                learning=learning[-1].astype(jnp.float32))
     return state, out
 
   # Explicit shardings, the same in and out, so that a chunk's output feeds the next call
   # without a second compilation.
   train_chunk = jax.jit(
-      jax.shard_map(per_member(chunk, local_members), mesh=mesh, in_specs=(specs,),
+      jax.shard_map(chunk, mesh=mesh, in_specs=(specs,),
                     out_specs=(specs, member_spec()), check_vma=False),
       in_shardings=(shardings,),
       out_shardings=(shardings, NamedSharding(mesh, member_spec())), donate_argnums=0)
