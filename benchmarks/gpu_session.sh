@@ -31,6 +31,8 @@
 #   bash benchmarks/gpu_session.sh cpu-tune2          # CPU layouts for Hopper, emulated
 #   bash benchmarks/gpu_session.sh cpu-tune3          # ... with smaller networks
 #   bash benchmarks/gpu_session.sh member-layout      # members' envs nested or flat, alone
+#   bash benchmarks/gpu_session.sh collect-parts      # a sweep's collection, part by part, alone
+#   bash benchmarks/gpu_session.sh cpu60-Walker2D cpu60-Ant   # 60-minute CPU runs, emulated
 # Every run of a call shares the one GPU (XLA_PYTHON_CLIENT_MEM_FRACTION=0.1 each). The device
 # tool's calls run it as
 #   timeout 570 bash benchmarks/gpu_session.sh PHASES > $OUT/session.log 2>&1;
@@ -349,7 +351,7 @@ for phase in "$@"; do
       # ratio 16 with mixed noise and ratio 8 with batch 128. 2 seeds each, six at once.
       export XLA_PYTHON_CLIENT_MEM_FRACTION=0.15
       T=(benchmarks/time_to_score.py Hopper --kind cpu --cpu-devices 1 --seeds 0,1 --at-once
-         --minutes 8 --env-steps 5000000 --set sigma=0.4 --set sigma_min=0.05)
+         --minutes "${TUNE_MINUTES:-8}" --env-steps 5000000 --set sigma=0.4 --set sigma_min=0.05)
       SMALL=(--set "policy_layers=(128,128)" --set "critic_layers=(128,128)")
       tune() { local name=$1; shift; timeout 560 python3 "${T[@]}" --out "$WORK/$name" --label "$name" \
         "$@" > "$WORK/$name.txt" 2>&1 & }
@@ -368,12 +370,36 @@ for phase in "$@"; do
         > "$WORK/member_layout.txt" 2>&1
       cat "$WORK/member_layout.txt"
       ;;
+    cpu60-*)
+      # ROBOT's cpu preset for as many env steps as the 2-core CPU steps in 60 minutes less its
+      # compile, at its measured rate (BENCHMARKS.md, "On the 2-core CPU": Walker2D 9,000/s,
+      # HalfCheetah 8,700, Ant 6,900, Humanoid 5,600), run on past the target; in the
+      # background, sharing the GPU with the call's other cpu60 phases. Stopped at 8.8 minutes
+      # if the GPU is slower than that: its summary then says how many env steps it reached.
+      robot=${phase#cpu60-}
+      case $robot in
+        Walker2D) steps=31900000;; HalfCheetah) steps=30800000;; Ant) steps=24500000;;
+        Humanoid) steps=19700000;; *) echo "cpu60: no CPU rate for $robot" >&2; exit 2;;
+      esac
+      n=$(printf '%s\n' "$@" | grep -c '^cpu60-')
+      XLA_PYTHON_CLIENT_MEM_FRACTION=$(python3 -c "print(round(0.9 / $n, 3))") timeout 560 \
+        python3 benchmarks/time_to_score.py "$robot" --kind cpu --cpu-devices 1 --seeds 0 \
+        --run-on --minutes 8.8 --env-steps "$steps" --label "60 CPU-minutes, emulated" \
+        --out "$WORK/cpu60_$robot" > "$WORK/cpu60_$robot.txt" 2>&1 &
+      ;;
+    collect-parts)
+      # What a 16-member sweep's collection spends its time on (physics, policy, replay
+      # write), alone on the GPU (benchmarks/research/sweep_collect_parts.py).
+      XLA_PYTHON_CLIENT_MEM_FRACTION=0.9 timeout 160 python3 \
+        benchmarks/research/sweep_collect_parts.py --members 1,16 > "$WORK/collect_parts.txt" 2>&1
+      cat "$WORK/collect_parts.txt"
+      ;;
     humanoid-ls)
       # Fewer line-search steps (under vmap MJX's line search runs all of its steps): four
       # variants through the stability check.
       for v in "all 4/4" "all 4/2" "all 3/3" "legs 3/3"; do stable "$BEFORE_ARMATURE $v"; done
       ;;
-    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, humanoid-capture, humanoid-limits, humanoid-armature, humanoid-confirm, mpo-pairN, sweep-throughput, peers, scaling, scaling-rest, sweep-collect, screen-hopper, screen-humanoid, humanoid-solve, tts-ROBOT, hopper-cold, cpu-tune2, cpu-tune3, member-layout, wait" >&2
+    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, humanoid-capture, humanoid-limits, humanoid-armature, humanoid-confirm, mpo-pairN, sweep-throughput, peers, scaling, scaling-rest, sweep-collect, screen-hopper, screen-humanoid, humanoid-solve, tts-ROBOT, hopper-cold, cpu-tune2, cpu-tune3, member-layout, collect-parts, cpu60-ROBOT, wait" >&2
        exit 2 ;;
   esac
 done
