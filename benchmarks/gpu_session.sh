@@ -366,7 +366,7 @@ for phase in "$@"; do
       # A sweep's envs stepped nested under a member vmap or as one flat batch (the trainer's
       # way since 2026-11-24), the physics alone on the GPU.
       XLA_PYTHON_CLIENT_MEM_FRACTION=0.9 timeout 150 python3 \
-        benchmarks/research/member_step_layout.py --members 1,4,16 --envs 512 \
+        benchmarks/research/member_step_layout.py --members "${LAYOUT_MEMBERS:-16,4,1}" --envs 512 \
         > "$WORK/member_layout.txt" 2>&1
       cat "$WORK/member_layout.txt"
       ;;
@@ -374,8 +374,9 @@ for phase in "$@"; do
       # ROBOT's cpu preset for as many env steps as the 2-core CPU steps in 60 minutes less its
       # compile, at its measured rate (BENCHMARKS.md, "On the 2-core CPU": Walker2D 9,000/s,
       # HalfCheetah 8,700, Ant 6,900, Humanoid 5,600), run on past the target; in the
-      # background, sharing the GPU with the call's other cpu60 phases. Stopped at 8.8 minutes
-      # if the GPU is slower than that: its summary then says how many env steps it reached.
+      # background, sharing the GPU with the call's other cpu60 phases. Stopped at
+      # $CPU60_MINUTES (8.8) if the GPU is slower than that: its summary then says how many
+      # env steps it reached.
       robot=${phase#cpu60-}
       case $robot in
         Walker2D) steps=31900000;; HalfCheetah) steps=30800000;; Ant) steps=24500000;;
@@ -384,14 +385,16 @@ for phase in "$@"; do
       n=$(printf '%s\n' "$@" | grep -c '^cpu60-')
       XLA_PYTHON_CLIENT_MEM_FRACTION=$(python3 -c "print(round(0.9 / $n, 3))") timeout 560 \
         python3 benchmarks/time_to_score.py "$robot" --kind cpu --cpu-devices 1 --seeds 0 \
-        --run-on --minutes 8.8 --env-steps "$steps" --label "60 CPU-minutes, emulated" \
+        --run-on --minutes "${CPU60_MINUTES:-8.8}" --env-steps "$steps" \
+        --label "60 CPU-minutes, emulated" \
         --out "$WORK/cpu60_$robot" > "$WORK/cpu60_$robot.txt" 2>&1 &
       ;;
     collect-parts)
       # What a 16-member sweep's collection spends its time on (physics, policy, replay
       # write), alone on the GPU (benchmarks/research/sweep_collect_parts.py).
       XLA_PYTHON_CLIENT_MEM_FRACTION=0.9 timeout 160 python3 \
-        benchmarks/research/sweep_collect_parts.py --members 1,16 > "$WORK/collect_parts.txt" 2>&1
+        benchmarks/research/sweep_collect_parts.py --members "${PARTS_MEMBERS:-16,1}" \
+        > "$WORK/collect_parts.txt" 2>&1
       cat "$WORK/collect_parts.txt"
       ;;
     humanoid-ls)

@@ -14,9 +14,9 @@ Devices: the whole iteration runs under `shard_map` over every local device, lai
 (members, devices) mesh: the members are split over gcd(S, D) groups of devices, and within a
 group each device steps its share of each member's envs, keeps their steps in its share of the
 replay, and samples its share of each batch from it; the learner is data-parallel (gradients
-averaged over the group, parameters replicated in it). A device holding several members runs
-them under vmap; one holding one member runs plain code, the same program as a single run on
-one device.
+averaged over the group, parameters replicated in it). A device holding several members steps
+all their envs as one batch and runs their policies, inserts and updates under vmap; one
+holding one member runs plain code, the same program as a single run on one device.
 """
 
 from __future__ import annotations
@@ -264,20 +264,6 @@ def make_trainer(env: LocomotionEnv, agent: Agent, cfg: TrainConfig, eval_episod
   metric_shapes = jax.eval_shape(lambda s: agent.update(s, example, key0)[1],
                                  jax.eval_shape(agent.init, key0))
 
-  def finish(state, env_state, ep_return, steps, key, learn_key):
-    """One member's replay insert and learning after its collection."""
-    buffer = replay.insert(state.replay, steps)
-    learning = buffer.filled >= min_rows
-    n_updates = (jnp.round(state.replay_ratio * cfg.steps_per_iteration / cfg.batch_size)
-                 .astype(jnp.int32) if dynamic_updates else max_updates)
-    zeros = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), metric_shapes)
-    agent_state, metrics = jax.lax.cond(learning, learn, lambda a, b, k, n: (a, zeros),
-                                        state.agent, buffer, learn_key, n_updates)
-    new = state._replace(agent=agent_state, replay=buffer, env=env_state,
-                         episode_return=ep_return, key=key, iteration=state.iteration + 1,
-                         updates=state.updates + learning * n_updates)
-    return new, (metrics, learning)
-
   def iteration(state: TrainState, _):
     """One iteration of the local members (every leaf with their leading axis): their envs
     stepped together, then each member's insert and updates."""
@@ -285,8 +271,25 @@ def make_trainer(env: LocomotionEnv, agent: Agent, cfg: TrainConfig, eval_episod
     act_key = members(lambda k: jax.random.fold_in(k, device_index()))(act_key)
     env_state, ep_return, steps, (ended, ended_return) = collect(
         state.agent, state.env, state.episode_return, act_key)
-    new, (metrics, learning) = members(finish)(state, env_state, ep_return, steps, key,
-                                               learn_key)
+    buffer = members(replay.insert)(state.replay, steps)
+    # The members insert in lockstep, so they all start learning at the same iteration: one
+    # branch for all of them. (A branch per member would be a select under the member vmap,
+    # which runs the updates of members that are not learning yet.)
+    learning = buffer.filled[0] >= min_rows
+    zeros = jax.tree.map(lambda s: jnp.zeros((local_members,) + s.shape, s.dtype), metric_shapes)
+    if dynamic_updates:
+      n_updates = members(lambda ratio: jnp.round(
+          ratio * cfg.steps_per_iteration / cfg.batch_size).astype(jnp.int32))(state.replay_ratio)
+      update, args = members(learn), (state.agent, buffer, learn_key, n_updates)
+    else:
+      n_updates = max_updates
+      update = members(lambda a, b, k: learn(a, b, k, max_updates))
+      args = (state.agent, buffer, learn_key)
+    agent_state, metrics = jax.lax.cond(learning, update, lambda a, *_: (a, zeros), *args)
+    new = state._replace(agent=agent_state, replay=buffer, env=env_state,
+                         episode_return=ep_return, key=key, iteration=state.iteration + 1,
+                         updates=state.updates + learning * n_updates)
+    learning = jnp.broadcast_to(learning, (local_members,))
     return new, (metrics, learning, total(ended), total(ended_return))
 
   def chunk(state: TrainState):

@@ -1,5 +1,8 @@
-"""Test set-up: two XLA CPU devices (so batches are sharded), and a persistent compile cache."""
+"""Test set-up: two XLA CPU devices (so batches are sharded), a persistent compile cache, one
+trainer per config for each test worker, and the test files that share trainers kept in one
+worker."""
 
+import dataclasses
 import os
 
 # Two devices; and XLA:CPU's loop emitters instead of its fusion emitters, which compile MJX's
@@ -22,8 +25,60 @@ import jax  # noqa: E402
 import pytest  # noqa: E402
 
 import mjx_hopper  # noqa: E402
+from mjx_hopper import loop  # noqa: E402
 
 mjx_hopper.use_compile_cache()
+
+# Test files whose runs build the same tiny trainers (test_train.TINY and its sweeps): one
+# xdist group, so that one worker traces and compiles each of those trainers once for all of
+# them (scripts/test.sh runs pytest with --dist loadgroup). Every other file is its own group.
+TINY_TRAINERS = ("test_train", "test_sweep", "test_presets", "test_logger",
+                 "test_notebook_helpers", "test_checkpoint")
+
+
+def pytest_collection_modifyitems(items):
+  for item in items:
+    module = item.path.stem
+    group = "tiny_trainers" if module in TINY_TRAINERS else module
+    item.add_marker(pytest.mark.xdist_group(group))
+
+
+def _frozen(x):
+  """`x` with its dicts and lists made tuples, so that a config read back from JSON compares
+  equal to the one it was written from."""
+  if isinstance(x, dict):
+    return tuple(sorted((k, _frozen(v)) for k, v in x.items()))
+  if isinstance(x, (list, tuple)):
+    return tuple(_frozen(v) for v in x)
+  return x
+
+
+def build_key(cfg: loop.RunConfig, num_members: int | None = None) -> tuple:
+  """Everything `loop.build(cfg, num_members)` builds its trainer from: the env and its episode
+  length, the agent and its config, the train config, the evaluation's episodes, the number of
+  members and whether their update counts are dynamic (out_dir, budgets and seeds are not)."""
+  return (cfg.env, cfg.episode_steps, cfg.agent, _frozen(dataclasses.asdict(cfg.agent_config())),
+          cfg.train_config(), cfg.eval_episodes, num_members or len(cfg.members()),
+          "replay_ratio" in cfg.grid)
+
+
+@pytest.fixture(scope="session", autouse=True)
+def shared_builds():
+  """`loop.build` memoised on `build_key` for the whole session: `loop.run`, `loop.restore`,
+  `loop.load_policy` and the in-process CLI reuse one trainer per config, across test files,
+  instead of tracing it again (about 15 s of CPU per trainer, even when its programs come from
+  the compile cache). A trainer is pure functions, so a run is the same with a trainer built
+  once or again."""
+  built, build = {}, loop.build
+
+  def cached(cfg, num_members=None):
+    key = build_key(cfg, num_members)
+    if key not in built:
+      built[key] = build(cfg, num_members)
+    return built[key]
+  with pytest.MonkeyPatch.context() as patch:
+    patch.setattr(loop, "build", cached)
+    yield
 
 
 ROBOTS = ("Hopper", "Walker2D", "HalfCheetah", "Ant", "Humanoid")

@@ -14,7 +14,7 @@ import pytest
 
 from mjx_hopper import checkpoint, cli, loop, train
 from checkpoint_worker import CONFIG, state
-from test_train import TINY_ARGS, shared_builds
+from test_train import TINY_ARGS
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 
@@ -129,14 +129,14 @@ def train_in_fresh_process(out, steps):
 
 
 def test_resume_is_bit_exact_in_fresh_processes(tmp_path):
-  with shared_builds():  # the straight run's trainer restores both checkpoints
-    # The straight run here (it compiles the programs, which the compile cache then gives the
-    # fresh processes); the split run in two fresh processes, the second resuming the first's.
-    cli.main([*TRAIN, "--steps", "160", "--out", str(tmp_path / "straight")])
-    train_in_fresh_process(tmp_path / "split", 80)
-    train_in_fresh_process(tmp_path / "split", 160)   # resumes at 80 env steps
-    straight = loop.restore(str(tmp_path / "straight" / "checkpoints"))[1]
-    split = loop.restore(str(tmp_path / "split" / "checkpoints"))[1]
+  # The straight run here (it compiles the programs, which the compile cache then gives the
+  # fresh processes); the split run in two fresh processes, the second resuming the first's.
+  # The straight run's trainer (conftest.shared_builds) restores both checkpoints.
+  cli.main([*TRAIN, "--steps", "160", "--out", str(tmp_path / "straight")])
+  train_in_fresh_process(tmp_path / "split", 80)
+  train_in_fresh_process(tmp_path / "split", 160)   # resumes at 80 env steps
+  straight = loop.restore(str(tmp_path / "straight" / "checkpoints"))[1]
+  split = loop.restore(str(tmp_path / "split" / "checkpoints"))[1]
   assert train.iterations(straight) == train.iterations(split) == 20
   assert int(straight.updates[0]) > 0
   # Params, target params, optimizer states, replay, env states, keys and counters.

@@ -14,15 +14,7 @@ import numpy as np
 import pytest
 
 from mjx_hopper import checkpoint, cli, loop, sweep, train
-from test_train import TINY, TINY_ARGS, member, shared_builds
-
-
-@pytest.fixture(scope="module", autouse=True)
-def builds():
-  """One trainer per config for the module: a run, its resumption, `loop.restore` and
-  `sweep.extract` of one sweep share the compiled trainer rather than tracing it again."""
-  with shared_builds():
-    yield
+from test_train import TINY, TINY_ARGS, member
 
 
 def run_chunks(trainer, state, chunks=2):

@@ -1,6 +1,5 @@
 """The compiled trainer and the host loop, on a tiny Hopper run over two CPU devices."""
 
-import contextlib
 import csv
 import dataclasses
 import json
@@ -12,10 +11,10 @@ import pytest
 
 from mjx_hopper import cli, logger, loop, notebook, train
 
-# The notebook's short mode (notebook.tiny), with 4 evaluation episodes.
+# The notebook's short mode (notebook.tiny): the run of the notebook's own cells and of
+# test_notebook_helpers, so that they share its trainer (conftest.shared_builds) and programs.
 TINY = dataclasses.replace(
-    notebook.tiny(loop.RunConfig(env="Hopper", agent="d4pg", preset="cpu")), eval_episodes=4,
-    time_delta=0.0)
+    notebook.tiny(loop.RunConfig(env="Hopper", agent="d4pg", preset="cpu")), time_delta=0.0)
 
 
 # TINY's settings on the command line, for a given agent.
@@ -27,52 +26,8 @@ TINY_ARGS = ["--cpu-devices", "2", "train", "--env", "Hopper", "--preset", "cpu"
              "--no-progress", "--log-every", "0"]
 
 
-def _frozen(x):
-  """`x` with its dicts and lists made tuples, so that a config read back from JSON compares
-  equal to the one it was written from."""
-  if isinstance(x, dict):
-    return tuple(sorted((k, _frozen(v)) for k, v in x.items()))
-  if isinstance(x, (list, tuple)):
-    return tuple(_frozen(v) for v in x)
-  return x
-
-
-def build_key(cfg: loop.RunConfig, num_members: int | None = None) -> tuple:
-  """Everything `loop.build(cfg, num_members)` builds its trainer from: the env and its episode
-  length, the agent and its config, the train config, the evaluation's episodes, the number of
-  members and whether their update counts are dynamic (out_dir, budgets and seeds are not)."""
-  return (cfg.env, cfg.episode_steps, cfg.agent, _frozen(dataclasses.asdict(cfg.agent_config())),
-          cfg.train_config(), cfg.eval_episodes, num_members or len(cfg.members()),
-          "replay_ratio" in cfg.grid)
-
-
-@contextlib.contextmanager
-def shared_builds():
-  """`loop.build` memoised on `build_key`: within the block, `loop.run`, `loop.restore`,
-  `loop.load_policy` (and the in-process CLI) reuse one trainer per config, as a test module's
-  fixtures do, instead of tracing it again (about 15 s of CPU per trainer, even when its
-  programs come from the compile cache). A trainer is pure functions, so a run is the same
-  with a trainer built once or again."""
-  built, build = {}, loop.build
-
-  def cached(cfg, num_members=None):
-    key = build_key(cfg, num_members)
-    if key not in built:
-      built[key] = build(cfg, num_members)
-    return built[key]
-  with pytest.MonkeyPatch.context() as patch:
-    patch.setattr(loop, "build", cached)
-    yield
-
-
-@pytest.fixture(scope="module", autouse=True)
-def builds():
-  with shared_builds():
-    yield
-
-
 @pytest.fixture(scope="module")
-def trainer(builds):
+def trainer():
   return loop.build(TINY)  # the trainer that loop.run(TINY) below reuses
 
 
@@ -139,7 +94,7 @@ def test_same_seed_same_run(trainer, two_chunks):
 def test_evaluate_runs_whole_episodes(trainer):
   state = trainer.init(jax.random.PRNGKey(0))
   result = jax.device_get(trainer.evaluate(state.agent, jax.random.PRNGKey(1)[None]))
-  assert result["return"].shape == (1, 4)
+  assert result["return"].shape == (1, TINY.eval_episodes)
   assert ((result["length"] >= 1) & (result["length"] <= 30)).all()
 
 
