@@ -363,8 +363,8 @@ for phase in "$@"; do
       tune cpu_r8_mixed_w128_b512 --train replay_ratio=8 --train batch_size=512 "${SMALL[@]}"
       ;;
     member-layout)
-      # A sweep's envs stepped nested under a member vmap or as one flat batch (the trainer's
-      # way since 2026-11-24), the physics alone on the GPU.
+      # A sweep's envs stepped nested under a member vmap (the trainer's way) or as one flat
+      # batch, the physics alone on the GPU.
       XLA_PYTHON_CLIENT_MEM_FRACTION=0.9 timeout 150 python3 \
         benchmarks/research/member_step_layout.py --members "${LAYOUT_MEMBERS:-16,4,1}" --envs 512 \
         > "$WORK/member_layout.txt" 2>&1

@@ -14,9 +14,9 @@ Devices: the whole iteration runs under `shard_map` over every local device, lai
 (members, devices) mesh: the members are split over gcd(S, D) groups of devices, and within a
 group each device steps its share of each member's envs, keeps their steps in its share of the
 replay, and samples its share of each batch from it; the learner is data-parallel (gradients
-averaged over the group, parameters replicated in it). A device holding several members steps
-all their envs as one batch and runs their policies, inserts and updates under vmap; one
-holding one member runs plain code, the same program as a single run on one device.
+averaged over the group, parameters replicated in it). A device holding several members runs
+them under vmap; one holding one member runs plain code, the same program as a single run on
+one device.
 """
 
 from __future__ import annotations
@@ -207,36 +207,23 @@ def make_trainer(env: LocomotionEnv, agent: Agent, cfg: TrainConfig, eval_episod
   def members(fn):
     return per_member(fn, local_members)
 
-  def step_envs(env_state, action):
-    """Steps this device's envs of every local member as one flat batch (members x envs):
-    under a member vmap the physics would be a nested batch, which a GPU steps about half as
-    fast (BENCHMARKS.md, "Sweep throughput")."""
-    flat = jax.tree.map(lambda x: x.reshape((x.shape[0] * x.shape[1],) + x.shape[2:]),
-                        (env_state, action))
-    out = jax.vmap(train_env.step)(*flat)
-    return jax.tree.map(
-        lambda x: x.reshape((local_members, x.shape[0] // local_members) + x.shape[1:]), out)
-
   def collect(agent_state, env_state, episode_return, key):
-    """unroll_length steps of this device's envs, every leaf with the local members' leading
-    axis: (env, return, steps (members, T, n, ...), ended episodes' (count, return sum)
-    (members,))."""
+    """unroll_length steps of one member's envs on this device: (env, return, steps (T, n,
+    ...), ended episodes' (count, return sum))."""
     def one(carry, step_key):
       env_state, ep_return = carry
-      action = members(agent.act)(agent_state, env_state.obs, step_key)
-      nxt = step_envs(env_state, action)
+      action = agent.act(agent_state, env_state.obs, step_key)
+      nxt = jax.vmap(train_env.step)(env_state, action)
       terminated = nxt.done * (1.0 - nxt.info["truncation"])
       step = replay.Step(obs=env_state.obs, action=action, reward=nxt.reward,
                          discount=1.0 - terminated, done=nxt.done,
                          next_obs=nxt.info["final_obs"])
       ep_return = ep_return + nxt.reward
-      ended = (jnp.sum(nxt.done, -1), jnp.sum(nxt.done * ep_return, -1))
+      ended = (jnp.sum(nxt.done), jnp.sum(nxt.done * ep_return))
       return (nxt, ep_return * (1.0 - nxt.done)), (step, ended)
-    step_keys = jnp.swapaxes(members(lambda k: jax.random.split(k, cfg.unroll_length))(key), 0, 1)
     (env_state, episode_return), (steps, ended) = jax.lax.scan(
-        one, (env_state, episode_return), step_keys)
-    steps = jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), steps)
-    return env_state, episode_return, steps, jax.tree.map(lambda x: jnp.sum(x, 0), ended)
+        one, (env_state, episode_return), jax.random.split(key, cfg.unroll_length))
+    return env_state, episode_return, steps, jax.tree.map(jnp.sum, ended)
 
   def learn(agent_state, buffer, key, n_updates):
     """`max_updates` updates, of which the first `n_updates` count (all, unless
@@ -265,11 +252,11 @@ def make_trainer(env: LocomotionEnv, agent: Agent, cfg: TrainConfig, eval_episod
                                  jax.eval_shape(agent.init, key0))
 
   def iteration(state: TrainState, _):
-    """One iteration of the local members (every leaf with their leading axis): their envs
-    stepped together, then each member's insert and updates."""
+    """One iteration of the local members (every leaf with their leading axis): each one's
+    collection and insert, then their updates."""
     key, act_key, learn_key = members(lambda k: tuple(jax.random.split(k, 3)))(state.key)
     act_key = members(lambda k: jax.random.fold_in(k, device_index()))(act_key)
-    env_state, ep_return, steps, (ended, ended_return) = collect(
+    env_state, ep_return, steps, (ended, ended_return) = members(collect)(
         state.agent, state.env, state.episode_return, act_key)
     buffer = members(replay.insert)(state.replay, steps)
     # The members insert in lockstep, so they all start learning at the same iteration: one

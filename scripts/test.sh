@@ -1,8 +1,7 @@
 #!/usr/bin/env bash
 # The tests: set up with the test extra (PyBullet, the oracle), then run pytest on two workers,
-# each test file in one of them (its compiled fixtures are built once), and the files that
-# share tiny trainers all in one (tests/conftest.py's xdist groups).
+# each test file in one of them (its compiled fixtures are built once).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh test
-exec .venv/bin/python -m pytest -n 2 --dist loadgroup "$@"
+exec .venv/bin/python -m pytest -n 2 --dist loadfile "$@"

@@ -1,6 +1,5 @@
-"""Test set-up: two XLA CPU devices (so batches are sharded), a persistent compile cache, one
-trainer per config for each test worker, and the test files that share trainers kept in one
-worker."""
+"""Test set-up: two XLA CPU devices (so batches are sharded), a persistent compile cache, and
+one trainer per config for each test worker."""
 
 import dataclasses
 import os
@@ -29,19 +28,6 @@ from mjx_hopper import loop  # noqa: E402
 
 mjx_hopper.use_compile_cache()
 
-# Test files whose runs build the same tiny trainers (test_train.TINY and its sweeps): one
-# xdist group, so that one worker traces and compiles each of those trainers once for all of
-# them (scripts/test.sh runs pytest with --dist loadgroup). Every other file is its own group.
-TINY_TRAINERS = ("test_train", "test_sweep", "test_presets", "test_logger",
-                 "test_notebook_helpers", "test_checkpoint")
-
-
-def pytest_collection_modifyitems(items):
-  for item in items:
-    module = item.path.stem
-    group = "tiny_trainers" if module in TINY_TRAINERS else module
-    item.add_marker(pytest.mark.xdist_group(group))
-
 
 def _frozen(x):
   """`x` with its dicts and lists made tuples, so that a config read back from JSON compares
@@ -64,11 +50,11 @@ def build_key(cfg: loop.RunConfig, num_members: int | None = None) -> tuple:
 
 @pytest.fixture(scope="session", autouse=True)
 def shared_builds():
-  """`loop.build` memoised on `build_key` for the whole session: `loop.run`, `loop.restore`,
-  `loop.load_policy` and the in-process CLI reuse one trainer per config, across test files,
-  instead of tracing it again (about 15 s of CPU per trainer, even when its programs come from
-  the compile cache). A trainer is pure functions, so a run is the same with a trainer built
-  once or again."""
+  """`loop.build` memoised on `build_key` for a test worker's whole session: `loop.run`,
+  `loop.restore`, `loop.load_policy` and the in-process CLI reuse one trainer per config, across
+  the test files that the worker runs, instead of tracing it again (about 15 s of CPU per
+  trainer, even when its programs come from the compile cache). A trainer is pure functions, so
+  a run is the same with a trainer built once or again."""
   built, build = {}, loop.build
 
   def cached(cfg, num_members=None):

@@ -48,7 +48,7 @@ def test_member_is_bit_identical_to_its_single_run():
   trainer = loop.build(cfg)
   members = cfg.members()
   state, metrics = run_chunks(trainer, loop.init(cfg, trainer, members))
-  # Both members on one device: their envs stepped as one flat batch, their updates under vmap.
+  # Both members on one device, under vmap: within a tolerance of their single runs.
   together = train.make_trainer(trainer.env, trainer.agent, cfg.train_config(),
                                 TINY.eval_episodes, num_members=2, devices=jax.local_devices()[:1])
   shared, _ = run_chunks(together, loop.init(cfg, together, members))

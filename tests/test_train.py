@@ -12,7 +12,8 @@ import pytest
 from mjx_hopper import cli, logger, loop, notebook, train
 
 # The notebook's short mode (notebook.tiny): the run of the notebook's own cells and of
-# test_notebook_helpers, so that they share its trainer (conftest.shared_builds) and programs.
+# test_notebook_helpers, so that they share its compiled programs (and, in one test worker,
+# its trainer: conftest.shared_builds).
 TINY = dataclasses.replace(
     notebook.tiny(loop.RunConfig(env="Hopper", agent="d4pg", preset="cpu")), time_delta=0.0)
 

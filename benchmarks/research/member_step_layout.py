@@ -2,11 +2,12 @@
 
     python benchmarks/research/member_step_layout.py --members 1,16 --envs 512   # on a GPU
 
-A sweep's trainer holds S members x n envs per device. Under a member vmap the physics is a
-nested batch, vmap(vmap(step)) over (S, n); the trainer instead reshapes the envs to one batch
-of S*n and steps them with one vmap (train.make_trainer's step_envs). This times both, the env
-step alone with random actions, T steps per compiled call (the median of 3 calls after a
-warm-up), in one process on the default device.
+A sweep's trainer holds S members x n envs per device. Under its member vmap the physics is a
+nested batch, vmap(vmap(step)) over (S, n); the alternative reshapes the envs to one batch of
+S*n and steps them with one vmap. This times both, the env step alone with random actions, T
+steps per compiled call (the median of 3 calls after a warm-up), in one process on the default
+device. On one H100 (2026-11-24) flat ran 1.04x, 1.19x and 0.94x nested at 1, 4 and 16 members
+of 512 envs, so the trainer keeps the nested vmap.
 """
 
 from __future__ import annotations
