@@ -71,6 +71,11 @@ humanoid_gpu_rows() {  # the Humanoid's GPU throughput, alone on the GPU, to $WO
     --envs Humanoid --batches 4096,32768 --devices 1 --steps-total 2000000 \
     --json "$WORK/humanoid_gpu.json" > "$WORK/humanoid_gpu.txt" 2>&1
 }
+tune() {  # tune NAME ARGS...: the phase's time_to_score command T with ARGS, in the background,
+  # labelled NAME, logged to $WORK/NAME.txt
+  local name=$1; shift
+  timeout 560 python3 "${T[@]}" --out "$WORK/$name" --label "$name" "$@" > "$WORK/$name.txt" 2>&1 &
+}
 # The phases run before the Humanoid got its hinge armature (0.02), solver tolerance (1e-4) and
 # 3/3 solve start from the model they ran on (4/4 then), so that they rerun what
 # docs/benchmark-history.md records for them; a variant's own words come after it and win.
@@ -336,8 +341,6 @@ for phase in "$@"; do
       T=(benchmarks/time_to_score.py Hopper --kind cpu --cpu-devices 1 --seeds 0,1 --at-once
          --minutes 8 --env-steps 5000000)
       MIXED=(--set sigma=0.4 --set sigma_min=0.05)
-      tune() { local name=$1; shift; timeout 560 python3 "${T[@]}" --out "$WORK/$name" --label "$name" \
-        "$@" > "$WORK/$name.txt" 2>&1 & }
       tune cpu_r4
       tune cpu_r4_mixed "${MIXED[@]}"
       tune cpu_r8 --train replay_ratio=8
@@ -353,8 +356,6 @@ for phase in "$@"; do
       T=(benchmarks/time_to_score.py Hopper --kind cpu --cpu-devices 1 --seeds 0,1 --at-once
          --minutes "${TUNE_MINUTES:-8}" --env-steps 5000000 --set sigma=0.4 --set sigma_min=0.05)
       SMALL=(--set "policy_layers=(128,128)" --set "critic_layers=(128,128)")
-      tune() { local name=$1; shift; timeout 560 python3 "${T[@]}" --out "$WORK/$name" --label "$name" \
-        "$@" > "$WORK/$name.txt" 2>&1 & }
       tune cpu_r4_mixed_w128 "${SMALL[@]}"
       tune cpu_r8_mixed_w128 --train replay_ratio=8 "${SMALL[@]}"
       tune cpu_r16_mixed_w128 --train replay_ratio=16 "${SMALL[@]}"
