@@ -33,6 +33,8 @@
 #   bash benchmarks/gpu_session.sh member-layout      # members' envs nested or flat, alone
 #   bash benchmarks/gpu_session.sh collect-parts      # a sweep's collection, part by part, alone
 #   bash benchmarks/gpu_session.sh cpu60-Walker2D cpu60-Ant   # 60-minute CPU runs, emulated
+#   bash benchmarks/gpu_session.sh compile-parts      # Hopper's first minute, part by part
+#   bash benchmarks/gpu_session.sh sweep-precision    # a 16-member sweep, TF32 against bf16
 # Every run of a call shares the one GPU (XLA_PYTHON_CLIENT_MEM_FRACTION=0.1 each). The device
 # tool's calls run it as
 #   timeout 570 bash benchmarks/gpu_session.sh PHASES > $OUT/session.log 2>&1;
@@ -398,12 +400,35 @@ for phase in "$@"; do
         > "$WORK/collect_parts.txt" 2>&1
       cat "$WORK/collect_parts.txt"
       ;;
+    compile-parts)
+      # Where the gpu preset's first minute goes (imports, init, tracing and compiling the
+      # chunk and the evaluation), alone on the GPU, each XLA_FLAGS variant in a fresh process
+      # (benchmarks/research/compile_parts.py): XLA's default, cuBLAS instead of Triton for
+      # the products, that without autotuning, and parallel LLVM compilation.
+      XLA_PYTHON_CLIENT_MEM_FRACTION=0.9 timeout 360 python3 benchmarks/research/compile_parts.py \
+        --env "${PARTS_ENV:-Hopper}" --kind gpu --out "$WORK/compile_parts.json" --variants \
+        "${COMPILE_VARIANTS:-;--xla_gpu_enable_triton_gemm=false;--xla_gpu_enable_triton_gemm=false --xla_gpu_autotune_level=0;--xla_gpu_force_compilation_parallelism=8}" \
+        > "$WORK/compile_parts.txt" 2>&1
+      cat "$WORK/compile_parts.txt"
+      ;;
+    sweep-precision)
+      # sweep-throughput's 16-member sweep with XLA's default float32 products (TF32 on an
+      # H100) and with bfloat16 ones (JAX_DEFAULT_MATMUL_PRECISION), alone on the GPU.
+      for precision in default bfloat16; do
+        env $([ $precision = default ] || echo JAX_DEFAULT_MATMUL_PRECISION=$precision) \
+          XLA_PYTHON_CLIENT_MEM_FRACTION=0.9 timeout 150 python3 benchmarks/sweep_throughput.py \
+          --preset gpu --num-envs 512 --batch-size 1024 --replay-size 1000000 --chunk 10 \
+          --chunks 3 --members "${PRECISION_MEMBERS:-16}" --cpu-devices 1 \
+          --out "$WORK/sweep_precision_$precision.json" > "$WORK/sweep_precision_$precision.txt" 2>&1
+        tail -5 "$WORK/sweep_precision_$precision.txt"
+      done
+      ;;
     humanoid-ls)
       # Fewer line-search steps (under vmap MJX's line search runs all of its steps): four
       # variants through the stability check.
       for v in "all 4/4" "all 4/2" "all 3/3" "legs 3/3"; do stable "$BEFORE_ARMATURE $v"; done
       ;;
-    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, humanoid-capture, humanoid-limits, humanoid-armature, humanoid-confirm, mpo-pairN, sweep-throughput, peers, scaling, scaling-rest, sweep-collect, screen-hopper, screen-humanoid, humanoid-solve, tts-ROBOT, hopper-cold, cpu-tune2, cpu-tune3, member-layout, collect-parts, cpu60-ROBOT, wait" >&2
+    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, humanoid-capture, humanoid-limits, humanoid-armature, humanoid-confirm, mpo-pairN, sweep-throughput, peers, scaling, scaling-rest, sweep-collect, screen-hopper, screen-humanoid, humanoid-solve, tts-ROBOT, hopper-cold, cpu-tune2, cpu-tune3, member-layout, collect-parts, cpu60-ROBOT, compile-parts, sweep-precision, wait" >&2
        exit 2 ;;
   esac
 done
