@@ -413,8 +413,9 @@ for phase in "$@"; do
       ;;
     sweep-precision)
       # sweep-throughput's 16-member sweep with XLA's default float32 products (TF32 on an
-      # H100) and with bfloat16 ones (JAX_DEFAULT_MATMUL_PRECISION), alone on the GPU.
-      for precision in default bfloat16; do
+      # H100) and with bfloat16 inputs accumulated in float32 (JAX_DEFAULT_MATMUL_PRECISION's
+      # dot algorithm BF16_BF16_F32; its "bfloat16" level is XLA's default), alone on the GPU.
+      for precision in default BF16_BF16_F32; do
         env $([ $precision = default ] || echo JAX_DEFAULT_MATMUL_PRECISION=$precision) \
           XLA_PYTHON_CLIENT_MEM_FRACTION=0.9 timeout 150 python3 benchmarks/sweep_throughput.py \
           --preset gpu --num-envs 512 --batch-size 1024 --replay-size 1000000 --chunk 10 \
