@@ -28,6 +28,7 @@
 #   bash benchmarks/gpu_session.sh tts-Walker2D tts-Ant   # ... two robots sharing the GPU
 #   bash benchmarks/gpu_session.sh tts-Hopper wait tts-Ant  # ... one after the other
 #   bash benchmarks/gpu_session.sh hopper-cold        # Hopper's seeds each compiled afresh
+#   bash benchmarks/gpu_session.sh cold-Hopper:1.6    # ... alone, no autotuning run after them
 #   bash benchmarks/gpu_session.sh cpu-tune2          # CPU layouts for Hopper, emulated
 #   bash benchmarks/gpu_session.sh cpu-tune3          # ... with smaller networks
 #   bash benchmarks/gpu_session.sh member-layout      # members' envs nested or flat, alone
@@ -35,6 +36,7 @@
 #   bash benchmarks/gpu_session.sh cpu60-Walker2D cpu60-Ant   # 60-minute CPU runs, emulated
 #   bash benchmarks/gpu_session.sh compile-parts      # Hopper's first minute, part by part
 #   bash benchmarks/gpu_session.sh sweep-precision    # a 16-member sweep, TF32 against bf16
+#   bash benchmarks/gpu_session.sh sweep-triton       # sweeps with cuBLAS against Triton GEMMs
 # Every run of a call shares the one GPU (XLA_PYTHON_CLIENT_MEM_FRACTION=0.1 each). The device
 # tool's calls run it as
 #   timeout 570 bash benchmarks/gpu_session.sh PHASES > $OUT/session.log 2>&1;
@@ -335,6 +337,17 @@ for phase in "$@"; do
         python3 "${T[@]}" --seeds 0 --label "autotune off" --out "$WORK/tts_Hopper_cold_noautotune" \
         > "$WORK/tts_Hopper_cold_noautotune.txt" 2>&1
       ;;
+    cold-*)
+      # time_to_score.py ROBOT as a first run on a new machine: its seeds one after another,
+      # each compiled afresh (no compile cache), alone on the GPU; cold-ROBOT:M gives each
+      # seed M minutes instead of the preset's. TTS_ARGS adds flags.
+      robot=${phase#cold-}; minutes=
+      if [[ $robot == *:* ]]; then minutes="--minutes ${robot#*:}"; robot=${robot%%:*}; fi
+      XLA_PYTHON_CLIENT_MEM_FRACTION=0.9 timeout 560 python3 benchmarks/time_to_score.py \
+        "$robot" --kind gpu --cpu-devices 1 --no-compile-cache $minutes ${TTS_ARGS:-} \
+        --out "$WORK/cold_$robot" > "$WORK/cold_$robot.txt" 2>&1
+      tail -25 "$WORK/cold_$robot.txt"
+      ;;
     cpu-tune2)
       # D4PG's cpu preset on Hopper with more updates per env step and mixed noise, 2 seeds each
       # (one program), until 2,000 or 5M env steps, six at once: the env steps and updates each
@@ -403,11 +416,14 @@ for phase in "$@"; do
     compile-parts)
       # Where the gpu preset's first minute goes (imports, init, tracing and compiling the
       # chunk and the evaluation), alone on the GPU, each XLA_FLAGS variant in a fresh process
-      # (benchmarks/research/compile_parts.py): XLA's default, cuBLAS instead of Triton for
-      # the products, that without autotuning, and parallel LLVM compilation.
+      # (benchmarks/research/compile_parts.py): mjx_hopper's default (cuBLAS for the
+      # products) against XLA's (Triton's GEMM fusions). As run first on 2026-11-24, before
+      # mjx_hopper turned Triton's off, COMPILE_VARIANTS was ";--xla_gpu_enable_triton_gemm=false;
+      # --xla_gpu_enable_triton_gemm=false --xla_gpu_autotune_level=0;
+      # --xla_gpu_force_compilation_parallelism=8" (as one line).
       XLA_PYTHON_CLIENT_MEM_FRACTION=0.9 timeout 360 python3 benchmarks/research/compile_parts.py \
-        --env "${PARTS_ENV:-Hopper}" --kind gpu --out "$WORK/compile_parts.json" --variants \
-        "${COMPILE_VARIANTS:-;--xla_gpu_enable_triton_gemm=false;--xla_gpu_enable_triton_gemm=false --xla_gpu_autotune_level=0;--xla_gpu_force_compilation_parallelism=8}" \
+        --env "${PARTS_ENV:-Hopper}" --kind gpu --out "$WORK/compile_parts_${PARTS_ENV:-Hopper}.json" \
+        --variants "${COMPILE_VARIANTS:-;--xla_gpu_enable_triton_gemm=true}" \
         > "$WORK/compile_parts.txt" 2>&1
       cat "$WORK/compile_parts.txt"
       ;;
@@ -424,12 +440,25 @@ for phase in "$@"; do
         tail -5 "$WORK/sweep_precision_$precision.txt"
       done
       ;;
+    sweep-triton)
+      # sweep-throughput's 1- and 16-member sweeps with mjx_hopper's cuBLAS products, and the
+      # 16-member one with XLA's Triton GEMM fusions, alone on the GPU.
+      for variant in cublas triton; do
+        members=1,16; [ $variant = cublas ] || members=16
+        env $([ $variant = cublas ] || echo XLA_FLAGS=--xla_gpu_enable_triton_gemm=true) \
+          XLA_PYTHON_CLIENT_MEM_FRACTION=0.9 timeout 200 python3 benchmarks/sweep_throughput.py \
+          --preset gpu --num-envs 512 --batch-size 1024 --replay-size 1000000 --chunk 10 \
+          --chunks 3 --members $members --cpu-devices 1 \
+          --out "$WORK/sweep_$variant.json" > "$WORK/sweep_$variant.txt" 2>&1
+        tail -6 "$WORK/sweep_$variant.txt"
+      done
+      ;;
     humanoid-ls)
       # Fewer line-search steps (under vmap MJX's line search runs all of its steps): four
       # variants through the stability check.
       for v in "all 4/4" "all 4/2" "all 3/3" "legs 3/3"; do stable "$BEFORE_ARMATURE $v"; done
       ;;
-    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, humanoid-capture, humanoid-limits, humanoid-armature, humanoid-confirm, mpo-pairN, sweep-throughput, peers, scaling, scaling-rest, sweep-collect, screen-hopper, screen-humanoid, humanoid-solve, tts-ROBOT, hopper-cold, cpu-tune2, cpu-tune3, member-layout, collect-parts, cpu60-ROBOT, compile-parts, sweep-precision, wait" >&2
+    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, humanoid-capture, humanoid-limits, humanoid-armature, humanoid-confirm, mpo-pairN, sweep-throughput, peers, scaling, scaling-rest, sweep-collect, screen-hopper, screen-humanoid, humanoid-solve, tts-ROBOT, hopper-cold, cold-ROBOT, cpu-tune2, cpu-tune3, member-layout, collect-parts, cpu60-ROBOT, compile-parts, sweep-precision, sweep-triton, wait" >&2
        exit 2 ;;
   esac
 done

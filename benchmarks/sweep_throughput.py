@@ -93,7 +93,10 @@ def main() -> None:
     mjx_hopper.use_compile_cache()
     print(json.dumps(measure(args)))
     return
-  env = dict(os.environ, XLA_FLAGS=f"--xla_force_host_platform_device_count={args.cpu_devices}")
+  flags = [f for f in os.environ.get("XLA_FLAGS", "").split()
+           if not f.startswith("--xla_force_host_platform_device_count")]
+  env = dict(os.environ, XLA_FLAGS=" ".join(
+      flags + [f"--xla_force_host_platform_device_count={args.cpu_devices}"]))
   rows = []
   settings = [f"--{name.replace('_', '-')}={value}" for name, value in vars(args).items()
               if name not in ("members", "worker", "out", "cpu_devices", "collect_only")]

@@ -170,11 +170,33 @@ def run(cfg: RunConfig, checkpoint_dir: str | None = None, progress: bool = True
   trainer = build(cfg, len(members))
   mngr = checkpoint.manager(checkpoint_dir, cfg.keep_checkpoints)
   saved_config = {**cfg.to_json(), "member_indices": indices}
+  steps_per_iteration = trainer.config.steps_per_iteration
+  # Compiling is the user's first wait, so its parts overlap: the training chunk compiles in a
+  # thread from the state's shapes while the state is made (or restored) here, and the
+  # evaluation is traced once the chunk's tracing is done (tracing holds Python's lock) and
+  # compiles beside it. Nothing compiles when the newest checkpoint already ends the run.
+  shapes = jax.eval_shape(lambda: init(cfg, trainer, members))
+  keys = jax.ShapeDtypeStruct((len(members), 2), jnp.uint32)
+
+  def start_compiling():
+    # A future of (the compiled chunk, a future of the compiled evaluation).
+    pool = concurrent.futures.ThreadPoolExecutor(2)
+
+    def compile_both():
+      lowered = trainer.train_chunk.lower(shapes)
+      evaluator = pool.submit(lambda: trainer.evaluate.lower(shapes.agent, keys).compile())
+      pool.shutdown(wait=False)
+      return lowered.compile(), evaluator
+    return pool.submit(compile_both)
+
+  newest = (mngr.latest_step() or 0) * steps_per_iteration
+  programs = start_compiling() if newest < cfg.total_env_steps else None
   state = checkpoint.resume(mngr, init(cfg, trainer, members), saved_config, say)
   with open(os.path.join(out_dir, "config.json"), "w") as f:  # once resuming is agreed
     json.dump(saved_config, f, indent=1)
-  steps_per_iteration = trainer.config.steps_per_iteration
   env_steps = train.iterations(state) * steps_per_iteration
+  if programs is None and env_steps < cfg.total_env_steps:  # an older step was read
+    programs = start_compiling()
   # A sweep's rows (one per member) go to the files only; its terminal lines sum them up.
   logger = Logger(os.path.join(out_dir, "log.csv"), cfg.time_delta,
                   (lambda line: None) if is_sweep else say, LEARNER_FIELDS[cfg.agent],
@@ -202,19 +224,9 @@ def run(cfg: RunConfig, checkpoint_dir: str | None = None, progress: bool = True
     return jnp.stack([jax.random.fold_in(jax.random.PRNGKey(m["seed"]), env_steps)
                       for m in members])
 
-  # The evaluation compiles in a thread while the training chunk compiles and runs (from the
-  # shapes alone: the chunk donates the state's buffers).
-  keys = eval_keys()
-  shapes = (jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=x.sharding),
-                         state.agent), jax.ShapeDtypeStruct(keys.shape, keys.dtype))
-  compiling, evaluator = concurrent.futures.ThreadPoolExecutor(1), None
-  if env_steps < cfg.total_env_steps:  # else nothing is left to train or evaluate
-    evaluator = compiling.submit(lambda: trainer.evaluate.lower(*shapes).compile())
-  compiling.shutdown(wait=False)
-
   def evaluate():
     _status(bar, "evaluating")
-    result = jax.device_get(evaluator.result()(state.agent, eval_keys()))
+    result = jax.device_get(programs.result()[1].result()(state.agent, eval_keys()))
     for m in range(len(members)):
       logger.write({"kind": "eval", **tags(m), "env_steps": env_steps,
                     "wall_s": time.perf_counter() - t_start,
@@ -231,7 +243,7 @@ def run(cfg: RunConfig, checkpoint_dir: str | None = None, progress: bool = True
     while (env_steps < cfg.total_env_steps and not stop.requested
            and time.perf_counter() < deadline and not reached.all()):
       t0 = time.perf_counter()
-      state, metrics = trainer.train_chunk(state)
+      state, metrics = programs.result()[0](state)
       metrics = jax.device_get(metrics)
       env_steps = train.iterations(state) * steps_per_iteration
       rate = per_chunk * len(members) / (time.perf_counter() - t0)

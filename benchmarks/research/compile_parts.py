@@ -3,16 +3,17 @@ in a fresh process with no compile cache.
 
     python benchmarks/research/compile_parts.py --env Hopper --kind gpu
     python benchmarks/research/compile_parts.py --env Hopper --kind gpu --variants \
-        ";--xla_gpu_enable_triton_gemm=false"
+        ";--xla_gpu_enable_triton_gemm=true"
 
-The parts, one after another as `loop.run` needs them: the imports; `loop.build` (the env, the
-agent, the trainer's functions); the first `init` (its compile and run); tracing the training
-chunk (`.lower`, Python) and compiling it (XLA); tracing and compiling the evaluation (which
-`loop.run` does in a thread while the chunk compiles and runs); the chunk's first call; and
-the env steps/s of the next calls, so that a flag that compiles faster but runs slower shows.
-Variants are `;`-separated XLA_FLAGS strings; the first is the reference of the ratio column,
-and an empty one is XLA's default. A variant whose process fails (an unknown flag) is reported
-with its error and left out of the table.
+The parts, one after another (`loop.run` overlaps some of them: the chunk compiles in a thread
+while init runs, and the evaluation compiles beside the chunk): the imports; `loop.build` (the
+env, the agent, the trainer's functions); the first `init` (its compile and run); tracing the
+training chunk (`.lower`, Python) and compiling it (XLA); tracing and compiling the evaluation;
+the chunk's first call; and the env steps/s of the next calls, so that a flag that compiles
+faster but runs slower shows. Variants are `;`-separated XLA_FLAGS strings added to mjx_hopper's
+(which turn XLA's Triton GEMM fusions off on a GPU, unless a variant names that flag); the
+first is the reference of the ratio columns, and an empty one adds nothing. A variant whose
+process fails (an unknown flag) is reported with its error and left out of the table.
 """
 
 from __future__ import annotations
