@@ -175,7 +175,10 @@ def run(cfg: RunConfig, checkpoint_dir: str | None = None, progress: bool = True
   # thread from the state's shapes while the state is made (or restored) here, and the
   # evaluation is traced once the chunk's tracing is done (tracing holds Python's lock) and
   # compiles beside it. Nothing compiles when the newest checkpoint already ends the run.
-  shapes = jax.eval_shape(lambda: init(cfg, trainer, members))
+  shapes = jax.tree.map(
+      lambda sharding, part: jax.tree.map(
+          lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sharding), part),
+      trainer.shardings, jax.eval_shape(lambda: init(cfg, trainer, members)))
   keys = jax.ShapeDtypeStruct((len(members), 2), jnp.uint32)
 
   def start_compiling():

@@ -118,6 +118,8 @@ class Trainer(NamedTuple):
     the chunk), "episode_return" (their mean return; NaN if none ended) and "learning" (1
     once updating).
   evaluate(agent_states, keys) -> per-member, per-episode "return", "length" (S, episodes).
+  shardings: where a TrainState's parts live (a NamedSharding per part), for compiling from
+    shapes.
   """
 
   init: Any
@@ -127,6 +129,7 @@ class Trainer(NamedTuple):
   env: LocomotionEnv
   agent: Agent
   num_members: int
+  shardings: Any
 
 
 def mesh_shape(num_members: int, num_devices: int) -> tuple[int, int]:
@@ -300,7 +303,8 @@ def make_trainer(env: LocomotionEnv, agent: Agent, cfg: TrainConfig, eval_episod
   evaluate_members = per_member(lambda s, k: evaluate(env, agent, s, k, eval_episodes),
                                 num_members)
 
-  return Trainer(init, train_chunk, jax.jit(evaluate_members), cfg, env, agent, num_members)
+  return Trainer(init, train_chunk, jax.jit(evaluate_members), cfg, env, agent, num_members,
+                 shardings)
 
 
 def iterations(state: TrainState) -> int:
