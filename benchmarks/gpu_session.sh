@@ -441,10 +441,10 @@ for phase in "$@"; do
       done
       ;;
     sweep-triton)
-      # sweep-throughput's 1- and 16-member sweeps with mjx_hopper's cuBLAS products, and the
-      # 16-member one with XLA's Triton GEMM fusions, alone on the GPU.
+      # sweep-throughput's 1- and 16-member sweeps with mjx_hopper's cuBLAS products and with
+      # XLA's Triton GEMM fusions, alone on the GPU (as first run, the Triton one had only 16).
       for variant in cublas triton; do
-        members=1,16; [ $variant = cublas ] || members=16
+        members=${TRITON_MEMBERS:-1,16}
         env $([ $variant = cublas ] || echo XLA_FLAGS=--xla_gpu_enable_triton_gemm=true) \
           XLA_PYTHON_CLIENT_MEM_FRACTION=0.9 timeout 200 python3 benchmarks/sweep_throughput.py \
           --preset gpu --num-envs 512 --batch-size 1024 --replay-size 1000000 --chunk 10 \
