@@ -37,6 +37,7 @@
 #   bash benchmarks/gpu_session.sh compile-parts      # Hopper's first minute, part by part
 #   bash benchmarks/gpu_session.sh sweep-precision    # a 16-member sweep, TF32 against bf16
 #   bash benchmarks/gpu_session.sh sweep-triton       # sweeps with cuBLAS against Triton GEMMs
+#   bash benchmarks/gpu_session.sh cheetah-explore    # HalfCheetah's stuck seed, wider noise
 # Every run of a call shares the one GPU (XLA_PYTHON_CLIENT_MEM_FRACTION=0.1 each). The device
 # tool's calls run it as
 #   timeout 570 bash benchmarks/gpu_session.sh PHASES > $OUT/session.log 2>&1;
@@ -378,6 +379,16 @@ for phase in "$@"; do
       tune cpu_r8_mixed_b128 --train replay_ratio=8 --train batch_size=128
       tune cpu_r8_mixed_w128_b512 --train replay_ratio=8 --train batch_size=512 "${SMALL[@]}"
       ;;
+    cheetah-explore)
+      # HalfCheetah's seed 2, which stood still (about 1,000) for all of its 17.5M env steps
+      # with the gpu preset, with wider exploration: mixed noise up to 0.8 instead of 0.4, and
+      # from 0.2 to 0.6. Two runs sharing the GPU, 8.3 min each, stopping at 3,000.
+      export XLA_PYTHON_CLIENT_MEM_FRACTION=0.45
+      T=(benchmarks/time_to_score.py HalfCheetah --kind gpu --cpu-devices 1 --seeds 2
+         --minutes 8.3)
+      tune cheetah_seed2_sigma0.8 --set sigma=0.8
+      tune cheetah_seed2_sigma0.2to0.6 --set sigma=0.6 --set sigma_min=0.2
+      ;;
     member-layout)
       # A sweep's envs stepped nested under a member vmap (the trainer's way) or as one flat
       # batch, the physics alone on the GPU.
@@ -458,7 +469,7 @@ for phase in "$@"; do
       # variants through the stability check.
       for v in "all 4/4" "all 4/2" "all 3/3" "legs 3/3"; do stable "$BEFORE_ARMATURE $v"; done
       ;;
-    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, humanoid-capture, humanoid-limits, humanoid-armature, humanoid-confirm, mpo-pairN, sweep-throughput, peers, scaling, scaling-rest, sweep-collect, screen-hopper, screen-humanoid, humanoid-solve, tts-ROBOT, hopper-cold, cold-ROBOT, cpu-tune2, cpu-tune3, member-layout, collect-parts, cpu60-ROBOT, compile-parts, sweep-precision, sweep-triton, wait" >&2
+    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, humanoid-capture, humanoid-limits, humanoid-armature, humanoid-confirm, mpo-pairN, sweep-throughput, peers, scaling, scaling-rest, sweep-collect, screen-hopper, screen-humanoid, humanoid-solve, tts-ROBOT, hopper-cold, cold-ROBOT, cpu-tune2, cpu-tune3, member-layout, collect-parts, cpu60-ROBOT, compile-parts, sweep-precision, sweep-triton, cheetah-explore, wait" >&2
        exit 2 ;;
   esac
 done
