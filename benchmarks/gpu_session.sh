@@ -381,12 +381,13 @@ for phase in "$@"; do
       ;;
     cheetah-explore)
       # HalfCheetah's seed 2, which stood still (about 1,000) for all of its 17.5M env steps
-      # with the gpu preset, with wider exploration: mixed noise up to 0.8 instead of 0.4, and
-      # from 0.2 to 0.6. Two runs sharing the GPU, 8.3 min each, stopping at 3,000.
+      # with the shared gpu preset's stds (0.05 to 0.4), with wider exploration: stds 0.05 to
+      # 0.8, and 0.2 to 0.6 (what its preset now has). Two runs sharing the GPU, 8.3 min each,
+      # stopping at 3,000.
       export XLA_PYTHON_CLIENT_MEM_FRACTION=0.45
       T=(benchmarks/time_to_score.py HalfCheetah --kind gpu --cpu-devices 1 --seeds 2
          --minutes 8.3)
-      tune cheetah_seed2_sigma0.8 --set sigma=0.8
+      tune cheetah_seed2_sigma0.8 --set sigma=0.8 --set sigma_min=0.05
       tune cheetah_seed2_sigma0.2to0.6 --set sigma=0.6 --set sigma_min=0.2
       ;;
     member-layout)
@@ -442,6 +443,8 @@ for phase in "$@"; do
       # sweep-throughput's 16-member sweep with XLA's default float32 products (TF32 on an
       # H100) and with bfloat16 inputs accumulated in float32 (JAX_DEFAULT_MATMUL_PRECISION's
       # dot algorithm BF16_BF16_F32; its "bfloat16" level is XLA's default), alone on the GPU.
+      # As run on 2026-11-24 both had XLA's Triton GEMM fusions (mjx_hopper turned them off
+      # after); XLA_FLAGS=--xla_gpu_enable_triton_gemm=true reruns it so.
       for precision in default BF16_BF16_F32; do
         env $([ $precision = default ] || echo JAX_DEFAULT_MATMUL_PRECISION=$precision) \
           XLA_PYTHON_CLIENT_MEM_FRACTION=0.9 timeout 150 python3 benchmarks/sweep_throughput.py \
