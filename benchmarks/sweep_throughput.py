@@ -87,16 +87,13 @@ def main() -> None:
   p.add_argument("--out", default="benchmarks/results/sweep_throughput_cpu.json")
   p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
   args = p.parse_args()
+  import mjx_hopper  # its own imports only: JAX starts in measure
   if args.worker:
     args.members = int(args.members)
-    import mjx_hopper
     mjx_hopper.use_compile_cache()
     print(json.dumps(measure(args)))
     return
-  flags = [f for f in os.environ.get("XLA_FLAGS", "").split()
-           if not f.startswith("--xla_force_host_platform_device_count")]
-  env = dict(os.environ, XLA_FLAGS=" ".join(
-      flags + [f"--xla_force_host_platform_device_count={args.cpu_devices}"]))
+  env = dict(os.environ, XLA_FLAGS=mjx_hopper.xla_flags_with_cpu_devices(args.cpu_devices))
   rows = []
   settings = [f"--{name.replace('_', '-')}={value}" for name, value in vars(args).items()
               if name not in ("members", "worker", "out", "cpu_devices", "collect_only")]

@@ -143,14 +143,11 @@ def main() -> None:
   if args.render_only:
     print("\n".join(render(args.render_only)))
     return
-  os.environ["XLA_FLAGS"] = " ".join(
-      [f for f in os.environ.get("XLA_FLAGS", "").split()
-       if not f.startswith("--xla_force_host_platform_device_count")]
-      + [f"--xla_force_host_platform_device_count={args.cpu_devices}"])
+  import mjx_hopper  # its own imports only: JAX starts later
+  os.environ["XLA_FLAGS"] = mjx_hopper.xla_flags_with_cpu_devices(args.cpu_devices)
   t0 = time.perf_counter()
   import jax
 
-  import mjx_hopper
   from mjx_hopper import cli, loop, presets
   if not args.no_compile_cache:
     mjx_hopper.use_compile_cache()

@@ -24,6 +24,14 @@ if "xla_gpu_enable_triton_gemm" not in os.environ.get("XLA_FLAGS", ""):
 __version__ = "0.1.0"
 
 
+def xla_flags_with_cpu_devices(count: int) -> str:
+  """$XLA_FLAGS with XLA:CPU split into `count` devices (replacing any count it sets); for a
+  process to set before JAX starts its backends, or to give a process it starts."""
+  flag = "--xla_force_host_platform_device_count"
+  kept = [f for f in os.environ.get("XLA_FLAGS", "").split() if not f.startswith(flag)]
+  return " ".join(kept + [f"{flag}={count}"])
+
+
 def _cpu_features() -> str:
   """The host CPU's instruction-set features as the kernel reports them (Linux: the flags of
   /proc/cpuinfo, which come from cpuid, as LLVM's host-feature detection does), else what

@@ -22,11 +22,8 @@ def _setup_jax(cpu_devices: int) -> None:
   """
   if cpu_devices < 1:
     raise SystemExit(f"--cpu-devices must be >= 1, got {cpu_devices}")
-  flag = f"--xla_force_host_platform_device_count={cpu_devices}"
-  os.environ["XLA_FLAGS"] = " ".join(
-      [f for f in os.environ.get("XLA_FLAGS", "").split()
-       if not f.startswith("--xla_force_host_platform_device_count")] + [flag])
   import mjx_hopper
+  os.environ["XLA_FLAGS"] = mjx_hopper.xla_flags_with_cpu_devices(cpu_devices)
   mjx_hopper.use_compile_cache()
 
 

@@ -182,15 +182,14 @@ def run(cfg: RunConfig, checkpoint_dir: str | None = None, progress: bool = True
   keys = jax.ShapeDtypeStruct((len(members), 2), jnp.uint32)
 
   def start_compiling():
-    # A future of (the compiled chunk, a future of the compiled evaluation).
+    # Futures of (the compiled chunk, the compiled evaluation).
     pool = concurrent.futures.ThreadPoolExecutor(2)
-
-    def compile_both():
-      lowered = trainer.train_chunk.lower(shapes)
-      evaluator = pool.submit(lambda: trainer.evaluate.lower(shapes.agent, keys).compile())
-      pool.shutdown(wait=False)
-      return lowered.compile(), evaluator
-    return pool.submit(compile_both)
+    lowered = pool.submit(trainer.train_chunk.lower, shapes)
+    chunk = pool.submit(lambda: lowered.result().compile())
+    # Queued behind the chunk's tracing: it starts when that thread is free.
+    evaluator = pool.submit(lambda: trainer.evaluate.lower(shapes.agent, keys).compile())
+    pool.shutdown(wait=False)
+    return chunk, evaluator
 
   newest = (mngr.latest_step() or 0) * steps_per_iteration
   programs = start_compiling() if newest < cfg.total_env_steps else None
@@ -229,7 +228,7 @@ def run(cfg: RunConfig, checkpoint_dir: str | None = None, progress: bool = True
 
   def evaluate():
     _status(bar, "evaluating")
-    result = jax.device_get(programs.result()[1].result()(state.agent, eval_keys()))
+    result = jax.device_get(programs[1].result()(state.agent, eval_keys()))
     for m in range(len(members)):
       logger.write({"kind": "eval", **tags(m), "env_steps": env_steps,
                     "wall_s": time.perf_counter() - t_start,
@@ -246,7 +245,7 @@ def run(cfg: RunConfig, checkpoint_dir: str | None = None, progress: bool = True
     while (env_steps < cfg.total_env_steps and not stop.requested
            and time.perf_counter() < deadline and not reached.all()):
       t0 = time.perf_counter()
-      state, metrics = programs.result()[0](state)
+      state, metrics = programs[0].result()(state)
       metrics = jax.device_get(metrics)
       env_steps = train.iterations(state) * steps_per_iteration
       rate = per_chunk * len(members) / (time.perf_counter() - t0)

@@ -63,7 +63,7 @@ PRESETS: dict[tuple[str, str], Preset] = {
     ("Walker2D", "gpu"): Preset(**_GPU, target=2500.0, minutes=4.0, why=_GPU_WHY),
     ("HalfCheetah", "cpu"): Preset(**_CPU, target=3000.0, minutes=60.0, why=_CPU_UNTUNED),
     # Wider noise, stds from 0.2 to 0.6: with 0.05 to 0.4, two seeds of three stood still (about
-    # 1,000) for 12M and 17.5M env steps; with 0.2 to 0.6 all three passed 3,000 by 8.6M.
+    # 1,000) for 12M and 17.5M env steps; with 0.2 to 0.6 all three passed 3,000 by 9.0M.
     ("HalfCheetah", "gpu"): Preset(**{**_GPU, "agent_overrides": {"sigma": 0.6, "sigma_min": 0.2}},
                                    target=3000.0, minutes=5.0, why=(
         "1,024 envs, 8 updates of 8,192 per iteration (ratio 64), mixed noise 0.2 to 0.6: the "
