@@ -38,6 +38,7 @@
 #   bash benchmarks/gpu_session.sh sweep-precision    # a 16-member sweep, TF32 against bf16
 #   bash benchmarks/gpu_session.sh sweep-triton       # sweeps with cuBLAS against Triton GEMMs
 #   bash benchmarks/gpu_session.sh cheetah-explore    # HalfCheetah's stuck seed, wider noise
+#   bash benchmarks/gpu_session.sh hopper-seeds wait  # Hopper's 5 seeds, preset and wider noise
 # Every run of a call shares the one GPU (XLA_PYTHON_CLIENT_MEM_FRACTION=0.1 each). The device
 # tool's calls run it as
 #   timeout 570 bash benchmarks/gpu_session.sh PHASES > $OUT/session.log 2>&1;
@@ -390,6 +391,17 @@ for phase in "$@"; do
       tune cheetah_seed2_sigma0.8 --set sigma=0.8 --set sigma_min=0.05
       tune cheetah_seed2_sigma0.2to0.6 --set sigma=0.6 --set sigma_min=0.2
       ;;
+    hopper-seeds)
+      # Hopper's five seeds with its gpu preset, and with HalfCheetah's wider noise (stds 0.2 to
+      # 0.6), each five seeds in one program (--at-once), the two sharing the GPU, until 2,500 or
+      # 6M env steps: the env steps each seed needs, which the 90 s target caps at about 6M
+      # (60 s at 98k env steps/s after 30 s of start). Seed 3 peaked at 1,800 in 7M alone.
+      export XLA_PYTHON_CLIENT_MEM_FRACTION=0.45
+      T=(benchmarks/time_to_score.py Hopper --kind gpu --cpu-devices 1 --seeds 0,1,2,3,4 --at-once
+         --minutes 8.6 --env-steps 6000000)
+      tune hopper_seeds_preset
+      tune hopper_seeds_sigma0.2to0.6 --set sigma=0.6 --set sigma_min=0.2
+      ;;
     member-layout)
       # A sweep's envs stepped nested under a member vmap (the trainer's way) or as one flat
       # batch, the physics alone on the GPU.
@@ -472,7 +484,7 @@ for phase in "$@"; do
       # variants through the stability check.
       for v in "all 4/4" "all 4/2" "all 3/3" "legs 3/3"; do stable "$BEFORE_ARMATURE $v"; done
       ;;
-    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, humanoid-capture, humanoid-limits, humanoid-armature, humanoid-confirm, mpo-pairN, sweep-throughput, peers, scaling, scaling-rest, sweep-collect, screen-hopper, screen-humanoid, humanoid-solve, tts-ROBOT, hopper-cold, cold-ROBOT, cpu-tune2, cpu-tune3, member-layout, collect-parts, cpu60-ROBOT, compile-parts, sweep-precision, sweep-triton, cheetah-explore, wait" >&2
+    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, humanoid-capture, humanoid-limits, humanoid-armature, humanoid-confirm, mpo-pairN, sweep-throughput, peers, scaling, scaling-rest, sweep-collect, screen-hopper, screen-humanoid, humanoid-solve, tts-ROBOT, hopper-cold, cold-ROBOT, cpu-tune2, cpu-tune3, member-layout, collect-parts, cpu60-ROBOT, compile-parts, sweep-precision, sweep-triton, cheetah-explore, hopper-seeds, wait" >&2
        exit 2 ;;
   esac
 done
