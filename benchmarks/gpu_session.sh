@@ -39,6 +39,7 @@
 #   bash benchmarks/gpu_session.sh sweep-triton       # sweeps with cuBLAS against Triton GEMMs
 #   bash benchmarks/gpu_session.sh cheetah-explore    # HalfCheetah's stuck seed, wider noise
 #   bash benchmarks/gpu_session.sh hopper-seeds wait  # Hopper's 5 seeds, preset and wider noise
+#   bash benchmarks/gpu_session.sh cheetah-cpu-explore wait  # HalfCheetah's cpu preset, 3 noises
 # Every run of a call shares the one GPU (XLA_PYTHON_CLIENT_MEM_FRACTION=0.1 each). The device
 # tool's calls run it as
 #   timeout 570 bash benchmarks/gpu_session.sh PHASES > $OUT/session.log 2>&1;
@@ -402,6 +403,18 @@ for phase in "$@"; do
       tune hopper_seeds_preset
       tune hopper_seeds_sigma0.2to0.6 --set sigma=0.6 --set sigma_min=0.2
       ;;
+    cheetah-cpu-explore)
+      # HalfCheetah's cpu preset (one std, 0.3), which stood still (about 1,000) for its first
+      # 15 emulated CPU-minutes (cpu60-HalfCheetah), against mixed noise with stds 0.2 to 0.6
+      # (its gpu preset's) and 0.05 to 0.4, seed 0, three sharing the GPU, until 3,000 or the
+      # env steps of 60 CPU-minutes: which the hour on the 2-core CPU should run.
+      export XLA_PYTHON_CLIENT_MEM_FRACTION=0.3
+      T=(benchmarks/time_to_score.py HalfCheetah --kind cpu --cpu-devices 1 --seeds 0
+         --minutes 8.6 --env-steps 30800000)
+      tune cheetah_cpu_sigma0.3
+      tune cheetah_cpu_sigma0.2to0.6 --set sigma=0.6 --set sigma_min=0.2
+      tune cheetah_cpu_sigma0.05to0.4 --set sigma=0.4 --set sigma_min=0.05
+      ;;
     member-layout)
       # A sweep's envs stepped nested under a member vmap (the trainer's way) or as one flat
       # batch, the physics alone on the GPU.
@@ -484,7 +497,7 @@ for phase in "$@"; do
       # variants through the stability check.
       for v in "all 4/4" "all 4/2" "all 3/3" "legs 3/3"; do stable "$BEFORE_ARMATURE $v"; done
       ;;
-    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, humanoid-capture, humanoid-limits, humanoid-armature, humanoid-confirm, mpo-pairN, sweep-throughput, peers, scaling, scaling-rest, sweep-collect, screen-hopper, screen-humanoid, humanoid-solve, tts-ROBOT, hopper-cold, cold-ROBOT, cpu-tune2, cpu-tune3, member-layout, collect-parts, cpu60-ROBOT, compile-parts, sweep-precision, sweep-triton, cheetah-explore, hopper-seeds, wait" >&2
+    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, humanoid-capture, humanoid-limits, humanoid-armature, humanoid-confirm, mpo-pairN, sweep-throughput, peers, scaling, scaling-rest, sweep-collect, screen-hopper, screen-humanoid, humanoid-solve, tts-ROBOT, hopper-cold, cold-ROBOT, cpu-tune2, cpu-tune3, member-layout, collect-parts, cpu60-ROBOT, compile-parts, sweep-precision, sweep-triton, cheetah-explore, hopper-seeds, cheetah-cpu-explore, wait" >&2
        exit 2 ;;
   esac
 done
