@@ -31,6 +31,7 @@
 #   bash benchmarks/gpu_session.sh cold-Hopper:1.6    # ... alone, no autotuning run after them
 #   bash benchmarks/gpu_session.sh cpu-tune2          # CPU layouts for Hopper, emulated
 #   bash benchmarks/gpu_session.sh cpu-tune3          # ... with smaller networks
+#   bash benchmarks/gpu_session.sh cpu-tune4 wait     # ... learning rates, n-step, target copies
 #   bash benchmarks/gpu_session.sh member-layout      # members' envs nested or flat, alone
 #   bash benchmarks/gpu_session.sh collect-parts      # a sweep's collection, part by part, alone
 #   bash benchmarks/gpu_session.sh cpu60-Walker2D cpu60-Ant   # 60-minute CPU runs, emulated
@@ -381,6 +382,21 @@ for phase in "$@"; do
       tune cpu_r8_mixed_b128 --train replay_ratio=8 --train batch_size=128
       tune cpu_r8_mixed_w128_b512 --train replay_ratio=8 --train batch_size=512 "${SMALL[@]}"
       ;;
+    cpu-tune4)
+      # cpu-tune2's best per CPU second at full width (ratio 4, mixed noise 0.05 to 0.4) against
+      # faster learning rates, 3-step returns, a target copied every 20 updates, and ratio 2
+      # with a learning rate of 1e-3 (about 0.7 of ratio 4's CPU cost per env step). 2 seeds
+      # each (one program), until 2,000 or 5M env steps, six at once.
+      export XLA_PYTHON_CLIENT_MEM_FRACTION=0.15
+      T=(benchmarks/time_to_score.py Hopper --kind cpu --cpu-devices 1 --seeds 0,1 --at-once
+         --minutes "${TUNE_MINUTES:-8.6}" --env-steps 5000000 --set sigma=0.4 --set sigma_min=0.05)
+      tune cpu_r4_mixed
+      tune cpu_r4_mixed_lr6e-4 --set learning_rate=6e-4
+      tune cpu_r4_mixed_lr1e-3 --set learning_rate=1e-3
+      tune cpu_r4_mixed_n3 --set n_step=3
+      tune cpu_r4_mixed_target20 --set target_update_period=20
+      tune cpu_r2_mixed_lr1e-3 --train replay_ratio=2 --set learning_rate=1e-3
+      ;;
     cheetah-explore)
       # HalfCheetah's seed 2, which stood still (about 1,000) for all of its 17.5M env steps
       # with the shared gpu preset's stds (0.05 to 0.4), with wider exploration: stds 0.05 to
@@ -497,7 +513,7 @@ for phase in "$@"; do
       # variants through the stability check.
       for v in "all 4/4" "all 4/2" "all 3/3" "legs 3/3"; do stable "$BEFORE_ARMATURE $v"; done
       ;;
-    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, humanoid-capture, humanoid-limits, humanoid-armature, humanoid-confirm, mpo-pairN, sweep-throughput, peers, scaling, scaling-rest, sweep-collect, screen-hopper, screen-humanoid, humanoid-solve, tts-ROBOT, hopper-cold, cold-ROBOT, cpu-tune2, cpu-tune3, member-layout, collect-parts, cpu60-ROBOT, compile-parts, sweep-precision, sweep-triton, cheetah-explore, hopper-seeds, cheetah-cpu-explore, wait" >&2
+    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, humanoid-capture, humanoid-limits, humanoid-armature, humanoid-confirm, mpo-pairN, sweep-throughput, peers, scaling, scaling-rest, sweep-collect, screen-hopper, screen-humanoid, humanoid-solve, tts-ROBOT, hopper-cold, cold-ROBOT, cpu-tune2, cpu-tune3, cpu-tune4, member-layout, collect-parts, cpu60-ROBOT, compile-parts, sweep-precision, sweep-triton, cheetah-explore, hopper-seeds, cheetah-cpu-explore, wait" >&2
        exit 2 ;;
   esac
 done
