@@ -412,7 +412,7 @@ for phase in "$@"; do
       # Hopper's five seeds with its gpu preset, and with HalfCheetah's wider noise (stds 0.2 to
       # 0.6), each five seeds in one program (--at-once), the two sharing the GPU, until 2,500 or
       # 6M env steps: the env steps each seed needs, which the 90 s target caps at about 6M
-      # (60 s at 98k env steps/s after 30 s of start). Seed 3 peaked at 1,800 in 7M alone.
+      # (60 s at 98k env steps/s after 30 s of start). Seed 3 peaked at 1,800 in 5.84M alone.
       export XLA_PYTHON_CLIENT_MEM_FRACTION=0.45
       T=(benchmarks/time_to_score.py Hopper --kind gpu --cpu-devices 1 --seeds 0,1,2,3,4 --at-once
          --minutes 8.6 --env-steps 6000000)
