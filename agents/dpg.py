@@ -18,9 +18,14 @@ from mjx_hopper.agents.base import (Agent, CommonConfig, hparams, optimizer, pme
                                     update_targets)
 
 
+# |pre-tanh action| above which the tanh's slope is below 0.01: the "policy_saturated" metric is
+# the fraction of a batch's actions past it.
+_SATURATED = 3.0
+
+
 @dataclasses.dataclass(frozen=True)
 class Config(CommonConfig):
-  DYNAMIC: ClassVar[tuple[str, ...]] = CommonConfig.DYNAMIC + ("sigma",)
+  DYNAMIC: ClassVar[tuple[str, ...]] = CommonConfig.DYNAMIC + ("sigma", "action_penalty")
 
   sigma: float = 0.3                 # std of the Gaussian exploration noise
   # Mixed exploration noise (FastTD3's): env i of n explores at std sigma_min + (sigma -
@@ -31,6 +36,10 @@ class Config(CommonConfig):
   # target of the critic whose next-state value is lowest, and the policy ascends the lowest
   # value, which curbs the overestimation that a deterministic policy exploits.
   num_critics: int = 1
+  # Weight of the mean squared pre-tanh action in the policy loss. It keeps the policy out of
+  # the tanh's flat tails, where an early overestimating critic can pin it: there the policy
+  # gradient vanishes while Adam still remembers the large first gradients. 0: acme's loss.
+  action_penalty: float = 0.0
 
   def __post_init__(self):
     super().__post_init__()
@@ -39,6 +48,8 @@ class Config(CommonConfig):
     if self.sigma_min is not None and not 0 <= self.sigma_min <= self.sigma:
       raise ValueError(f"sigma_min must be None or in [0, sigma={self.sigma}], got "
                        f"{self.sigma_min}")
+    if not self.action_penalty >= 0:
+      raise ValueError(f"action_penalty must be >= 0, got {self.action_penalty}")
     if not isinstance(self.num_critics, int) or self.num_critics < 1:
       raise ValueError(f"num_critics must be an integer >= 1, got {self.num_critics!r}")
 
@@ -117,8 +128,10 @@ def make(obs_size: int, action_size: int, cfg: Config,
 
   def policy_loss(policy_params, state, batch, head):
     # As acme's learners, the deterministic policy gradient is taken at the next observations.
-    action = policy_net.apply(policy_params, batch.next_obs)
-    return -lowest_value(head, critic_apply(state.critic, batch.next_obs, action)).mean()
+    pre = policy_net.apply(policy_params, batch.next_obs, squash=False)
+    value = lowest_value(head, critic_apply(state.critic, batch.next_obs, jnp.tanh(pre)))
+    loss = -value.mean() + state.hparams["action_penalty"] * jnp.mean(pre ** 2)
+    return loss, jnp.mean(jnp.abs(pre) > _SATURATED)
 
   def update(state, batch, key, axis_name=None):
     del key  # the update is deterministic given the batch
@@ -127,7 +140,8 @@ def make(obs_size: int, action_size: int, cfg: Config,
     opt = optimizer(hp["learning_rate"], hp["max_grad_norm"])
     (c_loss, q), c_grads = jax.value_and_grad(critic_loss, has_aux=True)(state.critic, state,
                                                                         batch, head)
-    p_loss, p_grads = jax.value_and_grad(policy_loss)(state.policy, state, batch, head)
+    (p_loss, saturated), p_grads = jax.value_and_grad(policy_loss, has_aux=True)(
+        state.policy, state, batch, head)
     c_grads, p_grads = pmean((c_grads, p_grads), axis_name)
     c_updates, critic_opt = opt.update(c_grads, state.critic_opt)
     p_updates, policy_opt = opt.update(p_grads, state.policy_opt)
@@ -142,7 +156,7 @@ def make(obs_size: int, action_size: int, cfg: Config,
     metrics = {"critic_loss": c_loss, "policy_loss": p_loss, "q_mean": q.mean(),
                "q_min": q.min(), "q_max": q.max(),
                "critic_grad_norm": optax.tree.norm(c_grads),
-               "policy_grad_norm": optax.tree.norm(p_grads)}
+               "policy_grad_norm": optax.tree.norm(p_grads), "policy_saturated": saturated}
     return new, pmean(metrics, axis_name)
 
   return Agent(init=init, act=act, policy=policy, update=update, n_step=cfg.n_step,

@@ -41,6 +41,8 @@
 #   bash benchmarks/gpu_session.sh cheetah-explore    # HalfCheetah's stuck seed, wider noise
 #   bash benchmarks/gpu_session.sh hopper-seeds wait  # Hopper's 5 seeds, preset and wider noise
 #   bash benchmarks/gpu_session.sh cheetah-cpu-explore wait  # HalfCheetah's cpu preset, 3 noises
+#   bash benchmarks/gpu_session.sh projection-cost cpu-tune5 wait  # D4PG's projection, 2 ways;
+#                                                     # the cpu layout with an action penalty
 # Every run of a call shares the one GPU (XLA_PYTHON_CLIENT_MEM_FRACTION=0.1 each). The device
 # tool's calls run it as
 #   timeout 570 bash benchmarks/gpu_session.sh PHASES > $OUT/session.log 2>&1;
@@ -396,6 +398,31 @@ for phase in "$@"; do
       tune cpu_r4_mixed_n3 --set n_step=3
       tune cpu_r4_mixed_target20 --set target_update_period=20
       tune cpu_r2_mixed_lr1e-3 --train replay_ratio=2 --set learning_rate=1e-3
+      ;;
+    projection-cost)
+      # D4PG's categorical projection as scatter-adds against a fused dense sum, alone and in
+      # an update, up to a 16-member sweep's 131k samples per update (alone on the GPU).
+      XLA_PYTHON_CLIENT_MEM_FRACTION=0.6 timeout 120 python3 benchmarks/research/projection_cost.py \
+        --batches 1024,8192,32768,131072 --json "$WORK/projection_cost_gpu.json" \
+        > "$WORK/projection_cost_gpu.txt" 2>&1
+      cat "$WORK/projection_cost_gpu.txt"
+      ;;
+    cpu-tune5)
+      # The cpu layout's policy saturates early on some seeds (its tanh pinned at +-1 within the
+      # first 512 updates, the policy gradient about 0.001 until 500k env steps): the shipped
+      # preset against a penalty on the pre-tanh actions of 0.01, 0.1 and 1, and 0.1 with
+      # mixed noise, at learning rates 3e-4 and 1e-3. 4 seeds each (one program), until 2,000
+      # or 5M env steps, six at once.
+      export XLA_PYTHON_CLIENT_MEM_FRACTION=0.15
+      T=(benchmarks/time_to_score.py Hopper --kind cpu --cpu-devices 1 --seeds 0,1,2,3 --at-once
+         --minutes "${TUNE_MINUTES:-7}" --env-steps 5000000)
+      MIXED=(--set sigma=0.4 --set sigma_min=0.05)
+      tune cpu_r4
+      tune cpu_r4_pen0.01 --set action_penalty=0.01
+      tune cpu_r4_pen0.1 --set action_penalty=0.1
+      tune cpu_r4_pen1 --set action_penalty=1
+      tune cpu_r4_mixed_pen0.1 --set action_penalty=0.1 "${MIXED[@]}"
+      tune cpu_r4_mixed_pen0.1_lr1e-3 --set action_penalty=0.1 --set learning_rate=1e-3 "${MIXED[@]}"
       ;;
     cheetah-explore)
       # HalfCheetah's seed 2, which stood still (about 1,000) for all of its 17.5M env steps

@@ -36,14 +36,15 @@ class LayerNormMLP(nn.Module):
 
 class TanhPolicy(nn.Module):
   """A deterministic policy: LayerNormMLP(hidden + (A,)) squashed by tanh to the action
-  spec [-1, 1] (acme's TanhToSpec)."""
+  spec [-1, 1] (acme's TanhToSpec). With `squash=False` it returns the pre-tanh outputs."""
 
   hidden: Sequence[int]
   action_size: int
 
   @nn.compact
-  def __call__(self, obs: jax.Array) -> jax.Array:
-    return jnp.tanh(LayerNormMLP(tuple(self.hidden) + (self.action_size,))(obs))
+  def __call__(self, obs: jax.Array, squash: bool = True) -> jax.Array:
+    pre = LayerNormMLP(tuple(self.hidden) + (self.action_size,))(obs)
+    return jnp.tanh(pre) if squash else pre
 
 
 class Critic(nn.Module):
