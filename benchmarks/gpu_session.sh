@@ -43,6 +43,9 @@
 #   bash benchmarks/gpu_session.sh cheetah-cpu-explore wait  # HalfCheetah's cpu preset, 3 noises
 #   bash benchmarks/gpu_session.sh projection-cost cpu-tune5 wait  # D4PG's projection, 2 ways;
 #                                                     # the cpu layout with an action penalty
+#   bash benchmarks/gpu_session.sh cpu-tune6 wait     # ... around cpu-tune5's best
+#   bash benchmarks/gpu_session.sh cpu-tune7 wait     # the new Hopper cpu preset's seeds, 3 variants
+#   bash benchmarks/gpu_session.sh hopper-pen wait    # Hopper's gpu preset with an action penalty
 # Every run of a call shares the one GPU (XLA_PYTHON_CLIENT_MEM_FRACTION=0.1 each). The device
 # tool's calls run it as
 #   timeout 570 bash benchmarks/gpu_session.sh PHASES > $OUT/session.log 2>&1;
@@ -424,6 +427,38 @@ for phase in "$@"; do
       tune cpu_r4_mixed_pen0.1 --set action_penalty=0.1 "${MIXED[@]}"
       tune cpu_r4_mixed_pen0.1_lr1e-3 --set action_penalty=0.1 --set learning_rate=1e-3 "${MIXED[@]}"
       ;;
+    cpu-tune6)
+      # Around cpu-tune5's best (penalty 0.1, mixed noise, learning rate 1e-3): four new seeds;
+      # penalty 1; replay ratio 2 (cheaper per env step on the CPU); constant noise; learning
+      # rate 2e-3. 4 seeds each (one program), until 2,000 or 5M env steps, six at once.
+      export XLA_PYTHON_CLIENT_MEM_FRACTION=0.15
+      T=(benchmarks/time_to_score.py Hopper --kind cpu --cpu-devices 1 --at-once
+         --minutes "${TUNE_MINUTES:-7}" --env-steps 5000000 --set learning_rate=1e-3)
+      MIXED=(--set sigma=0.4 --set sigma_min=0.05)
+      tune cpu_r4_mixed_pen0.1_lr1e-3_seeds4-7 --seeds 4,5,6,7 --set action_penalty=0.1 "${MIXED[@]}"
+      tune cpu_r4_mixed_pen1_lr1e-3 --seeds 0,1,2,3 --set action_penalty=1 "${MIXED[@]}"
+      tune cpu_r2_mixed_pen0.1_lr1e-3 --seeds 0,1,2,3 --set action_penalty=0.1 "${MIXED[@]}" \
+        --train replay_ratio=2
+      tune cpu_r2_mixed_pen1_lr1e-3 --seeds 0,1,2,3 --set action_penalty=1 "${MIXED[@]}" \
+        --train replay_ratio=2
+      tune cpu_r4_pen0.1_lr1e-3 --seeds 0,1,2,3 --set action_penalty=0.1
+      tune cpu_r4_mixed_pen0.1_lr2e-3 --seeds 0,1,2,3 --set action_penalty=0.1 "${MIXED[@]}" \
+        --set learning_rate=2e-3
+      ;;
+    cpu-tune7)
+      # Around cpu-tune6's best (penalty 0.1, mixed noise, learning rate 2e-3: 1.54M env steps
+      # to 2,000 on average; on the 2-core CPU 4 seeds of 5 within 5 minutes, seed 3 stuck near
+      # 300 to 700): eight new seeds of it; and eight seeds each of one std (0.3), penalty 1,
+      # learning rate 3e-3. Each one program, until 2,000 or 5M env steps, four at once.
+      export XLA_PYTHON_CLIENT_MEM_FRACTION=0.2
+      T=(benchmarks/time_to_score.py Hopper --kind cpu --cpu-devices 1 --at-once
+         --minutes "${TUNE_MINUTES:-7}" --env-steps 5000000)
+      S=(--seeds 0,1,2,3,4,5,6,7)
+      tune cpu_preset_seeds8-15 --seeds 8,9,10,11,12,13,14,15
+      tune cpu_preset_sigma0.3 "${S[@]}" --set sigma=0.3 --set sigma_min=None
+      tune cpu_preset_pen1 "${S[@]}" --set action_penalty=1
+      tune cpu_preset_lr3e-3 "${S[@]}" --set learning_rate=3e-3
+      ;;
     cheetah-explore)
       # HalfCheetah's seed 2, which stood still (about 1,000) for all of its 17.5M env steps
       # with the shared gpu preset's stds (0.05 to 0.4), with wider exploration: stds 0.05 to
@@ -445,6 +480,16 @@ for phase in "$@"; do
          --minutes 8.6 --env-steps 6000000)
       tune hopper_seeds_preset
       tune hopper_seeds_sigma0.2to0.6 --set sigma=0.6 --set sigma_min=0.2
+      ;;
+    hopper-pen)
+      # hopper-seeds with a penalty on the pre-tanh actions of 0.1 and of 1: two seeds of five
+      # there (0 and 3) had their policy pinned at the tanh's limits (gradient norm about 1e-4)
+      # for 300k to 700k env steps.
+      export XLA_PYTHON_CLIENT_MEM_FRACTION=0.45
+      T=(benchmarks/time_to_score.py Hopper --kind gpu --cpu-devices 1 --seeds 0,1,2,3,4 --at-once
+         --minutes "${TUNE_MINUTES:-8.6}" --env-steps 6000000)
+      tune hopper_seeds_pen0.1 --set action_penalty=0.1
+      tune hopper_seeds_pen1 --set action_penalty=1
       ;;
     cheetah-cpu-explore)
       # HalfCheetah's cpu preset (one std, 0.3), which stood still (about 1,000) for its first

@@ -122,6 +122,54 @@ def test_clipped_double_q_matches_reference(name):
   assert float(metrics["policy_loss"]) == pytest.approx(-lowest.mean(), rel=1e-4, abs=1e-5)
 
 
+@pytest.mark.parametrize("penalty", [0.0, 0.3])
+def test_policy_loss_and_saturation_match_reference(name, penalty):
+  """The policy loss is minus the critic's value of the policy's actions at the next
+  observations, plus action_penalty times the mean squared pre-tanh action; policy_saturated is
+  the fraction of pre-tanh actions beyond +-3."""
+  cfg = dataclasses.replace(SMALL[name], action_penalty=penalty)
+  agent = agents.make(name, OBS, ACT, cfg)
+  state = agent.init(jax.random.PRNGKey(5))
+  # Scale the policy's last layer so that some of its actions saturate and some do not.
+  last = f"Dense_{len(cfg.policy_layers)}"
+  state = state._replace(policy=jax.tree_util.tree_map_with_path(
+      lambda path, x: x * 15.0 if last in jax.tree_util.keystr(path) else x, state.policy))
+  batch = random_batch(jax.random.PRNGKey(6), batch=256)
+  _, metrics = jax.jit(agent.update)(state, batch, jax.random.PRNGKey(0))
+
+  policy_net = networks.TanhPolicy(cfg.policy_layers, ACT)
+  pre = np.asarray(policy_net.apply(state.policy, batch.next_obs, squash=False), np.float64)
+  out = np.asarray(critic_net(name).apply(state.critic, batch.next_obs, np.tanh(pre)), np.float64)
+  if name == "d4pg":
+    probs = np.exp(out) / np.exp(out).sum(-1, keepdims=True)
+    out = (probs * np.linspace(cfg.vmin, cfg.vmax, cfg.num_atoms)).sum(-1)
+  saturated = np.mean(np.abs(pre) > 3.0)
+  assert 0.05 < saturated < 0.95
+  assert float(metrics["policy_saturated"]) == pytest.approx(saturated, abs=1e-6)
+  want = -out.mean() + penalty * np.mean(pre ** 2)
+  assert float(metrics["policy_loss"]) == pytest.approx(want, rel=1e-4, abs=1e-5)
+
+
+def test_action_penalty_pulls_a_saturated_policy_back(name):
+  """From a policy whose tanh is pinned at +-1, updates with a penalty bring its pre-tanh
+  actions back inside +-3, where the critic's gradient reaches it again; without one they
+  stay pinned."""
+  batch = random_batch(jax.random.PRNGKey(7), batch=256)
+  saturated = {}
+  for penalty in (0.0, 1.0):
+    agent = agents.make(name, OBS, ACT, dataclasses.replace(SMALL[name], action_penalty=penalty))
+    state = agent.init(jax.random.PRNGKey(8))
+    last = f"Dense_{len(SMALL[name].policy_layers)}"
+    state = state._replace(policy=jax.tree_util.tree_map_with_path(
+        lambda path, x: x * 30.0 if last in jax.tree_util.keystr(path) else x, state.policy))
+    step = jax.jit(agent.update)
+    for i in range(300):
+      state, metrics = step(state, batch, jax.random.PRNGKey(i))
+    saturated[penalty] = float(metrics["policy_saturated"])
+  assert saturated[0.0] > 0.5
+  assert saturated[1.0] < 0.1
+
+
 def test_mixed_noise_spreads_sigma_over_envs(name):
   """With sigma_min, env i of n explores at sigma_min + (sigma - sigma_min) * i / (n - 1)."""
   cfg = dataclasses.replace(SMALL[name], sigma=0.4, sigma_min=0.05)
@@ -215,6 +263,7 @@ def test_bad_common_config(name, bad, message):
     ("ddpg", {"sigma": -0.1}, "sigma must be >= 0, got -0.1"),
     ("d4pg", {"sigma_min": 0.5}, r"sigma_min must be None or in \[0, sigma=0.3\], got 0.5"),
     ("ddpg", {"num_critics": 0}, "num_critics must be an integer >= 1, got 0"),
+    ("d4pg", {"action_penalty": -0.1}, "action_penalty must be >= 0, got -0.1"),
 ])
 def test_bad_agent_config(name, bad, message):
   with pytest.raises(ValueError, match=message):
