@@ -182,11 +182,19 @@ def load_newest(mngr: ocp.CheckpointManager, load, print_fn=print):
     except ConfigMismatch:
       raise
     except Exception as error:  # noqa: BLE001 - any unreadable step falls back to the previous
-      why = "; ".join(damage(mngr, step)) or f"{type(error).__name__}: {_first_line(error)}"
+      why = "; ".join(damage(mngr, step)) or _why(error)
       print_fn(f"WARNING: checkpoint step {step} in {mngr.directory} is unreadable ({why}); "
                "trying an older one")
   raise ValueError(f"no readable checkpoint in {mngr.directory} (steps {steps}); nothing was "
                    "overwritten: move it aside to start afresh")
+
+
+def _why(error: Exception) -> str:
+  text = f"{type(error).__name__}: {_first_line(error)}"
+  if "tree structures do not match" in str(error):
+    text = ("its training state is laid out otherwise than this version of mjx_hopper's, "
+            "perhaps saved by an older one; " + text)
+  return text
 
 
 def _first_line(error: Exception, limit: int = 300) -> str:

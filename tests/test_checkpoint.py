@@ -1,5 +1,6 @@
 """Checkpoints lose nothing: a kill -9 mid-save, a truncated or deleted file, a wrong config,
-a missing or empty directory; and a resumed run continues bit for bit, in fresh processes."""
+a state laid out otherwise, a missing or empty directory; and a resumed run continues bit for
+bit, in fresh processes."""
 
 import csv
 import os
@@ -92,6 +93,21 @@ def test_every_step_unreadable_is_an_error_that_overwrites_nothing(tmp_path):
   with pytest.raises(ValueError, match="no readable checkpoint .* nothing was overwritten"):
     checkpoint.resume(checkpoint.manager(str(directory)), state(0), CONFIG, print_fn=print)
   assert sorted(os.listdir(directory)) == before
+
+
+def test_a_state_laid_out_otherwise_is_named_and_nothing_is_overwritten(tmp_path):
+  """A checkpoint whose training state has other leaves than this version builds (an older
+  version's, say, before a new dynamic setting) is refused with a warning that says so."""
+  directory = tmp_path / "ckpt"
+  saved_steps(directory, 1)
+  files = checkpoint._files(str(directory))
+  fresh = state(0)
+  fresh = fresh._replace(agent={**fresh.agent, "new_setting": jax.numpy.zeros(())})
+  lines = []
+  with pytest.raises(ValueError, match="no readable checkpoint .* nothing was overwritten"):
+    checkpoint.resume(checkpoint.manager(str(directory)), fresh, CONFIG, print_fn=lines.append)
+  assert len(lines) == 1 and "laid out otherwise than this version of mjx_hopper's" in lines[0]
+  assert checkpoint._files(str(directory)) == files
 
 
 @pytest.mark.parametrize("make", ["missing", "empty"])

@@ -122,6 +122,13 @@ def test_clipped_double_q_matches_reference(name):
   assert float(metrics["policy_loss"]) == pytest.approx(-lowest.mean(), rel=1e-4, abs=1e-5)
 
 
+def scale_policy_output(state, cfg, factor):
+  """The state with its policy's last layer (weights and bias) multiplied by `factor`."""
+  last = f"Dense_{len(cfg.policy_layers)}"
+  return state._replace(policy=jax.tree_util.tree_map_with_path(
+      lambda path, x: x * factor if last in jax.tree_util.keystr(path) else x, state.policy))
+
+
 @pytest.mark.parametrize("penalty", [0.0, 0.3])
 def test_policy_loss_and_saturation_match_reference(name, penalty):
   """The policy loss is minus the critic's value of the policy's actions at the next
@@ -129,11 +136,8 @@ def test_policy_loss_and_saturation_match_reference(name, penalty):
   the fraction of pre-tanh actions beyond +-3."""
   cfg = dataclasses.replace(SMALL[name], action_penalty=penalty)
   agent = agents.make(name, OBS, ACT, cfg)
-  state = agent.init(jax.random.PRNGKey(5))
-  # Scale the policy's last layer so that some of its actions saturate and some do not.
-  last = f"Dense_{len(cfg.policy_layers)}"
-  state = state._replace(policy=jax.tree_util.tree_map_with_path(
-      lambda path, x: x * 15.0 if last in jax.tree_util.keystr(path) else x, state.policy))
+  # Some of its actions saturate and some do not.
+  state = scale_policy_output(agent.init(jax.random.PRNGKey(5)), cfg, 15.0)
   batch = random_batch(jax.random.PRNGKey(6), batch=256)
   _, metrics = jax.jit(agent.update)(state, batch, jax.random.PRNGKey(0))
 
@@ -157,11 +161,9 @@ def test_action_penalty_pulls_a_saturated_policy_back(name):
   batch = random_batch(jax.random.PRNGKey(7), batch=256)
   saturated = {}
   for penalty in (0.0, 1.0):
-    agent = agents.make(name, OBS, ACT, dataclasses.replace(SMALL[name], action_penalty=penalty))
-    state = agent.init(jax.random.PRNGKey(8))
-    last = f"Dense_{len(SMALL[name].policy_layers)}"
-    state = state._replace(policy=jax.tree_util.tree_map_with_path(
-        lambda path, x: x * 30.0 if last in jax.tree_util.keystr(path) else x, state.policy))
+    cfg = dataclasses.replace(SMALL[name], action_penalty=penalty)
+    agent = agents.make(name, OBS, ACT, cfg)
+    state = scale_policy_output(agent.init(jax.random.PRNGKey(8)), cfg, 30.0)
     step = jax.jit(agent.update)
     for i in range(300):
       state, metrics = step(state, batch, jax.random.PRNGKey(i))
