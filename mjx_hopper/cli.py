@@ -107,8 +107,7 @@ def _run_config(args: argparse.Namespace, agent_overrides: dict, **sweep):
 
   from mjx_hopper import loop, presets, train as train_lib
   agent = args.agent or "d4pg"
-  robot = presets.PRESETS.get((args.env, args.preset))
-  robot = robot if robot is not None and robot.agent == agent else None
+  robot = presets.for_agent(args.env, args.preset, agent)
   flags = dict(num_envs=args.num_envs, unroll_length=args.unroll_length,
                batch_size=args.batch_size, replay_ratio=args.replay_ratio,
                replay_size=args.replay_size, min_replay=args.min_replay,

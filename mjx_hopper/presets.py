@@ -109,6 +109,13 @@ def get(env: str, kind: str) -> Preset:
   return PRESETS[env, kind]
 
 
+def for_agent(env: str, kind: str, agent: str) -> Preset | None:
+  """Robot `env`'s `kind` preset when it is one of `agent`, else None: then the agent's own
+  preset of that name, with the trainer's defaults, applies (`mjx-hopper train --preset`)."""
+  preset = PRESETS.get((env, kind))
+  return preset if preset is not None and preset.agent == agent else None
+
+
 def run_config(env: str, kind: str, **changes):
   """The `loop.RunConfig` of robot `env`'s `kind` preset, with fields replaced by `changes`
   (agent_overrides are merged into the preset's; `train` replaces its TrainConfig)."""

@@ -1,6 +1,7 @@
 """D4PG's and DDPG's maths: each critic loss against a slow reference (with one critic and with
-clipped double Q), target updates, the policy gradient's sign, exploration (one std, and mixed
-over envs), determinism, the seed's networks, and config errors."""
+clipped double Q), the policy loss with its action penalty, target updates, the policy
+gradient's sign, exploration (one std, and mixed over envs), determinism, the seed's networks,
+and config errors."""
 
 import dataclasses
 
@@ -122,24 +123,25 @@ def test_clipped_double_q_matches_reference(name):
   assert float(metrics["policy_loss"]) == pytest.approx(-lowest.mean(), rel=1e-4, abs=1e-5)
 
 
-def scale_policy_output(state, cfg, factor):
-  """The state with its policy's last layer (weights and bias) multiplied by `factor`."""
-  last = f"Dense_{len(cfg.policy_layers)}"
+def penalised_state(name, agent, key, penalty, scale):
+  """A fresh state with this action penalty (a dynamic setting: the compiled update serves
+  every value), its policy's last layer (weights and bias) multiplied by `scale`."""
+  state = agent.init(key, {**agent.hparams, "action_penalty": jnp.float32(penalty)})
+  last = f"Dense_{len(SMALL[name].policy_layers)}"
   return state._replace(policy=jax.tree_util.tree_map_with_path(
-      lambda path, x: x * factor if last in jax.tree_util.keystr(path) else x, state.policy))
+      lambda path, x: x * scale if last in jax.tree_util.keystr(path) else x, state.policy))
 
 
 @pytest.mark.parametrize("penalty", [0.0, 0.3])
-def test_policy_loss_and_saturation_match_reference(name, penalty):
+def test_policy_loss_and_saturation_match_reference(name, agent, update, penalty):
   """The policy loss is minus the critic's value of the policy's actions at the next
   observations, plus action_penalty times the mean squared pre-tanh action; policy_saturated is
   the fraction of pre-tanh actions beyond +-3."""
-  cfg = dataclasses.replace(SMALL[name], action_penalty=penalty)
-  agent = agents.make(name, OBS, ACT, cfg)
+  cfg = SMALL[name]
   # Some of its actions saturate and some do not.
-  state = scale_policy_output(agent.init(jax.random.PRNGKey(5)), cfg, 15.0)
+  state = penalised_state(name, agent, jax.random.PRNGKey(5), penalty, 15.0)
   batch = random_batch(jax.random.PRNGKey(6), batch=256)
-  _, metrics = jax.jit(agent.update)(state, batch, jax.random.PRNGKey(0))
+  _, metrics = update(state, batch, jax.random.PRNGKey(0))
 
   policy_net = networks.TanhPolicy(cfg.policy_layers, ACT)
   pre = np.asarray(policy_net.apply(state.policy, batch.next_obs, squash=False), np.float64)
@@ -154,19 +156,16 @@ def test_policy_loss_and_saturation_match_reference(name, penalty):
   assert float(metrics["policy_loss"]) == pytest.approx(want, rel=1e-4, abs=1e-5)
 
 
-def test_action_penalty_pulls_a_saturated_policy_back(name):
+def test_action_penalty_pulls_a_saturated_policy_back(name, agent, update):
   """From a policy whose tanh is pinned at +-1, updates with a penalty bring its pre-tanh
   actions back inside +-3, where the critic's gradient reaches it again; without one they
   stay pinned."""
   batch = random_batch(jax.random.PRNGKey(7), batch=256)
   saturated = {}
   for penalty in (0.0, 1.0):
-    cfg = dataclasses.replace(SMALL[name], action_penalty=penalty)
-    agent = agents.make(name, OBS, ACT, cfg)
-    state = scale_policy_output(agent.init(jax.random.PRNGKey(8)), cfg, 30.0)
-    step = jax.jit(agent.update)
+    state = penalised_state(name, agent, jax.random.PRNGKey(8), penalty, 30.0)
     for i in range(300):
-      state, metrics = step(state, batch, jax.random.PRNGKey(i))
+      state, metrics = update(state, batch, jax.random.PRNGKey(i))
     saturated[penalty] = float(metrics["policy_saturated"])
   assert saturated[0.0] > 0.5
   assert saturated[1.0] < 0.1
