@@ -93,6 +93,9 @@ tune() {  # tune NAME ARGS...: the phase's time_to_score command T with ARGS, in
 # 3/3 solve start from the model they ran on (4/4 then), so that they rerun what
 # docs/benchmark-history.md records for them; a variant's own words come after it and win.
 BEFORE_ARMATURE="4/4 arm=0 tol=1e-8"
+# Hopper's cpu preset before its action penalty (2026-11-25), which the cpu-tune phases up to
+# cpu-tune6 ran as "the preset"; their own --set flags come after it and win.
+OLD_HOPPER_CPU=(--set action_penalty=0 --set learning_rate=3e-4 --set sigma=0.3 --set sigma_min=None)
 # The 2-core CPU's settings (TrainConfig's defaults), for runs that stand in for CPU runs.
 CPU_TRAIN=(--preset cpu --minutes 8 --chunk 25 --min-replay 20000 --target 2000 --eval-every 200000
            --num-envs 512 --batch-size 256 --replay-ratio 4)
@@ -362,7 +365,8 @@ for phase in "$@"; do
       # (one program), until 2,000 or 5M env steps, six at once: the env steps and updates each
       # needs, which the 2-core CPU's costs per env step and per update turn into its minutes.
       export XLA_PYTHON_CLIENT_MEM_FRACTION=0.15
-      T=(benchmarks/time_to_score.py Hopper --kind cpu --cpu-devices 1 --seeds 0,1 --at-once
+      T=(benchmarks/time_to_score.py Hopper --kind cpu "${OLD_HOPPER_CPU[@]}"
+         --cpu-devices 1 --seeds 0,1 --at-once
          --minutes 8 --env-steps 5000000)
       MIXED=(--set sigma=0.4 --set sigma_min=0.05)
       tune cpu_r4
@@ -377,7 +381,8 @@ for phase in "$@"; do
       # third of an update's cost on the CPU), at ratios 4, 8 and 16; and at full width,
       # ratio 16 with mixed noise and ratio 8 with batch 128. 2 seeds each, six at once.
       export XLA_PYTHON_CLIENT_MEM_FRACTION=0.15
-      T=(benchmarks/time_to_score.py Hopper --kind cpu --cpu-devices 1 --seeds 0,1 --at-once
+      T=(benchmarks/time_to_score.py Hopper --kind cpu "${OLD_HOPPER_CPU[@]}"
+         --cpu-devices 1 --seeds 0,1 --at-once
          --minutes "${TUNE_MINUTES:-8}" --env-steps 5000000 --set sigma=0.4 --set sigma_min=0.05)
       SMALL=(--set "policy_layers=(128,128)" --set "critic_layers=(128,128)")
       tune cpu_r4_mixed_w128 "${SMALL[@]}"
@@ -393,7 +398,8 @@ for phase in "$@"; do
       # with a learning rate of 1e-3 (about 0.7 of ratio 4's CPU cost per env step). 2 seeds
       # each (one program), until 2,000 or 5M env steps, six at once.
       export XLA_PYTHON_CLIENT_MEM_FRACTION=0.15
-      T=(benchmarks/time_to_score.py Hopper --kind cpu --cpu-devices 1 --seeds 0,1 --at-once
+      T=(benchmarks/time_to_score.py Hopper --kind cpu "${OLD_HOPPER_CPU[@]}"
+         --cpu-devices 1 --seeds 0,1 --at-once
          --minutes "${TUNE_MINUTES:-8.6}" --env-steps 5000000 --set sigma=0.4 --set sigma_min=0.05)
       tune cpu_r4_mixed
       tune cpu_r4_mixed_lr6e-4 --set learning_rate=6e-4
@@ -412,12 +418,13 @@ for phase in "$@"; do
       ;;
     cpu-tune5)
       # The cpu layout's policy saturates early on some seeds (its tanh pinned at +-1 within the
-      # first 512 updates, the policy gradient about 0.001 until 500k env steps): the shipped
-      # preset against a penalty on the pre-tanh actions of 0.01, 0.1 and 1, and 0.1 with
+      # first 512 updates, the policy gradient about 0.001 until 500k env steps): the preset
+      # then against a penalty on the pre-tanh actions of 0.01, 0.1 and 1, and 0.1 with
       # mixed noise, at learning rates 3e-4 and 1e-3. 4 seeds each (one program), until 2,000
       # or 5M env steps, six at once.
       export XLA_PYTHON_CLIENT_MEM_FRACTION=0.15
-      T=(benchmarks/time_to_score.py Hopper --kind cpu --cpu-devices 1 --seeds 0,1,2,3 --at-once
+      T=(benchmarks/time_to_score.py Hopper --kind cpu "${OLD_HOPPER_CPU[@]}"
+         --cpu-devices 1 --seeds 0,1,2,3 --at-once
          --minutes "${TUNE_MINUTES:-7}" --env-steps 5000000)
       MIXED=(--set sigma=0.4 --set sigma_min=0.05)
       tune cpu_r4
@@ -432,7 +439,8 @@ for phase in "$@"; do
       # penalty 1; replay ratio 2 (cheaper per env step on the CPU); constant noise; learning
       # rate 2e-3. 4 seeds each (one program), until 2,000 or 5M env steps, six at once.
       export XLA_PYTHON_CLIENT_MEM_FRACTION=0.15
-      T=(benchmarks/time_to_score.py Hopper --kind cpu --cpu-devices 1 --at-once
+      T=(benchmarks/time_to_score.py Hopper --kind cpu "${OLD_HOPPER_CPU[@]}"
+         --cpu-devices 1 --at-once
          --minutes "${TUNE_MINUTES:-7}" --env-steps 5000000 --set learning_rate=1e-3)
       MIXED=(--set sigma=0.4 --set sigma_min=0.05)
       tune cpu_r4_mixed_pen0.1_lr1e-3_seeds4-7 --seeds 4,5,6,7 --set action_penalty=0.1 "${MIXED[@]}"
@@ -471,12 +479,14 @@ for phase in "$@"; do
       tune cheetah_seed2_sigma0.2to0.6 --set sigma=0.6 --set sigma_min=0.2
       ;;
     hopper-seeds)
-      # Hopper's five seeds with its gpu preset, and with HalfCheetah's wider noise (stds 0.2 to
+      # Hopper's five seeds with its gpu preset as it was (no action penalty), and with
+      # HalfCheetah's wider noise (stds 0.2 to
       # 0.6), each five seeds in one program (--at-once), the two sharing the GPU, until 2,500 or
       # 6M env steps: the env steps each seed needs, which the 90 s target caps at about 6M
       # (60 s at 98k env steps/s after 30 s of start). Seed 3 peaked at 1,800 in 5.84M alone.
       export XLA_PYTHON_CLIENT_MEM_FRACTION=0.45
-      T=(benchmarks/time_to_score.py Hopper --kind gpu --cpu-devices 1 --seeds 0,1,2,3,4 --at-once
+      T=(benchmarks/time_to_score.py Hopper --kind gpu --set action_penalty=0 --cpu-devices 1
+         --seeds 0,1,2,3,4 --at-once
          --minutes 8.6 --env-steps 6000000)
       tune hopper_seeds_preset
       tune hopper_seeds_sigma0.2to0.6 --set sigma=0.6 --set sigma_min=0.2
