@@ -46,6 +46,7 @@
 #   bash benchmarks/gpu_session.sh cpu-tune6 wait     # ... around cpu-tune5's best
 #   bash benchmarks/gpu_session.sh cpu-tune7 wait     # the new Hopper cpu preset's seeds, 3 variants
 #   bash benchmarks/gpu_session.sh hopper-pen wait    # Hopper's gpu preset with an action penalty
+#   bash benchmarks/gpu_session.sh walker-pen wait    # ... and Walker2D's, with and without
 # Every run of a call shares the one GPU (XLA_PYTHON_CLIENT_MEM_FRACTION=0.1 each). The device
 # tool's calls run it as
 #   timeout 570 bash benchmarks/gpu_session.sh PHASES > $OUT/session.log 2>&1;
@@ -500,6 +501,16 @@ for phase in "$@"; do
          --minutes "${TUNE_MINUTES:-8.6}" --env-steps 6000000)
       tune hopper_seeds_pen0.1 --set action_penalty=0.1
       tune hopper_seeds_pen1 --set action_penalty=1
+      ;;
+    walker-pen)
+      # Does the action penalty help another robot? Walker2D's gpu preset, seeds 0-2 in one
+      # program, without and with a penalty of 0.1, the two sharing the GPU, until 2,500 or
+      # 10M env steps: the env steps to 2,500, or the returns at equal env steps.
+      export XLA_PYTHON_CLIENT_MEM_FRACTION=0.45
+      T=(benchmarks/time_to_score.py Walker2D --kind gpu --cpu-devices 1 --seeds 0,1,2 --at-once
+         --minutes "${TUNE_MINUTES:-8.6}" --env-steps 10000000)
+      tune walker_seeds_pen0 --set action_penalty=0
+      tune walker_seeds_pen0.1 --set action_penalty=0.1
       ;;
     cheetah-cpu-explore)
       # HalfCheetah's cpu preset (one std, 0.3), which stood still (about 1,000) for its first
