@@ -97,6 +97,8 @@ BEFORE_ARMATURE="4/4 arm=0 tol=1e-8"
 # Hopper's cpu preset before its action penalty (2026-11-25), which the cpu-tune phases up to
 # cpu-tune6 ran as "the preset"; their own --set flags come after it and win.
 OLD_HOPPER_CPU=(--set action_penalty=0 --set learning_rate=3e-4 --set sigma=0.3 --set sigma_min=None)
+# Mixed exploration noise, stds 0.05 to 0.4 over the envs (the gpu presets').
+MIXED=(--set sigma=0.4 --set sigma_min=0.05)
 # The 2-core CPU's settings (TrainConfig's defaults), for runs that stand in for CPU runs.
 CPU_TRAIN=(--preset cpu --minutes 8 --chunk 25 --min-replay 20000 --target 2000 --eval-every 200000
            --num-envs 512 --batch-size 256 --replay-ratio 4)
@@ -369,7 +371,6 @@ for phase in "$@"; do
       T=(benchmarks/time_to_score.py Hopper --kind cpu "${OLD_HOPPER_CPU[@]}"
          --cpu-devices 1 --seeds 0,1 --at-once
          --minutes 8 --env-steps 5000000)
-      MIXED=(--set sigma=0.4 --set sigma_min=0.05)
       tune cpu_r4
       tune cpu_r4_mixed "${MIXED[@]}"
       tune cpu_r8 --train replay_ratio=8
@@ -384,7 +385,7 @@ for phase in "$@"; do
       export XLA_PYTHON_CLIENT_MEM_FRACTION=0.15
       T=(benchmarks/time_to_score.py Hopper --kind cpu "${OLD_HOPPER_CPU[@]}"
          --cpu-devices 1 --seeds 0,1 --at-once
-         --minutes "${TUNE_MINUTES:-8}" --env-steps 5000000 --set sigma=0.4 --set sigma_min=0.05)
+         --minutes "${TUNE_MINUTES:-8}" --env-steps 5000000 "${MIXED[@]}")
       SMALL=(--set "policy_layers=(128,128)" --set "critic_layers=(128,128)")
       tune cpu_r4_mixed_w128 "${SMALL[@]}"
       tune cpu_r8_mixed_w128 --train replay_ratio=8 "${SMALL[@]}"
@@ -401,7 +402,7 @@ for phase in "$@"; do
       export XLA_PYTHON_CLIENT_MEM_FRACTION=0.15
       T=(benchmarks/time_to_score.py Hopper --kind cpu "${OLD_HOPPER_CPU[@]}"
          --cpu-devices 1 --seeds 0,1 --at-once
-         --minutes "${TUNE_MINUTES:-8.6}" --env-steps 5000000 --set sigma=0.4 --set sigma_min=0.05)
+         --minutes "${TUNE_MINUTES:-8.6}" --env-steps 5000000 "${MIXED[@]}")
       tune cpu_r4_mixed
       tune cpu_r4_mixed_lr6e-4 --set learning_rate=6e-4
       tune cpu_r4_mixed_lr1e-3 --set learning_rate=1e-3
@@ -427,7 +428,6 @@ for phase in "$@"; do
       T=(benchmarks/time_to_score.py Hopper --kind cpu "${OLD_HOPPER_CPU[@]}"
          --cpu-devices 1 --seeds 0,1,2,3 --at-once
          --minutes "${TUNE_MINUTES:-7}" --env-steps 5000000)
-      MIXED=(--set sigma=0.4 --set sigma_min=0.05)
       tune cpu_r4
       tune cpu_r4_pen0.01 --set action_penalty=0.01
       tune cpu_r4_pen0.1 --set action_penalty=0.1
@@ -443,7 +443,6 @@ for phase in "$@"; do
       T=(benchmarks/time_to_score.py Hopper --kind cpu "${OLD_HOPPER_CPU[@]}"
          --cpu-devices 1 --at-once
          --minutes "${TUNE_MINUTES:-7}" --env-steps 5000000 --set learning_rate=1e-3)
-      MIXED=(--set sigma=0.4 --set sigma_min=0.05)
       tune cpu_r4_mixed_pen0.1_lr1e-3_seeds4-7 --seeds 4,5,6,7 --set action_penalty=0.1 "${MIXED[@]}"
       tune cpu_r4_mixed_pen1_lr1e-3 --seeds 0,1,2,3 --set action_penalty=1 "${MIXED[@]}"
       tune cpu_r2_mixed_pen0.1_lr1e-3 --seeds 0,1,2,3 --set action_penalty=0.1 "${MIXED[@]}" \
