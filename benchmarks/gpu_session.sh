@@ -47,6 +47,8 @@
 #   bash benchmarks/gpu_session.sh cpu-tune7 wait     # the new Hopper cpu preset's seeds, 3 variants
 #   bash benchmarks/gpu_session.sh hopper-pen wait    # Hopper's gpu preset with an action penalty
 #   bash benchmarks/gpu_session.sh walker-pen wait    # ... and Walker2D's, with and without
+#   bash benchmarks/gpu_session.sh sweep-profile      # a sweep's iteration, kernel by kernel
+#   bash benchmarks/gpu_session.sh hopper-lr wait     # Hopper's gpu preset at higher learning rates
 # Every run of a call shares the one GPU (XLA_PYTHON_CLIENT_MEM_FRACTION=0.1 each). The device
 # tool's calls run it as
 #   timeout 570 bash benchmarks/gpu_session.sh PHASES > $OUT/session.log 2>&1;
@@ -501,6 +503,23 @@ for phase in "$@"; do
       tune hopper_seeds_pen0.1 --set action_penalty=0.1
       tune hopper_seeds_pen1 --set action_penalty=1
       ;;
+    hopper-lr)
+      # hopper-pen's penalty of 0.1 (the gpu preset now) at learning rates 1e-3 and 2e-3
+      # instead of 3e-4: on the cpu layout, with the penalty, 2e-3 needed 0.6x the env steps.
+      export XLA_PYTHON_CLIENT_MEM_FRACTION=0.45
+      T=(benchmarks/time_to_score.py Hopper --kind gpu --cpu-devices 1 --seeds 0,1,2,3,4 --at-once
+         --minutes "${TUNE_MINUTES:-8.6}" --env-steps 6000000)
+      tune hopper_seeds_lr1e-3 --set learning_rate=1e-3
+      tune hopper_seeds_lr2e-3 --set learning_rate=2e-3
+      ;;
+    sweep-profile)
+      # Where a 16-member sweep's iteration spends the GPU's time, against one member's:
+      # sweep-throughput's settings, one chunk traced (benchmarks/research/sweep_profile.py).
+      XLA_PYTHON_CLIENT_MEM_FRACTION=0.6 timeout 240 python3 benchmarks/research/sweep_profile.py \
+        --members "${PROFILE_MEMBERS:-1,16}" --out "$WORK/sweep_profile" \
+        > "$WORK/sweep_profile.txt" 2>&1
+      cat "$WORK/sweep_profile.txt"
+      ;;
     walker-pen)
       # Does the action penalty help another robot? Walker2D's gpu preset, seeds 0-2 in one
       # program, without and with a penalty of 0.1, the two sharing the GPU, until 2,500 or
@@ -605,7 +624,7 @@ for phase in "$@"; do
       # variants through the stability check.
       for v in "all 4/4" "all 4/2" "all 3/3" "legs 3/3"; do stable "$BEFORE_ARMATURE $v"; done
       ;;
-    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, humanoid-capture, humanoid-limits, humanoid-armature, humanoid-confirm, mpo-pairN, sweep-throughput, peers, scaling, scaling-rest, sweep-collect, screen-hopper, screen-humanoid, humanoid-solve, tts-ROBOT, hopper-cold, cold-ROBOT, cpu-tune2, cpu-tune3, cpu-tune4, member-layout, collect-parts, cpu60-ROBOT, compile-parts, sweep-precision, sweep-triton, cheetah-explore, hopper-seeds, cheetah-cpu-explore, wait" >&2
+    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, humanoid-capture, humanoid-limits, humanoid-armature, humanoid-confirm, mpo-pairN, sweep-throughput, peers, scaling, scaling-rest, sweep-collect, screen-hopper, screen-humanoid, humanoid-solve, tts-ROBOT, hopper-cold, cold-ROBOT, cpu-tune2, cpu-tune3, cpu-tune4, projection-cost, cpu-tune5, cpu-tune6, cpu-tune7, member-layout, collect-parts, cpu60-ROBOT, compile-parts, sweep-precision, sweep-triton, cheetah-explore, hopper-seeds, cheetah-cpu-explore, hopper-pen, walker-pen, hopper-lr, sweep-profile, wait" >&2
        exit 2 ;;
   esac
 done

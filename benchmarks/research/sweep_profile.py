@@ -1,0 +1,169 @@
+"""Where a sweep's training iteration spends the GPU's time, kernel by kernel.
+
+    python benchmarks/research/sweep_profile.py --members 1,16 --out /tmp/sweep_profile   # GPU
+
+For each S (a fresh process each), it builds sweep_throughput.py's sweep of S members (D4PG on
+Hopper, learning from the first iteration), compiles and warms its chunk, times `--chunks`
+chunks, then runs one more chunk under `jax.profiler.trace` and reads the trace's device
+events: the kernels on the GPU's streams. It prints, per iteration of the chunk:
+  wall      the chunk's wall time over its iterations (untraced, as sweep_throughput times it);
+  busy      the time at least one kernel ran (the union of the kernels' intervals);
+  kernels   how many kernels ran, and their summed time;
+and the kernels that took the most time in all, grouped by the part of the program that
+launched them (the first function of jax's name stack found in the kernel's HLO op: the env
+step, the policy, the critic's or the policy's update, the replay), where the trace names it.
+busy near wall means the GPU never waits for the host; wall - busy is the time it sat idle
+between kernels (launches, host round trips). The device events of the traced chunk are
+written to OUT_S{S}.json.gz for a closer look.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import dataclasses
+import gzip
+import json
+import os
+import pathlib
+import subprocess
+import sys
+import tempfile
+import time
+
+# Parts of the program, by a word of the kernel's name stack (the first that matches wins).
+PARTS = (("update_policy", "policy update"), ("policy_loss", "policy update"),
+         ("critic_loss", "critic update"), ("update_critic", "critic update"),
+         ("apply_updates", "optimiser"), ("adam", "optimiser"), ("scale_by", "optimiser"),
+         ("incremental_update", "target networks"), ("project", "projection"),
+         ("sample", "replay sample"), ("insert", "replay insert"), ("act", "policy (acting)"),
+         ("step", "env step"), ("reset", "env reset"))
+
+
+def device_events(trace_dir: str) -> list[dict]:
+  """The events of the GPU's lines in the trace written under trace_dir, each with its line's
+  name as "thread": the streams' kernels ("Stream #..."), and lines derived from them."""
+  path, = pathlib.Path(trace_dir).glob("plugins/profile/*/*.trace.json.gz")
+  with gzip.open(path) as f:
+    events = json.load(f)["traceEvents"]
+  process = {e["pid"]: e["args"]["name"] for e in events
+             if e.get("ph") == "M" and e.get("name") == "process_name"}
+  thread = {(e["pid"], e["tid"]): e["args"]["name"] for e in events
+            if e.get("ph") == "M" and e.get("name") == "thread_name"}
+  return [dict(e, thread=thread.get((e["pid"], e.get("tid")), "")) for e in events
+          if e.get("ph") == "X" and "GPU" in process.get(e["pid"], "")]
+
+
+def part_of(event: dict) -> str:
+  stack = " ".join(str(v) for v in event.get("args", {}).values())
+  for word, part in PARTS:
+    if word in stack:
+      return part
+  return "other"
+
+
+def summarise(kernels: list[dict], iterations: int) -> dict:
+  intervals = sorted((e["ts"], e["ts"] + e["dur"]) for e in kernels)
+  busy, end = 0.0, float("-inf")
+  for start, stop in intervals:
+    if stop > end:
+      busy += stop - max(start, end)
+      end = stop
+  by_name = collections.Counter()
+  by_part = collections.Counter()
+  for e in kernels:
+    by_name[e["name"]] += e["dur"]
+    by_part[part_of(e)] += e["dur"]
+  ms = lambda us: us / 1000 / iterations  # noqa: E731 (per iteration, in ms)
+  return {"busy_ms": ms(busy), "span_ms": ms(intervals[-1][1] - intervals[0][0]) if intervals
+          else 0.0, "kernels": len(kernels) / iterations,
+          "kernel_ms": ms(sum(e["dur"] for e in kernels)),
+          "parts_ms": {k: ms(v) for k, v in by_part.most_common()},
+          "top_ms": {k: ms(v) for k, v in by_name.most_common(20)}}
+
+
+def measure(args) -> dict:
+  import jax
+
+  from mjx_hopper import loop, train
+
+  cfg = loop.RunConfig(
+      env="Hopper", agent="d4pg", preset="gpu",
+      train=train.TrainConfig(num_envs=args.num_envs, unroll_length=args.unroll_length,
+                              batch_size=args.batch_size, replay_ratio=args.replay_ratio,
+                              replay_size=args.replay_size, min_replay=0,
+                              iterations_per_chunk=args.chunk),
+      seeds=tuple(range(args.members)) if args.members > 1 else ())
+  cfg = dataclasses.replace(cfg, train=dataclasses.replace(
+      cfg.train, min_replay=cfg.train.steps_per_iteration))
+  trainer = loop.build(cfg)
+  state = loop.init(cfg, trainer, cfg.members())
+  compiled = trainer.train_chunk.lower(state).compile()
+  state, metrics = compiled(state)
+  jax.block_until_ready(metrics)
+  start = time.perf_counter()
+  for _ in range(args.chunks):
+    state, metrics = compiled(state)
+  jax.block_until_ready(metrics)
+  wall_ms = (time.perf_counter() - start) * 1000 / (args.chunks * args.chunk)
+  trace_dir = tempfile.mkdtemp()
+  with jax.profiler.trace(trace_dir):
+    state, metrics = compiled(state)
+    jax.block_until_ready(metrics)
+  events = device_events(trace_dir)
+  with gzip.open(f"{args.out}_S{args.members}.json.gz", "wt") as f:
+    json.dump([{k: e[k] for k in ("name", "ts", "dur", "thread", "args") if k in e}
+               for e in events], f)
+  kernels = [e for e in events if e["thread"].startswith("Stream")]
+  return {"members": args.members, "wall_ms": wall_ms,
+          "lines": collections.Counter(e["thread"] for e in events),
+          "env_steps_per_s": args.members * cfg.train.steps_per_iteration / wall_ms * 1000,
+          **summarise(kernels, args.chunk)}
+
+
+def main() -> None:
+  p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+  p.add_argument("--members", default="1,16", help="comma-separated sweep sizes")
+  p.add_argument("--num-envs", type=int, default=512, help="envs per member")
+  p.add_argument("--unroll-length", type=int, default=4)
+  p.add_argument("--batch-size", type=int, default=1024, help="per member")
+  p.add_argument("--replay-ratio", type=float, default=4.0)
+  p.add_argument("--replay-size", type=int, default=1_000_000, help="transitions per member")
+  p.add_argument("--chunk", type=int, default=10, help="iterations per chunk")
+  p.add_argument("--chunks", type=int, default=3, help="timed chunks")
+  p.add_argument("--out", default="runs/sweep_profile", help="prefix of the written files")
+  p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
+  args = p.parse_args()
+  if args.worker:
+    args.members = int(args.members)
+    print(json.dumps(measure(args)))
+    return
+  os.makedirs(os.path.dirname(args.out) or ".", exist_ok=True)
+  rows = []
+  for members in args.members.split(","):
+    argv = [f"--{k.replace('_', '-')}={v}" for k, v in vars(args).items()
+            if k not in ("members", "worker")]
+    done = subprocess.run([sys.executable, __file__, "--worker", f"--members={members}", *argv],
+                          stdout=subprocess.PIPE, text=True)
+    if done.returncode:
+      print(f"S = {members}: failed (exit {done.returncode})", file=sys.stderr)
+      continue
+    rows.append(json.loads(done.stdout.strip().splitlines()[-1]))
+  with open(f"{args.out}.json", "w") as f:
+    json.dump({"date": time.strftime("%Y-%m-%d"), "settings": vars(args), "rows": rows}, f,
+              indent=1)
+  print("| members | wall ms/iteration | GPU busy ms | kernels | kernel ms | env steps/s |")
+  print("|---|---|---|---|---|---|")
+  for r in rows:
+    print(f"| {r['members']} | {r['wall_ms']:.2f} | {r['busy_ms']:.2f} | {r['kernels']:.0f} | "
+          f"{r['kernel_ms']:.2f} | {r['env_steps_per_s']:,.0f} |")
+  for r in rows:
+    print(f"\nS = {r['members']}, the trace's GPU lines (events): {r['lines']}")
+    print(f"S = {r['members']}, ms per iteration by part: "
+          + ", ".join(f"{k} {v:.2f}" for k, v in r["parts_ms"].items()))
+    for name, value in r["top_ms"].items():
+      print(f"  {value:7.3f}  {name[:110]}")
+
+
+if __name__ == "__main__":
+  main()
