@@ -515,10 +515,12 @@ for phase in "$@"; do
     sweep-profile)
       # Where a 16-member sweep's iteration spends the GPU's time, against one member's:
       # sweep-throughput's settings, one chunk traced (benchmarks/research/sweep_profile.py).
+      # PROFILE_SET=NAME=VALUE sets a D4PG setting (compute_dtype=bfloat16).
+      name=sweep_profile${PROFILE_SET:+_${PROFILE_SET//[=.]/_}}
       XLA_PYTHON_CLIENT_MEM_FRACTION=0.6 timeout 240 python3 benchmarks/research/sweep_profile.py \
-        --members "${PROFILE_MEMBERS:-1,16}" --out "$WORK/sweep_profile" \
-        > "$WORK/sweep_profile.txt" 2>&1
-      cat "$WORK/sweep_profile.txt"
+        --members "${PROFILE_MEMBERS:-1,16}" --out "$WORK/$name" ${PROFILE_SET:+--set $PROFILE_SET} \
+        > "$WORK/$name.txt" 2>&1
+      cat "$WORK/$name.txt"
       ;;
     walker-pen)
       # Does the action penalty help another robot? Walker2D's gpu preset, seeds 0-2 in one

@@ -29,10 +29,11 @@ def measure(args) -> dict:
   """One sweep of args.members members: compile time, rates and memory."""
   import jax
 
-  from mjx_hopper import loop, train
+  from mjx_hopper import cli, loop, train
 
   cfg = loop.RunConfig(
       env=args.env, agent=args.agent, preset=args.preset,
+      agent_overrides=cli._overrides(args.set),
       train=train.TrainConfig(num_envs=args.num_envs, unroll_length=args.unroll_length,
                               batch_size=args.batch_size, replay_ratio=args.replay_ratio,
                               replay_size=args.replay_size, min_replay=0,
@@ -81,6 +82,8 @@ def main() -> None:
   p.add_argument("--replay-size", type=int, default=100_000, help="transitions per member")
   p.add_argument("--chunk", type=int, default=5, help="iterations per chunk")
   p.add_argument("--chunks", type=int, default=3, help="timed chunks")
+  p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                 help="an agent setting, such as compute_dtype=bfloat16 (repeatable)")
   p.add_argument("--collect-only", action="store_true",
                  help="learning off: time the env steps, actions and replay inserts alone")
   p.add_argument("--cpu-devices", type=int, default=os.cpu_count() or 1)
@@ -96,7 +99,8 @@ def main() -> None:
   env = dict(os.environ, XLA_FLAGS=mjx_hopper.xla_flags_with_cpu_devices(args.cpu_devices))
   rows = []
   settings = [f"--{name.replace('_', '-')}={value}" for name, value in vars(args).items()
-              if name not in ("members", "worker", "out", "cpu_devices", "collect_only")]
+              if name not in ("members", "worker", "out", "cpu_devices", "collect_only", "set")]
+  settings += [f"--set={pair}" for pair in args.set]
   settings += ["--collect-only"] if args.collect_only else []
   for members in [int(m) for m in args.members.split(",")]:
     done = subprocess.run([sys.executable, __file__, "--worker", f"--members={members}",
@@ -116,7 +120,8 @@ def main() -> None:
                  f"{r['updates_per_s']:,.0f} | {r['memory_gb']:.2f} | {ratio} |")
   print(f"{platform.node()}, {rows[0]['devices'] if rows else '?'} "
         f"{rows[0]['platform'] if rows else ''} device(s), {args.env} {args.agent} "
-        f"({args.preset}), {args.num_envs} envs and batch {args.batch_size} per member"
+        f"({args.preset}{', ' + ', '.join(args.set) if args.set else ''}), {args.num_envs} envs "
+        f"and batch {args.batch_size} per member"
         f"{', collect only (learning off)' if args.collect_only else ''}\n"
         + "\n".join(lines))
   os.makedirs(os.path.dirname(args.out) or ".", exist_ok=True)

@@ -85,10 +85,10 @@ def summarise(kernels: list[dict], iterations: int) -> dict:
 def measure(args) -> dict:
   import jax
 
-  from mjx_hopper import loop, train
+  from mjx_hopper import cli, loop, train
 
   cfg = loop.RunConfig(
-      env="Hopper", agent="d4pg", preset="gpu",
+      env="Hopper", agent="d4pg", preset="gpu", agent_overrides=cli._overrides(args.set),
       train=train.TrainConfig(num_envs=args.num_envs, unroll_length=args.unroll_length,
                               batch_size=args.batch_size, replay_ratio=args.replay_ratio,
                               replay_size=args.replay_size, min_replay=0,
@@ -131,6 +131,8 @@ def main() -> None:
   p.add_argument("--replay-size", type=int, default=1_000_000, help="transitions per member")
   p.add_argument("--chunk", type=int, default=10, help="iterations per chunk")
   p.add_argument("--chunks", type=int, default=3, help="timed chunks")
+  p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                 help="a D4PG setting, such as compute_dtype=bfloat16 (repeatable)")
   p.add_argument("--out", default="runs/sweep_profile", help="prefix of the written files")
   p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
   args = p.parse_args()
@@ -142,7 +144,7 @@ def main() -> None:
   rows = []
   for members in args.members.split(","):
     argv = [f"--{k.replace('_', '-')}={v}" for k, v in vars(args).items()
-            if k not in ("members", "worker")]
+            if k not in ("members", "worker", "set")] + [f"--set={pair}" for pair in args.set]
     done = subprocess.run([sys.executable, __file__, "--worker", f"--members={members}", *argv],
                           stdout=subprocess.PIPE, text=True)
     if done.returncode:
