@@ -40,6 +40,9 @@ class Agent(NamedTuple):
   hparams: dict
 
 
+COMPUTE_DTYPES = {"float32": jnp.float32, "bfloat16": jnp.bfloat16}
+
+
 @dataclasses.dataclass(frozen=True)
 class CommonConfig:
   """Settings every agent has. The defaults are the seed notebook's networks and acme's
@@ -60,6 +63,10 @@ class CommonConfig:
   n_step: int = 5
   target_update_period: int = 100    # updates between copies into the target networks
   max_grad_norm: float = 40.0        # acme's gradient clipping (by global norm)
+  # The networks' hidden layers compute in this dtype: "bfloat16" halves the bytes their
+  # activations move and runs their products on the GPU's bf16 units, on float32 parameters,
+  # gradients and optimizer (mjx_hopper.networks). The output layers and losses stay float32.
+  compute_dtype: str = "float32"
 
   def __post_init__(self):
     if not isinstance(self.n_step, int) or self.n_step < 1:
@@ -71,6 +78,9 @@ class CommonConfig:
     if not isinstance(self.target_update_period, int) or self.target_update_period < 1:
       raise ValueError(f"target_update_period must be an integer >= 1, got "
                        f"{self.target_update_period!r}")
+    if self.compute_dtype not in COMPUTE_DTYPES:
+      raise ValueError(f"compute_dtype must be one of {list(COMPUTE_DTYPES)}, got "
+                       f"{self.compute_dtype!r}")
     for name in ("policy_layers", "critic_layers"):
       layers = getattr(self, name)
       if not layers or any(not isinstance(n, int) or n < 1 for n in layers):

@@ -14,8 +14,8 @@ import optax
 
 from mjx_hopper import networks
 from mjx_hopper.agents import critics
-from mjx_hopper.agents.base import (Agent, CommonConfig, hparams, optimizer, pmean,
-                                    update_targets)
+from mjx_hopper.agents.base import (COMPUTE_DTYPES, Agent, CommonConfig, hparams, optimizer,
+                                    pmean, update_targets)
 
 
 # |pre-tanh action| above which the tanh's slope is below 0.01: the "policy_saturated" metric is
@@ -69,8 +69,9 @@ def make(obs_size: int, action_size: int, cfg: Config,
          head_of: Callable[[dict], critics.Head]) -> Agent:
   """`head_of(hparams)` is the critic's head for these dynamic settings."""
   defaults = hparams(cfg)
-  policy_net = networks.TanhPolicy(cfg.policy_layers, action_size)
-  critic_net = networks.Critic(cfg.critic_layers, head_of(defaults).num_outputs)
+  dtype = COMPUTE_DTYPES[cfg.compute_dtype]
+  policy_net = networks.TanhPolicy(cfg.policy_layers, action_size, dtype)
+  critic_net = networks.Critic(cfg.critic_layers, head_of(defaults).num_outputs, dtype)
 
   ensemble = cfg.num_critics > 1
 

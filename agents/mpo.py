@@ -32,8 +32,8 @@ import optax
 
 from mjx_hopper import distributional, networks
 from mjx_hopper.agents import critics
-from mjx_hopper.agents.base import (Agent, CommonConfig, hparams, optimizer, pmean,
-                                    update_targets)
+from mjx_hopper.agents.base import (COMPUTE_DTYPES, Agent, CommonConfig, hparams, optimizer,
+                                    pmean, update_targets)
 
 MIN_LOG_DUAL = -18.0   # raw dual values are clipped from below at this (as acme)
 DUAL_FLOOR = 1e-8      # added after softplus, so that every dual is > 0
@@ -176,8 +176,9 @@ def gaussian_log_prob(x, mean, std):
 
 def make(obs_size: int, action_size: int, cfg: Config = Config()) -> Agent:
   defaults = hparams(cfg)
+  dtype = COMPUTE_DTYPES[cfg.compute_dtype]
   policy_net = networks.GaussianPolicy(cfg.policy_layers, action_size, cfg.init_scale,
-                                       cfg.min_scale)
+                                       cfg.min_scale, dtype)
 
   def head_of(hp):
     return (critics.categorical(hp["vmin"], hp["vmax"], cfg.num_atoms) if cfg.distributional

@@ -49,6 +49,7 @@
 #   bash benchmarks/gpu_session.sh walker-pen wait    # ... and Walker2D's, with and without
 #   bash benchmarks/gpu_session.sh sweep-profile      # a sweep's iteration, kernel by kernel
 #   bash benchmarks/gpu_session.sh hopper-lr wait     # Hopper's gpu preset at higher learning rates
+#   bash benchmarks/gpu_session.sh hopper-bf16 wait   # ... at 1e-3 in bfloat16, and more seeds
 # Every run of a call shares the one GPU (XLA_PYTHON_CLIENT_MEM_FRACTION=0.1 each). The device
 # tool's calls run it as
 #   timeout 570 bash benchmarks/gpu_session.sh PHASES > $OUT/session.log 2>&1;
@@ -512,6 +513,15 @@ for phase in "$@"; do
       tune hopper_seeds_lr1e-3 --set learning_rate=1e-3
       tune hopper_seeds_lr2e-3 --set learning_rate=2e-3
       ;;
+    hopper-bf16)
+      # hopper-lr's 1e-3 with the networks computing in bfloat16 (seeds 0-4, against hopper-lr's
+      # float32 run of the same seeds), and in float32 on five more seeds (5-9).
+      export XLA_PYTHON_CLIENT_MEM_FRACTION=0.45
+      T=(benchmarks/time_to_score.py Hopper --kind gpu --cpu-devices 1 --at-once
+         --minutes "${TUNE_MINUTES:-8.6}" --env-steps 6000000 --set learning_rate=1e-3)
+      tune hopper_seeds_lr1e-3_bf16 --seeds 0,1,2,3,4 --set compute_dtype=bfloat16
+      tune hopper_seeds_lr1e-3_seeds5-9 --seeds 5,6,7,8,9 --set compute_dtype=float32
+      ;;
     sweep-profile)
       # Where a 16-member sweep's iteration spends the GPU's time, against one member's:
       # sweep-throughput's settings, one chunk traced (benchmarks/research/sweep_profile.py).
@@ -626,7 +636,7 @@ for phase in "$@"; do
       # variants through the stability check.
       for v in "all 4/4" "all 4/2" "all 3/3" "legs 3/3"; do stable "$BEFORE_ARMATURE $v"; done
       ;;
-    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, humanoid-capture, humanoid-limits, humanoid-armature, humanoid-confirm, mpo-pairN, sweep-throughput, peers, scaling, scaling-rest, sweep-collect, screen-hopper, screen-humanoid, humanoid-solve, tts-ROBOT, hopper-cold, cold-ROBOT, cpu-tune2, cpu-tune3, cpu-tune4, projection-cost, cpu-tune5, cpu-tune6, cpu-tune7, member-layout, collect-parts, cpu60-ROBOT, compile-parts, sweep-precision, sweep-triton, cheetah-explore, hopper-seeds, cheetah-cpu-explore, hopper-pen, walker-pen, hopper-lr, sweep-profile, wait" >&2
+    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, humanoid-capture, humanoid-limits, humanoid-armature, humanoid-confirm, mpo-pairN, sweep-throughput, peers, scaling, scaling-rest, sweep-collect, screen-hopper, screen-humanoid, humanoid-solve, tts-ROBOT, hopper-cold, cold-ROBOT, cpu-tune2, cpu-tune3, cpu-tune4, projection-cost, cpu-tune5, cpu-tune6, cpu-tune7, member-layout, collect-parts, cpu60-ROBOT, compile-parts, sweep-precision, sweep-triton, cheetah-explore, hopper-seeds, cheetah-cpu-explore, hopper-pen, walker-pen, hopper-lr, hopper-bf16, sweep-profile, wait" >&2
        exit 2 ;;
   esac
 done

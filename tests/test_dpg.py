@@ -246,12 +246,47 @@ def test_default_networks_are_the_seeds(name, head):
   assert kernels(state.critic) == sorted([(18, 512), (512, 512), (512, 256), (256, head)])
 
 
+@pytest.mark.parametrize("net, inputs", [
+    (networks.TanhPolicy((64, 64), ACT), 1),
+    (networks.Critic((64, 64), 11), 2),
+    (networks.Critic((64, 64), 1), 2),
+    (networks.GaussianPolicy((64, 64), ACT), 1),
+])
+def test_bfloat16_networks_track_float32(net, inputs):
+  """The same parameters give float32 outputs within bfloat16's rounding of float32's, so a
+  state trains, saves and loads alike in either dtype."""
+  k = jax.random.split(jax.random.PRNGKey(3), 3)
+  args = (jax.random.normal(k[0], (256, OBS)), jax.random.uniform(k[1], (256, ACT), minval=-1))
+  args = args[:inputs]
+  params = net.init(k[2], *args)
+  half = net.clone(dtype=jnp.bfloat16)
+  assert jax.tree.structure(half.init(k[2], *args)) == jax.tree.structure(params)
+  for full, low in zip(jax.tree.leaves(net.apply(params, *args)),
+                       jax.tree.leaves(half.apply(params, *args))):
+    assert low.dtype == jnp.float32
+    scale = float(jnp.abs(full).max())
+    assert 1e-4 * scale < float(jnp.abs(low - full).max()) < 0.05 * scale  # bf16, not f32
+
+
+def test_bfloat16_update_tracks_float32(name, agent, update):
+  low = agents.make(name, OBS, ACT, dataclasses.replace(SMALL[name], compute_dtype="bfloat16"))
+  state = agent.init(jax.random.PRNGKey(4))
+  batch = random_batch(jax.random.PRNGKey(5))
+  full_state, full = update(state, batch, None)
+  low_state, low_metrics = jax.jit(low.update)(state, batch, None)
+  for key in ("critic_loss", "policy_loss", "q_mean", "critic_grad_norm", "policy_grad_norm"):
+    assert float(low_metrics[key]) == pytest.approx(float(full[key]), rel=0.02, abs=2e-3)
+  assert jax.tree.map(lambda x: x.dtype, low_state) == jax.tree.map(lambda x: x.dtype, full_state)
+
+
 @pytest.mark.parametrize("name", ["d4pg", "ddpg", "mpo", "dmpo"])
 @pytest.mark.parametrize("bad, message", [
     ({"n_step": 0}, "n_step must be an integer >= 1, got 0"),
     ({"discount": 1.5}, r"discount must be in \[0, 1\], got 1.5"),
     ({"learning_rate": 0.0}, "learning_rate must be > 0, got 0.0"),
     ({"critic_layers": ()}, r"critic_layers must be a non-empty tuple of positive integers"),
+    ({"compute_dtype": "float16"},
+     r"compute_dtype must be one of \['float32', 'bfloat16'\], got 'float16'"),
 ])
 def test_bad_common_config(name, bad, message):
   with pytest.raises(ValueError, match=message):
