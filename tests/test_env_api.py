@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from conftest import ROBOTS, make_env
+from conftest import make_env
 from mjx_hopper import envs, parallel, rollout
 
 
@@ -118,7 +118,10 @@ def test_edit_model_changes_the_physics(hopper):
                                rtol=1e-3, atol=1e-4)
 
 
-@pytest.mark.parametrize("robot", ROBOTS)
+# Subclassing works the same way for every robot: the Hopper keeps the shared termination rule
+# and HalfCheetah has its own, which the subclass's rule adds to. test_episodes holds every
+# robot's own reward and termination to PyBullet's.
+@pytest.mark.parametrize("robot", ["Hopper", "HalfCheetah"])
 def test_custom_task_by_subclassing_jits_and_vmaps(robot):
   base_env = make_env(robot)
   env = seed_style_task(type(base_env))
