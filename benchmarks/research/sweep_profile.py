@@ -8,13 +8,11 @@ chunks, then runs one more chunk under `jax.profiler.trace` and reads the trace'
 events: the kernels on the GPU's streams. It prints, per iteration of the chunk:
   wall      the chunk's wall time over its iterations (untraced, as sweep_throughput times it);
   busy      the time at least one kernel ran (the union of the kernels' intervals);
-  kernels   how many kernels ran, and their summed time;
-and the kernels that took the most time in all, grouped by the part of the program that
-launched them (the first function of jax's name stack found in the kernel's HLO op: the env
-step, the policy, the critic's or the policy's update, the replay), where the trace names it.
-busy near wall means the GPU never waits for the host; wall - busy is the time it sat idle
-between kernels (launches, host round trips). The device events of the traced chunk are
-written to OUT_S{S}.json.gz for a closer look.
+  kernels   how many kernels ran, their summed time, and the matrix products' share of it;
+and the compiled program's ops that took the most time, with their kernels. XLA runs stretches
+of the program as command buffers (CUDA graphs), so an op can be a whole loop body: the op with
+8 x ~170 kernels is a member's 8 updates. busy near wall means the GPU never waits for the
+host. The device events of the traced chunk are written to OUT_S{S}.json.gz for a closer look.
 """
 
 from __future__ import annotations
@@ -31,13 +29,8 @@ import sys
 import tempfile
 import time
 
-# Parts of the program, by a word of the kernel's name stack (the first that matches wins).
-PARTS = (("update_policy", "policy update"), ("policy_loss", "policy update"),
-         ("critic_loss", "critic update"), ("update_critic", "critic update"),
-         ("apply_updates", "optimiser"), ("adam", "optimiser"), ("scale_by", "optimiser"),
-         ("incremental_update", "target networks"), ("project", "projection"),
-         ("sample", "replay sample"), ("insert", "replay insert"), ("act", "policy (acting)"),
-         ("step", "env step"), ("reset", "env reset"))
+# cuBLAS's matrix-product kernels, by name.
+GEMM_NAMES = ("gemm", "xmma", "nvjet", "cutlass")
 
 
 def device_events(trace_dir: str) -> list[dict]:
@@ -54,32 +47,29 @@ def device_events(trace_dir: str) -> list[dict]:
           if e.get("ph") == "X" and "GPU" in process.get(e["pid"], "")]
 
 
-def part_of(event: dict) -> str:
-  stack = " ".join(str(v) for v in event.get("args", {}).values())
-  for word, part in PARTS:
-    if word in stack:
-      return part
-  return "other"
-
-
 def summarise(kernels: list[dict], iterations: int) -> dict:
+  """Per iteration: the GPU's busy time, its kernels and their time, the matrix products' share,
+  and the compiled program's ops that took the most time. XLA runs stretches of the program as
+  command buffers (CUDA graphs), so an op can be a whole loop body, such as the updates'."""
   intervals = sorted((e["ts"], e["ts"] + e["dur"]) for e in kernels)
   busy, end = 0.0, float("-inf")
   for start, stop in intervals:
     if stop > end:
       busy += stop - max(start, end)
       end = stop
-  by_name = collections.Counter()
-  by_part = collections.Counter()
+  by_op, count = collections.Counter(), collections.Counter()
+  gemm = collections.Counter()
   for e in kernels:
-    by_name[e["name"]] += e["dur"]
-    by_part[part_of(e)] += e["dur"]
+    op = e.get("args", {}).get("hlo_op", "?")
+    by_op[op] += e["dur"]
+    count[op] += 1
+    if any(word in e["name"] for word in GEMM_NAMES):
+      gemm[op] += e["dur"]
   ms = lambda us: us / 1000 / iterations  # noqa: E731 (per iteration, in ms)
-  return {"busy_ms": ms(busy), "span_ms": ms(intervals[-1][1] - intervals[0][0]) if intervals
-          else 0.0, "kernels": len(kernels) / iterations,
-          "kernel_ms": ms(sum(e["dur"] for e in kernels)),
-          "parts_ms": {k: ms(v) for k, v in by_part.most_common()},
-          "top_ms": {k: ms(v) for k, v in by_name.most_common(20)}}
+  return {"busy_ms": ms(busy), "kernels": len(kernels) / iterations,
+          "kernel_ms": ms(sum(e["dur"] for e in kernels)), "gemm_ms": ms(sum(gemm.values())),
+          "ops": [{"op": op, "ms": ms(t), "kernels": count[op] / iterations,
+                   "gemm_ms": ms(gemm[op])} for op, t in by_op.most_common(8)]}
 
 
 def measure(args) -> dict:
@@ -116,7 +106,6 @@ def measure(args) -> dict:
                for e in events], f)
   kernels = [e for e in events if e["thread"].startswith("Stream")]
   return {"members": args.members, "wall_ms": wall_ms,
-          "lines": collections.Counter(e["thread"] for e in events),
           "env_steps_per_s": args.members * cfg.train.steps_per_iteration / wall_ms * 1000,
           **summarise(kernels, args.chunk)}
 
@@ -154,18 +143,17 @@ def main() -> None:
   with open(f"{args.out}.json", "w") as f:
     json.dump({"date": time.strftime("%Y-%m-%d"), "settings": vars(args), "rows": rows}, f,
               indent=1)
-  print("| members | wall ms/iteration | GPU busy ms | kernels | kernel ms | env steps/s |")
-  print("|---|---|---|---|---|---|")
+  print("| members | wall ms/iteration | GPU busy ms | kernels | kernel ms | of which products "
+        "| env steps/s |")
+  print("|---|---|---|---|---|---|---|")
   for r in rows:
     print(f"| {r['members']} | {r['wall_ms']:.2f} | {r['busy_ms']:.2f} | {r['kernels']:.0f} | "
-          f"{r['kernel_ms']:.2f} | {r['env_steps_per_s']:,.0f} |")
+          f"{r['kernel_ms']:.2f} | {r['gemm_ms']:.2f} | {r['env_steps_per_s']:,.0f} |")
   for r in rows:
-    print(f"\nS = {r['members']}, the trace's GPU lines (events): {r['lines']}")
-    print(f"S = {r['members']}, ms per iteration by part: "
-          + ", ".join(f"{k} {v:.2f}" for k, v in r["parts_ms"].items()))
-    for name, value in r["top_ms"].items():
-      print(f"  {value:7.3f}  {name[:110]}")
-
+    print(f"\nS = {r['members']}, the ops that took the most time (ms per iteration):")
+    for op in r["ops"]:
+      print(f"  {op['ms']:7.3f} ms  {op['kernels']:6.0f} kernels  products {op['gemm_ms']:.3f} ms"
+            f"  {op['op']}")
 
 if __name__ == "__main__":
   main()
