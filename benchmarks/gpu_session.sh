@@ -50,6 +50,7 @@
 #   bash benchmarks/gpu_session.sh sweep-profile      # a sweep's iteration, kernel by kernel
 #   bash benchmarks/gpu_session.sh hopper-lr wait     # Hopper's gpu preset at higher learning rates
 #   bash benchmarks/gpu_session.sh hopper-bf16 wait   # ... at 1e-3 in bfloat16, and more seeds
+#   bash benchmarks/gpu_session.sh bf16-robots wait   # Walker2D's and the Humanoid's in bfloat16
 # Every run of a call shares the one GPU (XLA_PYTHON_CLIENT_MEM_FRACTION=0.1 each). The device
 # tool's calls run it as
 #   timeout 570 bash benchmarks/gpu_session.sh PHASES > $OUT/session.log 2>&1;
@@ -522,6 +523,19 @@ for phase in "$@"; do
       tune hopper_seeds_lr1e-3_bf16 --seeds 0,1,2,3,4 --set compute_dtype=bfloat16
       tune hopper_seeds_lr1e-3_seeds5-9 --seeds 5,6,7,8,9 --set compute_dtype=float32
       ;;
+    bf16-robots)
+      # Walker2D's and the Humanoid's gpu presets with their networks in bfloat16, seeds 0-2 in
+      # one program each, the two sharing the GPU, until the target or 15M env steps: the env
+      # steps each needs, against their float32 runs alone (time_to_score_*_h100*.json).
+      T=(benchmarks/time_to_score.py Walker2D --kind gpu --cpu-devices 1 --seeds 0,1,2 --at-once
+         --minutes "${TUNE_MINUTES:-8.6}" --env-steps 15000000)
+      export XLA_PYTHON_CLIENT_MEM_FRACTION=0.25
+      tune walker_seeds_bf16 --set compute_dtype=bfloat16
+      T=(benchmarks/time_to_score.py Humanoid --kind gpu --cpu-devices 1 --seeds 0,1,2 --at-once
+         --minutes "${TUNE_MINUTES:-8.6}" --env-steps 15000000)
+      export XLA_PYTHON_CLIENT_MEM_FRACTION=0.65
+      tune humanoid_seeds_bf16 --set compute_dtype=bfloat16
+      ;;
     sweep-profile)
       # Where a 16-member sweep's iteration spends the GPU's time, against one member's:
       # sweep-throughput's settings, one chunk traced (benchmarks/research/sweep_profile.py).
@@ -636,7 +650,7 @@ for phase in "$@"; do
       # variants through the stability check.
       for v in "all 4/4" "all 4/2" "all 3/3" "legs 3/3"; do stable "$BEFORE_ARMATURE $v"; done
       ;;
-    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, humanoid-capture, humanoid-limits, humanoid-armature, humanoid-confirm, mpo-pairN, sweep-throughput, peers, scaling, scaling-rest, sweep-collect, screen-hopper, screen-humanoid, humanoid-solve, tts-ROBOT, hopper-cold, cold-ROBOT, cpu-tune2, cpu-tune3, cpu-tune4, projection-cost, cpu-tune5, cpu-tune6, cpu-tune7, member-layout, collect-parts, cpu60-ROBOT, compile-parts, sweep-precision, sweep-triton, cheetah-explore, hopper-seeds, cheetah-cpu-explore, hopper-pen, walker-pen, hopper-lr, hopper-bf16, sweep-profile, wait" >&2
+    *) echo "unknown phase $phase; phases: install-and-tune, d4pg, ddpg, mpo, dmpo, cpu-tune, mpo-tune, mpo-cpu-seed2, mpo-acme-std, humanoid-stability, humanoid-ls, humanoid-shipped, humanoid-before, humanoid-capture, humanoid-limits, humanoid-armature, humanoid-confirm, mpo-pairN, sweep-throughput, peers, scaling, scaling-rest, sweep-collect, screen-hopper, screen-humanoid, humanoid-solve, tts-ROBOT, hopper-cold, cold-ROBOT, cpu-tune2, cpu-tune3, cpu-tune4, projection-cost, cpu-tune5, cpu-tune6, cpu-tune7, member-layout, collect-parts, cpu60-ROBOT, compile-parts, sweep-precision, sweep-triton, cheetah-explore, hopper-seeds, cheetah-cpu-explore, hopper-pen, walker-pen, hopper-lr, hopper-bf16, bf16-robots, sweep-profile, wait" >&2
        exit 2 ;;
   esac
 done
