@@ -11,8 +11,9 @@ events: the kernels on the GPU's streams. It prints, per iteration of the chunk:
   kernels   how many kernels ran, their summed time, and the matrix products' share of it;
 and the compiled program's ops that took the most time, with their kernels. XLA runs stretches
 of the program as command buffers (CUDA graphs), so an op can be a whole loop body: the op with
-8 x ~170 kernels is a member's 8 updates. busy near wall means the GPU never waits for the
-host. The device events of the traced chunk are written to OUT_S{S}.json.gz for a closer look.
+8 x ~170 kernels is the iteration's 8 updates, every member's at once. busy near wall means the
+GPU never waits for the host. The device events of the traced chunk are written to
+OUT_S{S}.json.gz for a closer look.
 """
 
 from __future__ import annotations
