@@ -203,20 +203,26 @@ def _first_line(error: Exception, limit: int = 300) -> str:
 
 
 def resume(mngr: ocp.CheckpointManager, fresh: train.TrainState, config: dict,
-           print_fn=print) -> train.TrainState:
+           print_fn=print, defaults: dict | None = None) -> train.TrainState:
   """The latest readable checkpoint's state, or `fresh` when there is none.
 
   Falls back to older steps, with a warning naming the error, when the newest cannot be read.
   A checkpoint of another config is a ConfigMismatch (a ValueError) naming the settings that
-  differ.
+  differ. `defaults` ({config key: {setting: value}}) are the values that a setting missing
+  from a saved config's dict had: an older version, which lacked the setting, ran as its default
+  (such as the agents' `compute_dtype`, "float32").
   """
   config = json.loads(json.dumps(config))  # as saved: tuples become lists
+  defaults = json.loads(json.dumps(defaults or {}))
   if not mngr.all_steps():
     print_fn(f"no checkpoint in {mngr.directory}: starting a fresh run")
     return fresh
 
   def load(step):
     saved = read_config(mngr, step)
+    for key, values in defaults.items():
+      if isinstance(saved.get(key), dict):
+        saved[key] = {**values, **saved[key]}
     differ = [k for k in MUST_MATCH if saved.get(k) != config.get(k)]
     if differ:
       details = "; ".join(f"{k}: saved {saved.get(k)!r}, now {config.get(k)!r}" for k in differ)

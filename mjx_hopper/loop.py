@@ -148,6 +148,12 @@ def process_members(cfg: RunConfig, process: tuple[int, int] | None = None) -> l
   return list(range(index * share, (index + 1) * share))
 
 
+def _field_defaults(config) -> dict:
+  """A config dataclass's fields' default values."""
+  return {f.name: f.default for f in dataclasses.fields(config)
+          if f.default is not dataclasses.MISSING}
+
+
 def run(cfg: RunConfig, checkpoint_dir: str | None = None, progress: bool = True,
         print_fn=print, process: tuple[int, int] | None = None) -> Result:
   """Trains until `total_env_steps`, evaluating every `eval_every` env steps and at the end.
@@ -193,7 +199,8 @@ def run(cfg: RunConfig, checkpoint_dir: str | None = None, progress: bool = True
 
   newest = (mngr.latest_step() or 0) * steps_per_iteration
   programs = start_compiling() if newest < cfg.total_env_steps else None
-  state = checkpoint.resume(mngr, init(cfg, trainer, members), saved_config, say)
+  state = checkpoint.resume(mngr, init(cfg, trainer, members), saved_config, say,
+                            defaults={"agent_config": _field_defaults(cfg.agent_config())})
   with open(os.path.join(out_dir, "config.json"), "w") as f:  # once resuming is agreed
     json.dump(saved_config, f, indent=1)
   env_steps = train.iterations(state) * steps_per_iteration

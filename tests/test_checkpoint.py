@@ -3,6 +3,7 @@ a state laid out otherwise, a missing or empty directory; and a resumed run cont
 bit, in fresh processes."""
 
 import csv
+import dataclasses
 import os
 import signal
 import subprocess
@@ -13,7 +14,7 @@ import jax
 import numpy as np
 import pytest
 
-from mjx_hopper import checkpoint, cli, loop, train
+from mjx_hopper import agents, checkpoint, cli, loop, train
 from checkpoint_worker import CONFIG, state
 from test_train import TINY_ARGS
 
@@ -133,6 +134,26 @@ def test_another_config_is_refused_naming_it_and_nothing_is_overwritten(tmp_path
                            f"{change[key]!r}\\)"):
     checkpoint.resume(checkpoint.manager(str(directory)), state(0), {**CONFIG, **change})
   assert checkpoint._files(str(directory)) == files
+
+
+def test_a_checkpoint_without_a_newer_setting_resumes_at_its_default(tmp_path):
+  # Saved by a version without `compute_dtype`: its agent_config lacks it, and it ran as the
+  # default does. loop.run passes the agent config's defaults.
+  now = dataclasses.asdict(agents.config("d4pg", "cpu"))
+  older = {k: v for k, v in now.items() if k != "compute_dtype"}
+  directory = tmp_path / "ckpt"
+  mngr = checkpoint.manager(str(directory))
+  checkpoint.save(mngr, state(1), {**CONFIG, "agent_config": older})
+  checkpoint.finish(mngr)
+  defaults = {"agent_config": loop._field_defaults(agents.config("d4pg"))}
+  assert defaults["agent_config"]["compute_dtype"] == "float32"
+  assert_same(checkpoint.resume(checkpoint.manager(str(directory)), state(0),
+                                {**CONFIG, "agent_config": now}, print_fn=lambda _: None,
+                                defaults=defaults), state(1))
+  other = {**CONFIG, "agent_config": {**now, "compute_dtype": "bfloat16"}}
+  with pytest.raises(checkpoint.ConfigMismatch, match="agent_config: saved .*'float32'.*"
+                                                      "now .*'bfloat16'"):
+    checkpoint.resume(checkpoint.manager(str(directory)), state(0), other, defaults=defaults)
 
 
 # A tiny D4PG run: 2 chunks of 5 iterations (40 env steps each); learning starts at iteration 3.
