@@ -25,8 +25,10 @@ import sys
 import time
 
 
-def measure(args) -> dict:
-  """One sweep of args.members members: compile time, rates and memory."""
+def run_sweep(args):
+  """Builds the sweep of args.members members, compiles its chunk, runs a warm-up chunk and
+  times args.chunks more: (its RunConfig, the compiled chunk, the state after them, the compile's
+  seconds, the timed chunks' seconds)."""
   import jax
 
   from mjx_hopper import cli, loop, train
@@ -56,7 +58,14 @@ def measure(args) -> dict:
   for _ in range(args.chunks):
     state, metrics = compiled(state)
   jax.block_until_ready(metrics)
-  seconds = time.perf_counter() - start
+  return cfg, compiled, state, compile_s, time.perf_counter() - start
+
+
+def measure(args) -> dict:
+  """One sweep of args.members members: compile time, rates and memory."""
+  import jax
+
+  cfg, _, _, compile_s, seconds = run_sweep(args)
   per_chunk = args.members * cfg.train.steps_per_iteration * args.chunk * args.chunks
   updates = (0 if args.collect_only else
              args.members * cfg.train.updates_per_iteration * args.chunk * args.chunks)

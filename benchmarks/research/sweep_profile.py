@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import collections
-import dataclasses
 import gzip
 import json
 import os
@@ -76,31 +75,15 @@ def summarise(kernels: list[dict], iterations: int) -> dict:
 def measure(args) -> dict:
   import jax
 
-  from mjx_hopper import cli, loop, train
-
-  cfg = loop.RunConfig(
-      env="Hopper", agent="d4pg", preset="gpu", agent_overrides=cli._overrides(args.set),
-      train=train.TrainConfig(num_envs=args.num_envs, unroll_length=args.unroll_length,
-                              batch_size=args.batch_size, replay_ratio=args.replay_ratio,
-                              replay_size=args.replay_size, min_replay=0,
-                              iterations_per_chunk=args.chunk),
-      seeds=tuple(range(args.members)) if args.members > 1 else ())
-  cfg = dataclasses.replace(cfg, train=dataclasses.replace(
-      cfg.train, min_replay=cfg.train.steps_per_iteration))
-  trainer = loop.build(cfg)
-  state = loop.init(cfg, trainer, cfg.members())
-  compiled = trainer.train_chunk.lower(state).compile()
-  state, metrics = compiled(state)
-  jax.block_until_ready(metrics)
-  start = time.perf_counter()
-  for _ in range(args.chunks):
-    state, metrics = compiled(state)
-  jax.block_until_ready(metrics)
-  wall_ms = (time.perf_counter() - start) * 1000 / (args.chunks * args.chunk)
+  # sweep_throughput.py is in benchmarks/, this script's parent folder.
+  sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+  from sweep_throughput import run_sweep
+  cfg, compiled, state, _, seconds = run_sweep(argparse.Namespace(
+      **vars(args), env="Hopper", agent="d4pg", preset="gpu", collect_only=False))
+  wall_ms = seconds * 1000 / (args.chunks * args.chunk)
   trace_dir = tempfile.mkdtemp()
   with jax.profiler.trace(trace_dir):
-    state, metrics = compiled(state)
-    jax.block_until_ready(metrics)
+    jax.block_until_ready(compiled(state))
   events = device_events(trace_dir)
   with gzip.open(f"{args.out}_S{args.members}.json.gz", "wt") as f:
     json.dump([{k: e[k] for k in ("name", "ts", "dur", "thread", "args") if k in e}
