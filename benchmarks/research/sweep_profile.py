@@ -29,7 +29,7 @@ import sys
 import tempfile
 import time
 
-# cuBLAS's matrix-product kernels, by name.
+# The matrix-product kernels (cuBLAS's, CUTLASS's, Triton's GEMM fusions), by name.
 GEMM_NAMES = ("gemm", "xmma", "nvjet", "cutlass")
 
 
@@ -138,6 +138,7 @@ def main() -> None:
     for op in r["ops"]:
       print(f"  {op['ms']:7.3f} ms  {op['kernels']:6.0f} kernels  products {op['gemm_ms']:.3f} ms"
             f"  {op['op']}")
+
 
 if __name__ == "__main__":
   main()
