@@ -105,21 +105,17 @@ def _run_config(args: argparse.Namespace, agent_overrides: dict, **sweep):
   defaults; then every flag given, and --set, replace its settings."""
   import dataclasses
 
-  from mjx_hopper import loop, presets, train as train_lib
-  agent = args.agent or "d4pg"
-  robot = presets.for_agent(args.env, args.preset, agent)
+  from mjx_hopper import presets
+  base = presets.agent_run_config(args.env, args.preset, args.agent or "d4pg")
   flags = dict(num_envs=args.num_envs, unroll_length=args.unroll_length,
                batch_size=args.batch_size, replay_ratio=args.replay_ratio,
                replay_size=args.replay_size, min_replay=args.min_replay,
                iterations_per_chunk=args.chunk)
-  trainer = dataclasses.replace(robot.train if robot else train_lib.TrainConfig(),
-                                **{k: v for k, v in flags.items() if v is not None})
-  eval_every = args.eval_every or (robot.eval_every if robot else loop.RunConfig.eval_every)
-  return loop.RunConfig(
-      env=args.env, agent=agent, preset=args.preset,
-      agent_overrides={**(robot.agent_overrides if robot else {}), **agent_overrides},
-      train=trainer, total_env_steps=args.steps, max_minutes=args.max_minutes,
-      stop_at_return=args.stop_at_return, eval_every=eval_every,
+  trainer = dataclasses.replace(base.train, **{k: v for k, v in flags.items() if v is not None})
+  return dataclasses.replace(
+      base, agent_overrides={**base.agent_overrides, **agent_overrides}, train=trainer,
+      total_env_steps=args.steps, max_minutes=args.max_minutes,
+      stop_at_return=args.stop_at_return, eval_every=args.eval_every or base.eval_every,
       eval_episodes=args.eval_episodes, episode_steps=args.episode_steps, seed=args.seed,
       out_dir=args.out, tensorboard_dir=args.tensorboard, time_delta=args.log_every,
       checkpoint_minutes=args.checkpoint_minutes, **sweep)

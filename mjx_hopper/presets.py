@@ -123,6 +123,16 @@ def for_agent(env: str, kind: str, agent: str) -> Preset | None:
   return preset if preset is not None and preset.agent == agent else None
 
 
+def agent_run_config(env: str, kind: str, agent: str, **changes):
+  """The `loop.RunConfig` of `agent` on robot `env` with its `kind` settings: the robot's preset
+  when it is one of this agent (`for_agent`), else the agent's own preset of that name with the
+  trainer's defaults; fields replaced by `changes` as in `run_config`."""
+  if for_agent(env, kind, agent):
+    return run_config(env, kind, **changes)
+  from mjx_hopper import loop
+  return loop.RunConfig(env=env, agent=agent, preset=kind, **changes)
+
+
 def run_config(env: str, kind: str, **changes):
   """The `loop.RunConfig` of robot `env`'s `kind` preset, with fields replaced by `changes`
   (agent_overrides are merged into the preset's; `train` replaces its TrainConfig)."""
