@@ -116,18 +116,12 @@ def get(env: str, kind: str) -> Preset:
   return PRESETS[env, kind]
 
 
-def for_agent(env: str, kind: str, agent: str) -> Preset | None:
-  """Robot `env`'s `kind` preset when it is one of `agent`, else None: then the agent's own
-  preset of that name, with the trainer's defaults, applies (`mjx-hopper train --preset`)."""
-  preset = PRESETS.get((env, kind))
-  return preset if preset is not None and preset.agent == agent else None
-
-
 def agent_run_config(env: str, kind: str, agent: str, **changes):
   """The `loop.RunConfig` of `agent` on robot `env` with its `kind` settings: the robot's preset
-  when it is one of this agent (`for_agent`), else the agent's own preset of that name with the
-  trainer's defaults; fields replaced by `changes` as in `run_config`."""
-  if for_agent(env, kind, agent):
+  when it is one of this agent, else the agent's own preset of that name with the trainer's
+  defaults; fields replaced by `changes` as in `run_config`."""
+  preset = PRESETS.get((env, kind))
+  if preset is not None and preset.agent == agent:
     return run_config(env, kind, **changes)
   from mjx_hopper import loop
   return loop.RunConfig(env=env, agent=agent, preset=kind, **changes)
