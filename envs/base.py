@@ -13,6 +13,7 @@ wrappers and trainers run on these envs (docs/brax.md).
 from __future__ import annotations
 
 import contextlib
+import functools
 import io
 import os
 from typing import ClassVar
@@ -37,6 +38,20 @@ REWARD_TERMS = ("alive", "progress", "electricity_cost", "joints_at_limit_cost",
 # Brax's EpisodeWrapper (which `brax.envs.training.wrap` and Brax's trainers add) keeps this key
 # in `state.info`; under it, the wrapper owns the time limit and `info["steps"]`/"truncation".
 BRAX_EPISODE_KEY = "episode_done"
+
+
+@functools.partial(jax.jit, static_argnums=2)
+def _physics(model: mjx.Model, data: mjx.Data, substeps: int) -> mjx.Data:
+  """`substeps` MJX steps of `data` under `model`.
+
+  Tracing MJX's step costs 2-5 s of Python, and every program that steps an env (a training
+  chunk, an evaluation, a rollout, Brax's trainers) used to trace it again. As one jitted
+  function of the model and data, it is traced once per model layout and input shapes, and
+  every later program reuses that trace (JAX caches it; under vmap too). XLA inlines the call,
+  so the compiled programs are what they were. The model is an argument, not a constant, so
+  that Brax's DomainRandomizationVmapWrapper, which swaps `env.sys` while it steps, still
+  steps each env with its own model."""
+  return jax.lax.fori_loop(0, substeps, lambda _, d: mjx.step(model, d), data)
 
 
 class Robot(struct.PyTreeNode):
@@ -261,8 +276,7 @@ class LocomotionEnv(Env):
           f"{type(self).__name__} takes an action of shape ({self.action_size},), got "
           f"{action.shape}; for a batch of envs use jax.vmap(env.step)")
     data = state.pipeline_state.replace(ctrl=action)  # MuJoCo clips ctrl to [-1, 1]
-    data = jax.lax.fori_loop(0, self.n_substeps,
-                             lambda _, d: mjx.step(self.mjx_model, d), data)
+    data = _physics(self.mjx_model, data, self.n_substeps)
     # Like PyBullet, observe joint angles and the torso speed after the last substep, but body
     # poses and contacts as the last substep's kinematics left them, one substep (4 ms) earlier.
     robot = self.robot(data, state.info["feet_contact"])
