@@ -54,6 +54,11 @@ def _physics(model: mjx.Model, data: mjx.Data, substeps: int) -> mjx.Data:
   return jax.lax.fori_loop(0, substeps, lambda _, d: mjx.step(model, d), data)
 
 
+# A reset's kinematics, traced once per model layout in the same way (about 1 s each: every
+# reset, AutoReset's step and evaluation traces it).
+_kinematics = jax.jit(mjx.kinematics)
+
+
 class Robot(struct.PyTreeNode):
   """What PyBullet's robot computes in `calc_state`, for one env.
 
@@ -382,7 +387,7 @@ class LocomotionEnv(Env):
 
   def _kinematics(self, data: mjx.Data) -> mjx.Data:
     """Poses of every body and geom for the current qpos."""
-    return mjx.kinematics(self.mjx_model, data)
+    return _kinematics(self.mjx_model, data)
 
   # ---- What the seed inspects ----------------------------------------------------------------
 

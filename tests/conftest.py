@@ -71,11 +71,11 @@ def shared_builds():
 # --durations=0 --junitxml`), for the order in which the two test workers take the files:
 # longest first, so that neither is left with a long file at the end while the other idles
 # (scripts/test.sh turns off xdist's own order, by number of tests). A file not listed goes last.
-FILE_SECONDS = {"test_sweep.py": 307, "test_brax.py": 240, "test_train.py": 202,
-                "test_env_api.py": 146, "test_notebooks.py": 140, "test_episodes.py": 131,
-                "test_checkpoint.py": 104, "test_observation.py": 79, "test_render.py": 67,
-                "test_dpg.py": 61, "test_mpo.py": 54, "test_notebook_helpers.py": 37,
-                "test_presets.py": 36}
+FILE_SECONDS = {"test_sweep.py": 281, "test_brax.py": 201, "test_train.py": 199,
+                "test_notebooks.py": 166, "test_episodes.py": 165, "test_env_api.py": 110,
+                "test_checkpoint.py": 93, "test_observation.py": 74, "test_dpg.py": 61,
+                "test_mpo.py": 52, "test_presets.py": 33, "test_render.py": 30,
+                "test_notebook_helpers.py": 11}
 
 
 def pytest_collection_modifyitems(items):

@@ -1,4 +1,5 @@
-"""Episode statistics under random and zero actions, against PyBullet's own envs.
+"""Episode statistics under random and zero actions, against PyBullet's own envs; and a video
+of one (here, so that it reuses this file's compiled episodes in the same test worker).
 
 The contact models differ (Bullet's hard contacts, MuJoCo's soft ones), so episodes agree in
 distribution, not step for step. A mean passes when |ours - bullet| <= max(rel * |bullet|, abs)
@@ -9,8 +10,8 @@ docs/fidelity.md (64 episodes each), the second the sampling noise of the few ep
 import numpy as np
 import pytest
 
-from conftest import ROBOTS, make_bullet, mjx_episodes
-from mjx_hopper.envs import pybullet_oracle
+from conftest import ROBOTS, make_bullet, make_env, mjx_episodes
+from mjx_hopper.envs import pybullet_oracle, render
 
 TOLERANCE = {  # statistic: (relative, absolute)
     "length": (0.25, 1.0),
@@ -66,3 +67,21 @@ def test_return_is_sum_of_terms(robot):
 def test_half_cheetah_never_terminates_early():
   for policy in ("random", "zero"):
     assert (mjx_episodes("HalfCheetah")[policy]["length"] == 1000).all()
+
+
+@pytest.mark.parametrize("robot", ROBOTS)
+def test_random_episode_video(robot, tmp_path):
+  import imageio_ffmpeg
+  env = make_env(robot)
+  episode = mjx_episodes(robot)["random"]
+  length = min(int(episode["length"][0]), 150)
+  frames = env.render(episode["qpos"][:length + 1], width=96, height=64)
+  assert frames.shape == (length + 1, 64, 96, 3)
+  assert np.abs(frames[0].astype(int) - frames[-1]).max() > 0  # the robot moved
+  path = render.write_mp4(str(tmp_path / "episode.mp4"), frames, fps=1 / env.dt)
+  reader = imageio_ffmpeg.read_frames(path)
+  meta = next(reader)
+  assert tuple(meta["size"]) == (96, 64)
+  assert sum(1 for _ in reader) == length + 1
+  with pytest.raises(ValueError, match="frames must be uint8"):
+    render.write_mp4(str(tmp_path / "bad.mp4"), frames.astype(float), fps=30)

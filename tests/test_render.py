@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from conftest import ROBOTS, make_env, mjx_episodes
+from conftest import ROBOTS, make_env
 from mjx_hopper import cli
 from mjx_hopper.envs import render
 
@@ -17,24 +17,6 @@ def test_one_frame(robot):
   with pytest.raises(ValueError, match=rf"qpos must have shape \(nq,\) or \(T, nq\) with "
                                        rf"nq={env.mj_model.nq}"):
     env.render(np.zeros(5))
-
-
-@pytest.mark.parametrize("robot", ROBOTS)
-def test_random_episode_video(robot, tmp_path):
-  import imageio_ffmpeg
-  env = make_env(robot)
-  episode = mjx_episodes(robot)["random"]
-  length = min(int(episode["length"][0]), 150)
-  frames = env.render(episode["qpos"][:length + 1], width=96, height=64)
-  assert frames.shape == (length + 1, 64, 96, 3)
-  assert np.abs(frames[0].astype(int) - frames[-1]).max() > 0  # the robot moved
-  path = render.write_mp4(str(tmp_path / "episode.mp4"), frames, fps=1 / env.dt)
-  reader = imageio_ffmpeg.read_frames(path)
-  meta = next(reader)
-  assert tuple(meta["size"]) == (96, 64)
-  assert sum(1 for _ in reader) == length + 1
-  with pytest.raises(ValueError, match="frames must be uint8"):
-    render.write_mp4(str(tmp_path / "bad.mp4"), frames.astype(float), fps=30)
 
 
 def test_demo_prints_throughput_and_writes_video(tmp_path, capsys):
