@@ -48,7 +48,8 @@ def _physics(model: mjx.Model, data: mjx.Data, substeps: int) -> mjx.Data:
   chunk, an evaluation, a rollout, Brax's trainers) used to trace it again. As one jitted
   function of the model and data, it is traced once per model layout and input shapes, and
   every later program reuses that trace (JAX caches it; under vmap too). XLA inlines the call,
-  so the compiled programs are what they were. The model is an argument, not a constant, so
+  so a compiled program is the same but for the order of some operands (a Hopper batch's
+  outputs were bit-identical). The model is an argument, not a constant, so
   that Brax's DomainRandomizationVmapWrapper, which swaps `env.sys` while it steps, still
   steps each env with its own model."""
   return jax.lax.fori_loop(0, substeps, lambda _, d: mjx.step(model, d), data)
@@ -56,7 +57,7 @@ def _physics(model: mjx.Model, data: mjx.Data, substeps: int) -> mjx.Data:
 
 # A reset's kinematics, traced once per model layout in the same way (about 1 s each: every
 # reset, AutoReset's step and evaluation traces it).
-_kinematics = jax.jit(mjx.kinematics)
+_forward_kinematics = jax.jit(mjx.kinematics)
 
 
 class Robot(struct.PyTreeNode):
@@ -387,7 +388,7 @@ class LocomotionEnv(Env):
 
   def _kinematics(self, data: mjx.Data) -> mjx.Data:
     """Poses of every body and geom for the current qpos."""
-    return _kinematics(self.mjx_model, data)
+    return _forward_kinematics(self.mjx_model, data)
 
   # ---- What the seed inspects ----------------------------------------------------------------
 
