@@ -10,9 +10,12 @@ import os
 # (docs/benchmark-history.md). And single-threaded matrix products within a device: XLA:CPU
 # splits a product over its thread pool only in single-device programs, which changes the
 # order of its sums, so a sweep member would not be bit-identical to its single run on one
-# device (test_sweep.py).
+# device (test_sweep.py). And LLVM's optimisation level 1 instead of 2: a Hopper rollout compiles
+# in 0.83x the CPU time and runs at 0.85x the speed, and the suite took 1,136 CPU-s against
+# 1,371-1,420 (BENCHMARKS.md, "Test-suite time"; level 0 compiles in half the time but runs
+# 5.5x slower, which the tests' long episodes pay back).
 TEST_XLA_FLAGS = ("--xla_force_host_platform_device_count=2 --xla_cpu_use_fusion_emitters=false "
-                  "--xla_cpu_multi_thread_eigen=false")
+                  "--xla_cpu_multi_thread_eigen=false --xla_backend_optimization_level=1")
 os.environ["XLA_FLAGS"] = os.environ.get("XLA_FLAGS", "") + " " + TEST_XLA_FLAGS
 
 # One compile cache for the tests and the processes they start (CLI runs, notebooks), so that
@@ -71,11 +74,11 @@ def shared_builds():
 # --durations=0 --junitxml`), for the order in which the two test workers take the files:
 # longest first, so that neither is left with a long file at the end while the other idles
 # (scripts/test.sh turns off xdist's own order, by number of tests). A file not listed goes last.
-FILE_SECONDS = {"test_sweep.py": 281, "test_brax.py": 201, "test_train.py": 199,
-                "test_notebooks.py": 166, "test_episodes.py": 165, "test_env_api.py": 110,
-                "test_checkpoint.py": 93, "test_observation.py": 74, "test_dpg.py": 61,
-                "test_mpo.py": 52, "test_presets.py": 33, "test_render.py": 30,
-                "test_notebook_helpers.py": 11}
+FILE_SECONDS = {"test_sweep.py": 204, "test_brax.py": 177, "test_notebooks.py": 168,
+                "test_train.py": 145, "test_episodes.py": 142, "test_checkpoint.py": 78,
+                "test_env_api.py": 76, "test_observation.py": 57, "test_dpg.py": 42,
+                "test_mpo.py": 37, "test_presets.py": 31, "test_render.py": 20,
+                "test_notebook_helpers.py": 20}
 
 
 def pytest_collection_modifyitems(items):
