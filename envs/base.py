@@ -49,9 +49,9 @@ def _physics(model: mjx.Model, data: mjx.Data, substeps: int) -> mjx.Data:
   function of the model and data, it is traced once per model layout and input shapes, and
   every later program reuses that trace (JAX caches it; under vmap too). XLA inlines the call,
   so a compiled program is the same but for the order of some operands (a Hopper batch's
-  outputs were bit-identical). The model is an argument, not a constant, so
-  that Brax's DomainRandomizationVmapWrapper, which swaps `env.sys` while it steps, still
-  steps each env with its own model."""
+  outputs were bit-identical). The model is an argument, not a constant, so that Brax's
+  DomainRandomizationVmapWrapper, which swaps `env.sys` while it steps, still steps each env
+  with its own model."""
   return jax.lax.fori_loop(0, substeps, lambda _, d: mjx.step(model, d), data)
 
 

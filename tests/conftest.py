@@ -10,10 +10,10 @@ import os
 # (docs/benchmark-history.md). And single-threaded matrix products within a device: XLA:CPU
 # splits a product over its thread pool only in single-device programs, which changes the
 # order of its sums, so a sweep member would not be bit-identical to its single run on one
-# device (test_sweep.py). And LLVM's optimisation level 1 instead of 2: a Hopper rollout compiles
-# in 0.83x the CPU time and runs at 0.85x the speed, and the suite took 1,136 CPU-s against
-# 1,371-1,420 (BENCHMARKS.md, "Test-suite time"; level 0 compiles in half the time but runs
-# 5.5x slower, which the tests' long episodes pay back).
+# device (test_sweep.py). And LLVM's optimisation level 1 instead of 2: a Hopper rollout
+# compiles in 0.83x the CPU time and runs at 0.85x the speed, and the suite took 1,136 CPU-s
+# against 1,371-1,420 (BENCHMARKS.md, "Test-suite time"). Level 0 compiles in half the time but
+# runs 5.5x slower, which costs the tests' 1,000-step episodes more than it saves.
 TEST_XLA_FLAGS = ("--xla_force_host_platform_device_count=2 --xla_cpu_use_fusion_emitters=false "
                   "--xla_cpu_multi_thread_eigen=false --xla_backend_optimization_level=1")
 os.environ["XLA_FLAGS"] = os.environ.get("XLA_FLAGS", "") + " " + TEST_XLA_FLAGS
