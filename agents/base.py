@@ -15,6 +15,8 @@ import jax
 import jax.numpy as jnp
 import optax
 
+from mjx_hopper.fields import check_types
+
 AgentState = Any
 
 
@@ -69,6 +71,7 @@ class CommonConfig:
   compute_dtype: str = "float32"
 
   def __post_init__(self):
+    check_types(self)
     if not isinstance(self.n_step, int) or self.n_step < 1:
       raise ValueError(f"n_step must be an integer >= 1, got {self.n_step!r}")
     if not 0.0 <= self.discount <= 1.0:

@@ -4,6 +4,9 @@
     env = envs.make("Hopper")
     state = jax.jit(env.reset)(jax.random.PRNGKey(0))
     state = jax.jit(env.step)(state, jnp.zeros(env.action_size))
+
+A task of your own is a subclass of a robot; `mjx_hopper.envs.tasks` says how one is named
+(a class, a `module:Class` path, or a name given with `register`) and what a run records of it.
 """
 
 from mjx_hopper.envs.ant import Ant
@@ -12,25 +15,17 @@ from mjx_hopper.envs.half_cheetah import HalfCheetah
 from mjx_hopper.envs.hopper import Hopper
 from mjx_hopper.envs.humanoid import Humanoid
 from mjx_hopper.envs.specs import Array, BoundedArray, EnvironmentSpec
+from mjx_hopper.envs import tasks
+from mjx_hopper.envs.tasks import (check_task, list_envs, make, register, robot_of, settings_of,
+                                   task_class, task_id, task_settings)
 from mjx_hopper.envs.walker2d import Walker2D
 from mjx_hopper.envs.wrappers import AutoReset
 
-_REGISTRY: dict[str, type[LocomotionEnv]] = {
-    cls.__name__: cls for cls in (Hopper, Walker2D, HalfCheetah, Ant, Humanoid)}
-
-
-def list_envs() -> list[str]:
-  """The ids `make` accepts."""
-  return sorted(_REGISTRY)
-
-
-def make(env_id: str, **kwargs) -> LocomotionEnv:
-  """Builds the env `env_id` (see `list_envs()`); kwargs go to its constructor."""
-  if env_id not in _REGISTRY:
-    raise ValueError(f"unknown env id {env_id!r}; valid ids are {list_envs()}")
-  return _REGISTRY[env_id](**kwargs)
-
+tasks.BUILT_IN = ("Hopper", "Walker2D", "HalfCheetah", "Ant", "Humanoid")
+for _robot in (Hopper, Walker2D, HalfCheetah, Ant, Humanoid):
+  register(_robot.__name__, _robot)
 
 __all__ = ["Ant", "Array", "AutoReset", "BoundedArray", "EnvironmentSpec", "HalfCheetah", "Hopper",
-           "Humanoid", "LocomotionEnv", "REWARD_TERMS", "Robot", "State", "Walker2D", "list_envs",
-           "make"]
+           "Humanoid", "LocomotionEnv", "REWARD_TERMS", "Robot", "State", "Walker2D", "check_task",
+           "list_envs", "make", "register", "robot_of", "settings_of", "task_class", "task_id",
+           "task_settings", "tasks"]

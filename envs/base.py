@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import inspect
 import io
 import os
 from typing import ClassVar
@@ -118,6 +119,24 @@ class LocomotionEnv(Env):
   # Bodies whose geoms touch the floor; None: every body's. Leaving out parts that cannot reach
   # the floor while the robot is alive makes the step cheaper.
   floor_bodies: ClassVar[tuple[str, ...] | None] = None
+
+  def __new__(cls, *args, **kwargs):
+    env = super().__new__(cls)
+    # The constructor's settings as given, which `envs.settings_of` completes with defaults: what
+    # a run records of its task.
+    signature = inspect.signature(cls.__init__)
+    try:
+      arguments = list(signature.bind(None, *args, **kwargs).arguments.items())[1:]
+    except TypeError:
+      arguments = []  # __init__ raises it, with its own message
+    env._given_settings = {}
+    for name, value in arguments:
+      kind = signature.parameters[name].kind
+      if kind == inspect.Parameter.VAR_KEYWORD:
+        env._given_settings.update(value)
+      elif kind != inspect.Parameter.VAR_POSITIONAL:
+        env._given_settings[name] = value
+    return env
 
   def __init__(self, episode_steps: int = 1000):
     if not isinstance(episode_steps, (int, np.integer)) or episode_steps < 1:

@@ -164,7 +164,7 @@ def restore_agent(mngr: ocp.CheckpointManager, step: int, like_agent):
 
 # The settings a checkpoint's state depends on; the others (run length, logging, evaluation)
 # may change between a run and its resumption.
-MUST_MATCH = ("env", "agent", "agent_config", "train", "episode_steps", "seed", "seeds", "grid",
+MUST_MATCH = ("env", "env_settings", "agent", "agent_config", "train", "episode_steps", "seed", "seeds", "grid",
               "member_indices")
 
 
@@ -221,8 +221,8 @@ def resume(mngr: ocp.CheckpointManager, fresh: train.TrainState, config: dict,
   def load(step):
     saved = read_config(mngr, step)
     for key, values in defaults.items():
-      if isinstance(saved.get(key), dict):
-        saved[key] = {**values, **saved[key]}
+      if isinstance(saved.get(key, {}), dict):
+        saved[key] = {**values, **saved.get(key, {})}
     differ = [k for k in MUST_MATCH if saved.get(k) != config.get(k)]
     if differ:
       details = "; ".join(f"{k}: saved {saved.get(k)!r}, now {config.get(k)!r}" for k in differ)

@@ -1,6 +1,7 @@
 """The `mjx-hopper` command line.
 
     mjx-hopper train [--env Hopper] [--agent d4pg|ddpg|mpo|dmpo] [--preset cpu|gpu] [--out DIR]
+    mjx-hopper train --env my_events:HighJump --env-set height_weight=5.0   # a task of your own
     mjx-hopper sweep --seeds 4 --set learning_rate=1e-4,3e-4 [train's flags]
     mjx-hopper extract --checkpoint DIR --member 3 --out DIR
     mjx-hopper eval --checkpoint DIR [--member 0] [--episodes 16] [--video out.mp4]
@@ -36,6 +37,7 @@ def demo(args: argparse.Namespace) -> None:
   from mjx_hopper.envs import render
 
   env = envs.make(args.env)
+  envs.check_task(env)
   print(f"{args.env}: observation {env.observation_size}, action {env.action_size}, "
         f"control dt {env.dt} s")
   print(f"devices: {jax.devices()}")
@@ -67,14 +69,14 @@ def demo(args: argparse.Namespace) -> None:
         f"video: {path}")
 
 
-def _overrides(pairs: list[str]) -> dict:
+def _overrides(pairs: list[str], flag: str = "--set") -> dict:
   """--set name=value pairs as a dict; values are parsed as Python literals when they can be."""
   import ast
   out = {}
   for pair in pairs:
     name, sep, value = pair.partition("=")
     if not sep:
-      raise SystemExit(f"--set takes name=value, got {pair!r}")
+      raise SystemExit(f"{flag} takes name=value, got {pair!r}")
     try:
       out[name] = ast.literal_eval(value)
     except (ValueError, SyntaxError):
@@ -107,13 +109,15 @@ def _run_config(args: argparse.Namespace, agent_overrides: dict, **sweep):
 
   from mjx_hopper import presets
   base = presets.agent_run_config(args.env, args.preset, args.agent or "d4pg")
+  env_settings = {**base.env_settings, **_overrides(args.env_set, "--env-set")}
   flags = dict(num_envs=args.num_envs, unroll_length=args.unroll_length,
                batch_size=args.batch_size, replay_ratio=args.replay_ratio,
                replay_size=args.replay_size, min_replay=args.min_replay,
                iterations_per_chunk=args.chunk)
   trainer = dataclasses.replace(base.train, **{k: v for k, v in flags.items() if v is not None})
   return dataclasses.replace(
-      base, agent_overrides={**base.agent_overrides, **agent_overrides}, train=trainer,
+      base, env_settings=env_settings,
+      agent_overrides={**base.agent_overrides, **agent_overrides}, train=trainer,
       total_env_steps=args.steps, max_minutes=args.max_minutes,
       stop_at_return=args.stop_at_return, eval_every=args.eval_every or base.eval_every,
       eval_episodes=args.eval_episodes, episode_steps=args.episode_steps, seed=args.seed,
@@ -145,6 +149,8 @@ def sweep(args: argparse.Namespace) -> None:
   if replay_ratio is not None:
     args.replay_ratio = replay_ratio
   try:
+    if isinstance(replay_ratio, str):
+      raise ValueError(f"replay_ratio takes a float, got {replay_ratio!r}")
     cfg = _run_config(args, fixed, seeds=tuple(range(args.seed, args.seed + args.seeds)),
                       grid=grid)
     loop.run(cfg, checkpoint_dir=args.checkpoint_dir, progress=not args.no_progress,
@@ -215,7 +221,7 @@ def build_parser() -> argparse.ArgumentParser:
   e.add_argument("--seed", type=int, default=0)
   e.add_argument("--video", default="runs/eval/policy.mp4")
   p = sub.add_parser("demo", help="batched random rollout, env steps/s, and a video")
-  p.add_argument("--env", default="Hopper")
+  p.add_argument("--env", default="Hopper", help="a robot, or a task of your own as module:Class")
   p.add_argument("--num-envs", type=int, default=1024)
   p.add_argument("--steps", type=int, default=500, help="steps of every env")
   p.add_argument("--seed", type=int, default=0)
@@ -225,7 +231,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _add_run_flags(t: argparse.ArgumentParser, sweep: bool = False) -> None:
   """The flags of a training run, shared by train and sweep."""
-  t.add_argument("--env", default="Hopper")
+  t.add_argument("--env", default="Hopper",
+                 help="a robot (Hopper, Walker2D, HalfCheetah, Ant, Humanoid) or a task of your own "
+                      "as module:Class, a subclass of one (the module is looked for in the current "
+                      "directory and on sys.path)")
+  t.add_argument("--env-set", action="append", default=[], metavar="NAME=VALUE",
+                 help="a constructor setting of the task, e.g. --env-set height_weight=5.0 "
+                      "(repeatable); recorded in the checkpoint")
   t.add_argument("--agent", default=None, help="d4pg (default), ddpg, mpo or dmpo")
   t.add_argument("--preset", default="cpu",
                  help="named settings: cpu or gpu (the robot's, mjx_hopper.presets, for its "
@@ -270,6 +282,8 @@ def _add_run_flags(t: argparse.ArgumentParser, sweep: bool = False) -> None:
 def main(argv: list[str] | None = None) -> None:
   parser = build_parser()
   args = parser.parse_args(argv)
+  if os.getcwd() not in sys.path:  # as `python -m` does: --env my_events:HighJump finds ./my_events.py
+    sys.path.insert(0, os.getcwd())
   _setup_jax(args.cpu_devices)
   if args.command == "train":
     train(args)
@@ -280,12 +294,12 @@ def main(argv: list[str] | None = None) -> None:
   elif args.command == "eval":
     evaluate(args)
   elif args.command == "demo":
-    from mjx_hopper import envs
-    if args.env not in envs.list_envs():
-      parser.error(f"unknown --env {args.env!r}; choose from {envs.list_envs()}")
     if args.num_envs < 1 or args.steps < 1:
       parser.error("--num-envs and --steps must be >= 1")
-    demo(args)
+    try:
+      demo(args)
+    except ValueError as error:
+      raise SystemExit(f"mjx-hopper demo: {error}")
 
 
 if __name__ == "__main__":

@@ -29,9 +29,17 @@ class RunConfig:
 
   A sweep is a run of several members: `seeds` (default: just `seed`) times the combinations
   of `grid`'s values ({dynamic setting: values}; see `mjx_hopper.sweep`), trained at once.
+
+  `env` is the task: a robot's name, a name given with `envs.register`, a `module:Class` path,
+  or a `LocomotionEnv` subclass or instance (a task of your own). `env_settings` are its
+  constructor's settings, and `episode_steps` its time limit (an instance's own settings count
+  as given). Once made, a RunConfig holds the task's id (`envs.task_id`) in `env`, and every
+  constructor setting but episode_steps, defaults included, in `env_settings`: what a
+  checkpoint records of its task.
   """
 
-  env: str = "Hopper"
+  env: Any = "Hopper"
+  env_settings: dict = dataclasses.field(default_factory=dict)
   agent: str = "d4pg"
   preset: str = "cpu"
   agent_overrides: dict = dataclasses.field(default_factory=dict)
@@ -52,8 +60,14 @@ class RunConfig:
   keep_checkpoints: int = 3
 
   def __post_init__(self):
-    if self.env not in envs.list_envs():
-      raise ValueError(f"unknown env {self.env!r}; valid envs are {envs.list_envs()}")
+    task = envs.task_class(self.env)
+    given = {"episode_steps": self.episode_steps,
+             **(envs.settings_of(self.env) if isinstance(self.env, envs.LocomotionEnv) else {}),
+             **self.env_settings}
+    settings = envs.task_settings(task, given)
+    object.__setattr__(self, "env", envs.task_id(task))
+    object.__setattr__(self, "episode_steps", settings.pop("episode_steps"))
+    object.__setattr__(self, "env_settings", settings)
     agents.config(self.agent, self.preset, **self.agent_overrides)  # raises on bad names
     for name in ("total_env_steps", "eval_every", "eval_episodes"):
       if getattr(self, name) < 1:
@@ -61,7 +75,12 @@ class RunConfig:
     if len(set(self.seeds)) != len(self.seeds) or not all(
         isinstance(s, int) for s in self.seeds):
       raise ValueError(f"seeds must be distinct integers, got {list(self.seeds)}")
+    self.train.check()
     sweep.check_grid(self.agent, self.preset, self.grid, self.train, self.agent_overrides)
+
+  def make_env(self) -> envs.LocomotionEnv:
+    """The task's env, built with its settings."""
+    return envs.make(self.env, episode_steps=self.episode_steps, **self.env_settings)
 
   def members(self) -> list[dict]:
     """Each member's seed and swept values, in member order (one member for a single run)."""
@@ -85,9 +104,23 @@ class RunConfig:
     return out
 
   @classmethod
-  def from_json(cls, saved: dict) -> "RunConfig":
+  def from_json(cls, saved: dict, env: Any = None) -> "RunConfig":
+    """The RunConfig a checkpoint saved. `env`, when given, is its task, which must be the
+    saved one (a class defined in a notebook or script cannot be imported by another process:
+    pass it again); a task or settings other than the saved ones is a ConfigMismatch."""
     fields = {f.name for f in dataclasses.fields(cls)}
     kwargs = {k: v for k, v in saved.items() if k in fields}
+    if env is not None:
+      mine = envs.task_id(envs.task_class(env))
+      saved_settings = {"episode_steps": saved["episode_steps"], **saved.get("env_settings", {})}
+      settings = (json.loads(json.dumps(envs.settings_of(env)))
+                  if isinstance(env, envs.LocomotionEnv) else saved_settings)
+      if (mine, settings) != (saved["env"], saved_settings):
+        given = mine + (f" {_settings_text(settings)}" if mine == saved["env"] else "")
+        raise checkpoint.ConfigMismatch(
+            f"the checkpoint was trained on the task {saved['env']} "
+            f"{_settings_text(saved_settings)}, not {given}")
+      kwargs["env"] = envs.task_class(env)
     kwargs["train"] = train.TrainConfig(**saved["train"])
     kwargs["seeds"] = tuple(saved.get("seeds", ()))
     kwargs["grid"] = {k: tuple(v) for k, v in saved.get("grid", {}).items()}
@@ -102,9 +135,16 @@ class Result:
   evaluation: dict[str, Any]     # the final evaluation's per-episode arrays
 
 
+def _settings_text(settings: dict) -> str:
+  """A task's settings, as '(episode_steps=300, height_weight=10.0)'."""
+  return "(" + ", ".join(f"{k}={v!r}" for k, v in sorted(settings.items())) + ")"
+
+
 def build(cfg: RunConfig, num_members: int | None = None) -> train.Trainer:
-  """The compiled trainer of `cfg`'s members (or of `num_members` of them)."""
-  env = envs.make(cfg.env, episode_steps=cfg.episode_steps)
+  """The compiled trainer of `cfg`'s members (or of `num_members` of them), after checking its
+  task's reward (`envs.check_task`)."""
+  env = cfg.make_env()
+  envs.check_task(env)
   agent = agents.make(cfg.agent, env.observation_size, env.action_size, cfg.agent_config())
   return train.make_trainer(env, agent, cfg.train_config(), eval_episodes=cfg.eval_episodes,
                             num_members=num_members or len(cfg.members()),
@@ -200,7 +240,8 @@ def run(cfg: RunConfig, checkpoint_dir: str | None = None, progress: bool = True
   newest = (mngr.latest_step() or 0) * steps_per_iteration
   programs = start_compiling() if newest < cfg.total_env_steps else None
   state = checkpoint.resume(mngr, init(cfg, trainer, members), saved_config, say,
-                            defaults={"agent_config": _field_defaults(cfg.agent_config())})
+                            defaults={"agent_config": _field_defaults(cfg.agent_config()),
+                                      "env_settings": {}})
   with open(os.path.join(out_dir, "config.json"), "w") as f:  # once resuming is agreed
     json.dump(saved_config, f, indent=1)
   env_steps = train.iterations(state) * steps_per_iteration
@@ -321,15 +362,16 @@ def _summary(cfg: RunConfig, why: str, env_steps: int, seconds: float,
   return "; ".join(parts)
 
 
-def restore(directory: str, print_fn=print):
+def restore(directory: str, print_fn=print, env: Any = None):
   """(RunConfig, TrainState, Trainer) of the newest readable checkpoint in `directory`: the
   whole run as saved, replay included, rebuilt from the config saved beside it. After a Colab
   restart this is the one call that gets a run back; `run(cfg, checkpoint_dir=directory)`
-  continues it."""
+  continues it. `env` is the run's task, for one that cannot be imported (see
+  `RunConfig.from_json`)."""
   mngr = _existing_manager(directory)
 
   def load(step):
-    cfg, members = _saved_run(mngr, step)
+    cfg, members = _saved_run(mngr, step, env)
     trainer = build(cfg, len(members))
     return cfg, checkpoint.restore(mngr, step, init(cfg, trainer, members)), trainer
 
@@ -347,14 +389,15 @@ def _existing_manager(directory: str):
   return mngr
 
 
-def load_policy(directory: str, member: int = 0):
+def load_policy(directory: str, member: int = 0, env: Any = None):
   """(RunConfig, agent state, Trainer) of the newest readable checkpoint in `directory`: the
   agent state of its `member`-th member (of a single run: its only one), without the member
-  axis; reads only the agent's item, not the replay."""
+  axis; reads only the agent's item, not the replay. `env` is the run's task, for one that
+  cannot be imported (see `RunConfig.from_json`)."""
   mngr = _existing_manager(directory)
 
   def load(step):
-    cfg, members = _saved_run(mngr, step)
+    cfg, members = _saved_run(mngr, step, env)
     if not 0 <= member < len(members):
       raise checkpoint.ConfigMismatch(f"member {member} is not in {directory}: it holds "
                                       f"{len(members)} member(s), 0 to {len(members) - 1}")
@@ -366,10 +409,14 @@ def load_policy(directory: str, member: int = 0):
   return checkpoint.load_newest(mngr, load)[1]
 
 
-def _saved_run(mngr, step) -> tuple[RunConfig, list[dict]]:
-  """The RunConfig saved at `step` and the members its checkpoint holds."""
+def _saved_run(mngr, step, env: Any = None) -> tuple[RunConfig, list[dict]]:
+  """The RunConfig saved at `step` and the members its checkpoint holds. A task that cannot be
+  found, or is not `env`, is a ConfigMismatch: no older step would do better."""
   saved = checkpoint.read_config(mngr, step)
-  cfg = RunConfig.from_json(saved)
+  try:
+    cfg = RunConfig.from_json(saved, env)
+  except ValueError as error:
+    raise checkpoint.ConfigMismatch(f"{mngr.directory}: {error}") from None
   everyone = cfg.members()
   return cfg, [everyone[i] for i in saved.get("member_indices", range(len(everyone)))]
 
@@ -396,13 +443,15 @@ def _above_progress_bars(print_fn: Callable[[str], None]) -> Callable[[str], Non
   return say
 
 
-def resume(directory: str, progress: bool = True, print_fn=print, **changes) -> Result:
+def resume(directory: str, progress: bool = True, print_fn=print, env: Any = None,
+           **changes) -> Result:
   """Continues the run whose checkpoints are in `directory`, from its newest readable one,
   with the config saved beside it: after a restart, the one call that goes on training.
   `changes` replace config fields that may change between a run and its resumption
   (total_env_steps, max_minutes, eval_every, ...); one the saved state depends on is refused
-  with the settings that differ."""
+  with the settings that differ. `env` is the run's task, for a class that cannot be imported
+  (one defined in a notebook or a script, in a new process): another task is refused."""
   mngr = _existing_manager(directory)
-  cfg = checkpoint.load_newest(mngr, lambda step: _saved_run(mngr, step)[0], print_fn)[1]
+  cfg = checkpoint.load_newest(mngr, lambda step: _saved_run(mngr, step, env)[0], print_fn)[1]
   return run(dataclasses.replace(cfg, **changes), checkpoint_dir=directory, progress=progress,
              print_fn=print_fn)

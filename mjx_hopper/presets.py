@@ -107,29 +107,30 @@ PRESETS: dict[tuple[str, str], Preset] = {
 }
 
 
-def get(env: str, kind: str) -> Preset:
-  """The preset of robot `env` for `kind` ("gpu" or "cpu")."""
-  if env not in envs.list_envs():
-    raise ValueError(f"unknown env {env!r}; valid envs are {envs.list_envs()}")
+def get(env, kind: str) -> Preset:
+  """The preset for `kind` ("gpu" or "cpu") of robot `env`, or of the robot that the task `env`
+  (a class, an instance or a `module:Class` path) subclasses."""
+  robot = envs.robot_of(envs.task_class(env))
   if kind not in KINDS:
     raise ValueError(f"unknown robot preset {kind!r}; valid presets are {list(KINDS)}")
-  return PRESETS[env, kind]
+  return PRESETS[robot, kind]
 
 
-def agent_run_config(env: str, kind: str, agent: str, **changes):
-  """The `loop.RunConfig` of `agent` on robot `env` with its `kind` settings: the robot's preset
-  when it is one of this agent, else the agent's own preset of that name with the trainer's
-  defaults; fields replaced by `changes` as in `run_config`."""
-  preset = PRESETS.get((env, kind))
+def agent_run_config(env, kind: str, agent: str, **changes):
+  """The `loop.RunConfig` of `agent` on robot or task `env` with its `kind` settings: the
+  robot's preset when it is one of this agent, else the agent's own preset of that name with
+  the trainer's defaults; fields replaced by `changes` as in `run_config`."""
+  preset = PRESETS.get((envs.robot_of(envs.task_class(env)), kind))
   if preset is not None and preset.agent == agent:
     return run_config(env, kind, **changes)
   from mjx_hopper import loop
   return loop.RunConfig(env=env, agent=agent, preset=kind, **changes)
 
 
-def run_config(env: str, kind: str, **changes):
+def run_config(env, kind: str, **changes):
   """The `loop.RunConfig` of robot `env`'s `kind` preset, with fields replaced by `changes`
-  (agent_overrides are merged into the preset's; `train` replaces its TrainConfig)."""
+  (agent_overrides are merged into the preset's; `train` replaces its TrainConfig). For a task
+  of your own (a subclass of a robot), the preset is its robot's."""
   from mjx_hopper import loop
   preset = get(env, kind)
   overrides = {**preset.agent_overrides, **changes.pop("agent_overrides", {})}

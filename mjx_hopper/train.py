@@ -31,6 +31,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
 
 from mjx_hopper import replay, rollout
+from mjx_hopper.fields import check_types
 from mjx_hopper.agents.base import Agent
 from mjx_hopper.envs import AutoReset, LocomotionEnv
 
@@ -66,6 +67,7 @@ class TrainConfig:
 
   def check(self, num_devices: int = 1) -> None:
     """Raises ValueError naming the first bad setting."""
+    check_types(self)
     for name in ("num_envs", "unroll_length", "batch_size", "iterations_per_chunk"):
       value = getattr(self, name)
       if not isinstance(value, int) or value < 1:

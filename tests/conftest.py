@@ -46,7 +46,7 @@ def build_key(cfg: loop.RunConfig, num_members: int | None = None) -> tuple:
   """Everything `loop.build(cfg, num_members)` builds its trainer from: the env and its episode
   length, the agent and its config, the train config, the evaluation's episodes, the number of
   members and whether their update counts are dynamic (out_dir, budgets and seeds are not)."""
-  return (cfg.env, cfg.episode_steps, cfg.agent, _frozen(dataclasses.asdict(cfg.agent_config())),
+  return (cfg.env, _frozen(cfg.env_settings), cfg.episode_steps, cfg.agent, _frozen(dataclasses.asdict(cfg.agent_config())),
           cfg.train_config(), cfg.eval_episodes, num_members or len(cfg.members()),
           "replay_ratio" in cfg.grid)
 

@@ -12,7 +12,7 @@ from mjx_hopper import envs, parallel, rollout
 def test_list_and_make():
   assert envs.list_envs() == ["Ant", "HalfCheetah", "Hopper", "Humanoid", "Walker2D"]
   assert isinstance(envs.make("Hopper"), envs.Hopper)
-  with pytest.raises(ValueError, match=r"unknown env id 'Hoper'; valid ids are \['Ant', "):
+  with pytest.raises(ValueError, match=r"unknown env 'Hoper'; valid envs are \['Ant', "):
     envs.make("Hoper")
 
 

@@ -1,0 +1,217 @@
+"""Tasks of one's own (Robolympics events) through the whole pipeline: naming them, training
+them from the API and the CLI, sweeps, checkpoints that know their task, and bad input."""
+
+import dataclasses
+import json
+import os
+import sys
+
+import events
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from mjx_hopper import cli, envs, loop, notebook, presets, train
+from test_train import TINY_ARGS
+
+# The notebook's tiny D4PG run, on the high jump with a setting of its own.
+JUMP = dataclasses.replace(
+    notebook.tiny(presets.agent_run_config(events.HighJump, "cpu", "d4pg",
+                                           env_settings={"height_weight": 5.0})),
+    time_delta=0.0)
+
+
+def test_a_task_is_named_by_class_instance_path_or_registered_name():
+  for spec in (events.HighJump, events.HighJump(episode_steps=20), "events:HighJump"):
+    assert envs.task_class(spec) is events.HighJump
+  assert envs.task_id(events.HighJump) == "events:HighJump"
+  assert envs.task_id(envs.Hopper) == "Hopper" and envs.robot_of(events.HighJump) == "Hopper"
+  envs.register("HighJumpForTests", events.HighJump)
+  try:
+    assert envs.task_id(events.HighJump) == "HighJumpForTests"
+    assert "HighJumpForTests" in envs.list_envs()
+    assert isinstance(envs.make("HighJumpForTests"), events.HighJump)
+  finally:
+    del envs.tasks._REGISTRY["HighJumpForTests"]
+  with pytest.raises(ValueError, match="'Hopper' is a built-in robot"):
+    envs.register("Hopper", events.HighJump)
+
+
+def test_settings_are_recorded_with_their_defaults():
+  assert JUMP.env == "events:HighJump"
+  assert (JUMP.env_settings, JUMP.episode_steps) == ({"height_weight": 5.0}, 30)
+  # An instance's own settings count as given; episode_steps stays the config's field.
+  cfg = loop.RunConfig(env=events.HighJump(height_weight=2, episode_steps=300))
+  assert (cfg.env_settings, cfg.episode_steps) == ({"height_weight": 2.0}, 300)
+  assert loop.RunConfig(env="Ant").env_settings == {}
+  back = loop.RunConfig.from_json(json.loads(json.dumps(JUMP.to_json())))
+  assert (back.env, back.env_settings, back.episode_steps) == ("events:HighJump",
+                                                               {"height_weight": 5.0}, 30)
+
+
+@pytest.mark.parametrize("robot", ["Hopper", "Walker2D", "HalfCheetah", "Ant", "Humanoid"])
+def test_an_event_on_every_robot_gets_its_robots_preset(robot):
+  class Event(getattr(envs, robot)):
+    def reward(self, before, after, action):
+      return {**super().reward(before, after, action), "up": after.body_xyz[2]}
+
+  for kind in ("cpu", "gpu"):
+    cfg = presets.agent_run_config(Event, kind, "d4pg")
+    assert cfg.train == presets.get(robot, kind).train
+    assert cfg.env.endswith("Event") and cfg.make_env().episode_steps == 1000
+  env = cfg.make_env()
+  envs.check_task(env)
+  state = jax.eval_shape(env.step, jax.eval_shape(env.reset, jax.random.PRNGKey(0)),
+                         jnp.zeros(env.action_size))
+  assert "up" in state.metrics and state.reward.shape == ()
+
+
+@pytest.mark.parametrize("env, settings, message", [
+    ("events:Nope", {}, "cannot import the task 'events:Nope': module 'events' has no 'Nope'"),
+    ("no_such_module:Jump", {}, "cannot import the task 'no_such_module:Jump': No module named"),
+    ("events:NotAnEnv", {}, "'events:NotAnEnv' is not a LocomotionEnv subclass"),
+    (events.HighJump, {"height": 1.0},
+     r"unknown setting\(s\) \['height'\] of the task HighJump; its settings are "
+     r"\['episode_steps', 'height_weight'\]"),
+    (events.HighJump, {"height_weight": "tall"},
+     "the task HighJump's setting height_weight takes a float .*, got 'tall'"),
+    ("__main__:Jump", {}, "defined in a notebook or a script .* pass the class itself again"),
+])
+def test_bad_tasks_are_refused_by_the_config(env, settings, message):
+  with pytest.raises(ValueError, match=message):
+    loop.RunConfig(env=env, env_settings=settings)
+
+
+@pytest.mark.parametrize("task, message", [
+    (events.Vector, r"the task Vector's reward must return a dict of scalar terms; these are not "
+                    r"scalars: \{'xyz': \(3,\)\}"),
+    (events.NaNAtReset, r"the task NaNAtReset's reward is not finite at reset: \{'log': nan\}"),
+])
+def test_bad_rewards_are_refused_before_any_compile(task, message, monkeypatch):
+  def no_compile(*args, **kwargs):
+    raise AssertionError("the trainer was built")
+  monkeypatch.setattr(train, "make_trainer", no_compile)
+  with pytest.raises(ValueError, match=message):
+    loop.build(dataclasses.replace(JUMP, env=task, env_settings={}))
+
+
+def test_a_reward_that_turns_nan_mid_episode_ends_the_episode():
+  env = events.LateNaN(episode_steps=50)
+  push = jnp.array([1.0, -1.0, 1.0])
+
+  @jax.jit
+  def run(key):
+    def one(state, _):
+      nxt = env.step(state, push)
+      return nxt, (nxt.done, nxt.reward, jnp.isfinite(nxt.obs).all())
+    return jax.lax.scan(one, env.reset(key), None, length=20)[1]
+
+  done, reward, finite_obs = jax.device_get(run(jax.random.PRNGKey(0)))
+  end = int(np.argmax(done))
+  assert done[end] == 1 and end < 19          # the episode ended when the reward went NaN
+  assert np.isfinite(reward).all() and reward[end] == 0 and finite_obs.all()
+
+
+@pytest.fixture(scope="module")
+def jump_run(tmp_path_factory):
+  """The tiny high jump trained from the API: (its directory, the Result)."""
+  out = tmp_path_factory.mktemp("jump")
+  return out, loop.run(dataclasses.replace(JUMP, out_dir=str(out)), progress=False)
+
+
+def test_a_checkpoint_records_its_task_and_resume_finds_it(jump_run, capsys):
+  out, result = jump_run
+  saved = json.loads((out / "config.json").read_text())
+  assert (saved["env"], saved["env_settings"], saved["episode_steps"]) == (
+      "events:HighJump", {"height_weight": 5.0}, 30)
+  assert isinstance(result.trainer.env, events.HighJump)
+  assert "height" in result.evaluation and "progress" not in result.evaluation
+  resumed = loop.resume(str(out / "checkpoints"), progress=False, total_env_steps=120)
+  assert train.iterations(resumed.state) == 15
+  assert resumed.trainer.env.height_weight == 5.0
+
+
+def _files(folder):
+  return {p: os.path.getmtime(os.path.join(r, p)) for r, _, names in os.walk(folder)
+          for p in names}
+
+
+def test_another_task_or_setting_is_refused_and_nothing_changes(jump_run):
+  out, _ = jump_run
+  before = _files(out)
+  ckpt = str(out / "checkpoints")
+  with pytest.raises(ValueError, match=r"the task events:HighJump \(episode_steps=30, "
+                                       r"height_weight=5.0\), not Hopper$"):
+    loop.resume(ckpt, env="Hopper")
+  with pytest.raises(ValueError, match=r"env_settings: saved \{'height_weight': 5.0\}, now "
+                                       r"\{'height_weight': 6.0\}"):
+    loop.run(dataclasses.replace(JUMP, out_dir=str(out), env_settings={"height_weight": 6.0}),
+             progress=False)
+  with pytest.raises(ValueError, match=r"not events:HighJump \(episode_steps=30, "
+                                       r"height_weight=3.0\)"):
+    loop.load_policy(ckpt, env=events.HighJump(height_weight=3.0, episode_steps=30))
+  assert _files(out) == before
+
+
+def test_a_notebook_class_is_passed_again_in_a_new_process(jump_run, tmp_path, monkeypatch):
+  """A class defined in a notebook (module __main__) cannot be imported by another process:
+  there resuming asks for it, and takes it when passed again."""
+  out, _ = jump_run
+
+  class NotebookJump(events.HighJump):
+    pass
+  NotebookJump.__module__, NotebookJump.__qualname__ = "__main__", "NotebookJump"
+  cfg = dataclasses.replace(JUMP, env=NotebookJump, out_dir=str(tmp_path))
+  assert cfg.env == "__main__:NotebookJump"
+  loop.run(cfg, progress=False)
+  monkeypatch.delitem(envs.tasks._SEEN, "__main__:NotebookJump")  # as in a new process
+  with pytest.raises(ValueError, match="cannot import; pass the class itself again"):
+    loop.resume(str(tmp_path / "checkpoints"))
+  monkeypatch.setattr(sys.modules["__main__"], "NotebookJump", NotebookJump, raising=False)
+  _, agent_state, trainer = loop.load_policy(str(tmp_path / "checkpoints"))  # a notebook ran
+  assert type(trainer.env) is NotebookJump                                   # its cell again
+  monkeypatch.delattr(sys.modules["__main__"], "NotebookJump")
+  monkeypatch.delitem(envs.tasks._SEEN, "__main__:NotebookJump")
+  _, _, trainer = loop.load_policy(str(tmp_path / "checkpoints"), env=NotebookJump)
+  assert type(trainer.env) is NotebookJump
+
+
+def test_the_cli_trains_evaluates_and_records_a_task_by_path(tmp_path, capsys):
+  args = [a for a in TINY_ARGS if a != "Hopper"]
+  args[args.index("--env")] = "--env=events:HighJump"
+  cli.main([*args, "--set", "num_atoms=11", "--env-set", "height_weight=5.0", "--steps", "80",
+            "--out", str(tmp_path)])  # JUMP on the command line: its trainer is reused
+  saved = json.loads((tmp_path / "config.json").read_text())
+  assert (saved["env"], saved["env_settings"]) == ("events:HighJump", {"height_weight": 5.0})
+  video = tmp_path / "jump.mp4"
+  cli.main(["--cpu-devices", "2", "eval", "--checkpoint", str(tmp_path / "checkpoints"),
+            "--episodes", "2", "--video", str(video)])
+  assert "events:HighJump / d4pg: return" in capsys.readouterr().out and video.stat().st_size
+  with pytest.raises(SystemExit, match="mjx-hopper train: the task HighJump's setting "
+                                       "height_weight takes a float"):
+    cli.main([*args, "--env-set", "height_weight=tall", "--out", str(tmp_path / "bad")])
+
+
+@pytest.mark.parametrize("command, value, message", [
+    ("train", "learning_rate=abc", "mjx-hopper train: learning_rate takes a float, got 'abc'"),
+    ("sweep", "learning_rate=", "mjx-hopper sweep: learning_rate takes a float, got ''"),
+    ("train", "policy_layers=(16,'x')", r"policy_layers takes a tuple of int, got \(16, 'x'\)"),
+    ("sweep", "replay_ratio=x", "mjx-hopper sweep: replay_ratio takes a float, got 'x'"),
+    ("train", "sigma_min=big", "sigma_min takes a float or None, got 'big'"),
+])
+def test_a_set_value_of_the_wrong_type_is_a_one_line_error(command, value, message, tmp_path):
+  with pytest.raises(SystemExit, match=message):
+    cli.main(["--cpu-devices", "2", command, "--set", value, "--out", str(tmp_path)])
+  assert not (tmp_path / "checkpoints").exists()
+
+
+def test_a_sweep_trains_an_ant_event(tmp_path):
+  cfg = dataclasses.replace(
+      notebook.tiny(presets.agent_run_config(events.AntLongJump, "cpu", "d4pg")),
+      seeds=(0, 1), grid={"sigma": (0.2, 0.4)}, time_delta=0.0, out_dir=str(tmp_path))
+  result = loop.run(cfg, progress=False)
+  assert isinstance(result.trainer.env, events.AntLongJump)
+  evals = [row for row in result.history if row["kind"] == "eval"]
+  assert sorted({row["member"] for row in evals}) == [0, 1, 2, 3]
+  assert np.isfinite([row["eval_return"] for row in evals]).all()
