@@ -177,8 +177,8 @@ def _typed(cls, name: str, value, default):
     ok = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
     value = float(value) if ok else value
   if not ok:
-    raise ValueError(f"the task {cls.__name__}'s setting {name} takes a {kind.__name__} (like "
-                     f"its default, {default!r}), got {value!r}")
+    raise ValueError(f"the task {cls.__name__}'s setting {name} takes a value of type "
+                     f"{kind.__name__} (like its default, {default!r}), got {value!r}")
   return int(value) if kind is int else value
 
 
@@ -189,9 +189,12 @@ def settings_of(env: LocomotionEnv) -> dict:
 
 def make(spec: Any, **settings) -> LocomotionEnv:
   """Builds the task `spec` (a name of `list_envs()`, a `module:Class` path, a class) with these
-  constructor settings (e.g. episode_steps), after checking them."""
+  constructor settings (e.g. episode_steps); an unknown setting is a ValueError naming the
+  task's settings."""
   cls = task_class(spec)
-  task_settings(cls, settings)
+  unknown = sorted(set(settings) - set(_parameters(cls)))
+  if unknown:
+    task_settings(cls, settings)  # raises, naming them
   return cls(**settings)
 
 

@@ -75,7 +75,7 @@ def test_an_event_on_every_robot_gets_its_robots_preset(robot):
      r"unknown setting\(s\) \['height'\] of the task HighJump; its settings are "
      r"\['episode_steps', 'height_weight'\]"),
     (events.HighJump, {"height_weight": "tall"},
-     "the task HighJump's setting height_weight takes a float .*, got 'tall'"),
+     "the task HighJump's setting height_weight takes a value of type float .*, got 'tall'"),
     ("__main__:Jump", {}, "defined in a notebook or a script .* pass the class itself again"),
 ])
 def test_bad_tasks_are_refused_by_the_config(env, settings, message):
@@ -189,7 +189,7 @@ def test_the_cli_trains_evaluates_and_records_a_task_by_path(tmp_path, capsys):
             "--episodes", "2", "--video", str(video)])
   assert "events:HighJump / d4pg: return" in capsys.readouterr().out and video.stat().st_size
   with pytest.raises(SystemExit, match="mjx-hopper train: the task HighJump's setting "
-                                       "height_weight takes a float"):
+                                       "height_weight takes a value of type float"):
     cli.main([*args, "--env-set", "height_weight=tall", "--out", str(tmp_path / "bad")])
 
 
