@@ -161,7 +161,8 @@ def task_settings(cls: type[LocomotionEnv], given: dict | None = None) -> dict:
       json.dumps(value)
     except TypeError:
       raise ValueError(f"the task {cls.__name__}'s setting {name}={value!r} is not a number, "
-                       "string, bool or list of them, which a checkpoint's config records") from None
+                       "string, bool or list of them, which a checkpoint's config records"
+                       ) from None
     out[name] = value
   return out
 
@@ -206,8 +207,8 @@ def check_task(env: LocomotionEnv) -> None:
   try:
     state = jax.eval_shape(env.reset, jax.random.PRNGKey(0))
   except Exception as error:  # noqa: BLE001 - the user's reward or termination code
-    raise ValueError(f"the task {name} fails at reset: {type(error).__name__}: "
-                     f"{str(error).strip().splitlines()[0] if str(error).strip() else ''}") from None
+    first = (str(error).strip().splitlines() or [""])[0]
+    raise ValueError(f"the task {name} fails at reset: {type(error).__name__}: {first}") from None
   bad = {k: v.shape for k, v in state.metrics.items() if v.shape != ()}
   if bad:
     raise ValueError(f"the task {name}'s reward must return a dict of scalar terms; these are "

@@ -164,8 +164,8 @@ def restore_agent(mngr: ocp.CheckpointManager, step: int, like_agent):
 
 # The settings a checkpoint's state depends on; the others (run length, logging, evaluation)
 # may change between a run and its resumption.
-MUST_MATCH = ("env", "env_settings", "agent", "agent_config", "train", "episode_steps", "seed", "seeds", "grid",
-              "member_indices")
+MUST_MATCH = ("env", "env_settings", "agent", "agent_config", "train", "episode_steps", "seed",
+              "seeds", "grid", "member_indices")
 
 
 class ConfigMismatch(ValueError):

@@ -232,9 +232,9 @@ def build_parser() -> argparse.ArgumentParser:
 def _add_run_flags(t: argparse.ArgumentParser, sweep: bool = False) -> None:
   """The flags of a training run, shared by train and sweep."""
   t.add_argument("--env", default="Hopper",
-                 help="a robot (Hopper, Walker2D, HalfCheetah, Ant, Humanoid) or a task of your own "
-                      "as module:Class, a subclass of one (the module is looked for in the current "
-                      "directory and on sys.path)")
+                 help="a robot (Hopper, Walker2D, HalfCheetah, Ant, Humanoid), or a task of your "
+                      "own as module:Class, a subclass of one (the module is looked for in the "
+                      "current directory and on sys.path)")
   t.add_argument("--env-set", action="append", default=[], metavar="NAME=VALUE",
                  help="a constructor setting of the task, e.g. --env-set height_weight=5.0 "
                       "(repeatable); recorded in the checkpoint")
@@ -282,7 +282,7 @@ def _add_run_flags(t: argparse.ArgumentParser, sweep: bool = False) -> None:
 def main(argv: list[str] | None = None) -> None:
   parser = build_parser()
   args = parser.parse_args(argv)
-  if os.getcwd() not in sys.path:  # as `python -m` does: --env my_events:HighJump finds ./my_events.py
+  if os.getcwd() not in sys.path:  # as `python -m` does: --env my_events:Jump finds ./my_events.py
     sys.path.insert(0, os.getcwd())
   _setup_jax(args.cpu_devices)
   if args.command == "train":

@@ -13,41 +13,42 @@ import numpy as np
 import pytest
 
 from mjx_hopper import cli, envs, loop, notebook, presets, train
+from mjx_hopper.envs.events import AntLongJump, HighJump
 from test_train import TINY_ARGS
 
 # The notebook's tiny D4PG run, on the high jump with a setting of its own.
 JUMP = dataclasses.replace(
-    notebook.tiny(presets.agent_run_config(events.HighJump, "cpu", "d4pg",
+    notebook.tiny(presets.agent_run_config(HighJump, "cpu", "d4pg",
                                            env_settings={"height_weight": 5.0})),
     time_delta=0.0)
 
 
 def test_a_task_is_named_by_class_instance_path_or_registered_name():
-  for spec in (events.HighJump, events.HighJump(episode_steps=20), "events:HighJump"):
-    assert envs.task_class(spec) is events.HighJump
-  assert envs.task_id(events.HighJump) == "events:HighJump"
-  assert envs.task_id(envs.Hopper) == "Hopper" and envs.robot_of(events.HighJump) == "Hopper"
-  envs.register("HighJumpForTests", events.HighJump)
+  for spec in (HighJump, HighJump(episode_steps=20), "mjx_hopper.envs.events:HighJump"):
+    assert envs.task_class(spec) is HighJump
+  assert envs.task_id(HighJump) == "mjx_hopper.envs.events:HighJump"
+  assert envs.task_id(envs.Hopper) == "Hopper" and envs.robot_of(HighJump) == "Hopper"
+  envs.register("HighJumpForTests", HighJump)
   try:
-    assert envs.task_id(events.HighJump) == "HighJumpForTests"
+    assert envs.task_id(HighJump) == "HighJumpForTests"
     assert "HighJumpForTests" in envs.list_envs()
-    assert isinstance(envs.make("HighJumpForTests"), events.HighJump)
+    assert isinstance(envs.make("HighJumpForTests"), HighJump)
   finally:
     del envs.tasks._REGISTRY["HighJumpForTests"]
   with pytest.raises(ValueError, match="'Hopper' is a built-in robot"):
-    envs.register("Hopper", events.HighJump)
+    envs.register("Hopper", HighJump)
 
 
 def test_settings_are_recorded_with_their_defaults():
-  assert JUMP.env == "events:HighJump"
+  assert JUMP.env == "mjx_hopper.envs.events:HighJump"
   assert (JUMP.env_settings, JUMP.episode_steps) == ({"height_weight": 5.0}, 30)
   # An instance's own settings count as given; episode_steps stays the config's field.
-  cfg = loop.RunConfig(env=events.HighJump(height_weight=2, episode_steps=300))
+  cfg = loop.RunConfig(env=HighJump(height_weight=2, episode_steps=300))
   assert (cfg.env_settings, cfg.episode_steps) == ({"height_weight": 2.0}, 300)
   assert loop.RunConfig(env="Ant").env_settings == {}
   back = loop.RunConfig.from_json(json.loads(json.dumps(JUMP.to_json())))
-  assert (back.env, back.env_settings, back.episode_steps) == ("events:HighJump",
-                                                               {"height_weight": 5.0}, 30)
+  assert (back.env, back.env_settings, back.episode_steps) == (
+      "mjx_hopper.envs.events:HighJump", {"height_weight": 5.0}, 30)
 
 
 @pytest.mark.parametrize("robot", ["Hopper", "Walker2D", "HalfCheetah", "Ant", "Humanoid"])
@@ -71,10 +72,10 @@ def test_an_event_on_every_robot_gets_its_robots_preset(robot):
     ("events:Nope", {}, "cannot import the task 'events:Nope': module 'events' has no 'Nope'"),
     ("no_such_module:Jump", {}, "cannot import the task 'no_such_module:Jump': No module named"),
     ("events:NotAnEnv", {}, "'events:NotAnEnv' is not a LocomotionEnv subclass"),
-    (events.HighJump, {"height": 1.0},
+    (HighJump, {"height": 1.0},
      r"unknown setting\(s\) \['height'\] of the task HighJump; its settings are "
      r"\['episode_steps', 'height_weight'\]"),
-    (events.HighJump, {"height_weight": "tall"},
+    (HighJump, {"height_weight": "tall"},
      "the task HighJump's setting height_weight takes a value of type float .*, got 'tall'"),
     ("__main__:Jump", {}, "defined in a notebook or a script .* pass the class itself again"),
 ])
@@ -124,8 +125,8 @@ def test_a_checkpoint_records_its_task_and_resume_finds_it(jump_run, capsys):
   out, result = jump_run
   saved = json.loads((out / "config.json").read_text())
   assert (saved["env"], saved["env_settings"], saved["episode_steps"]) == (
-      "events:HighJump", {"height_weight": 5.0}, 30)
-  assert isinstance(result.trainer.env, events.HighJump)
+      "mjx_hopper.envs.events:HighJump", {"height_weight": 5.0}, 30)
+  assert isinstance(result.trainer.env, HighJump)
   assert "height" in result.evaluation and "progress" not in result.evaluation
   resumed = loop.resume(str(out / "checkpoints"), progress=False, total_env_steps=120)
   assert train.iterations(resumed.state) == 15
@@ -141,16 +142,16 @@ def test_another_task_or_setting_is_refused_and_nothing_changes(jump_run):
   out, _ = jump_run
   before = _files(out)
   ckpt = str(out / "checkpoints")
-  with pytest.raises(ValueError, match=r"the task events:HighJump \(episode_steps=30, "
-                                       r"height_weight=5.0\), not Hopper$"):
+  with pytest.raises(ValueError, match=r"the task mjx_hopper.envs.events:HighJump "
+                                       r"\(episode_steps=30, height_weight=5.0\), not Hopper$"):
     loop.resume(ckpt, env="Hopper")
   with pytest.raises(ValueError, match=r"env_settings: saved \{'height_weight': 5.0\}, now "
                                        r"\{'height_weight': 6.0\}"):
     loop.run(dataclasses.replace(JUMP, out_dir=str(out), env_settings={"height_weight": 6.0}),
              progress=False)
-  with pytest.raises(ValueError, match=r"not events:HighJump \(episode_steps=30, "
-                                       r"height_weight=3.0\)"):
-    loop.load_policy(ckpt, env=events.HighJump(height_weight=3.0, episode_steps=30))
+  with pytest.raises(ValueError, match=r"not mjx_hopper.envs.events:HighJump "
+                                       r"\(episode_steps=30, height_weight=3.0\)"):
+    loop.load_policy(ckpt, env=HighJump(height_weight=3.0, episode_steps=30))
   assert _files(out) == before
 
 
@@ -159,7 +160,7 @@ def test_a_notebook_class_is_passed_again_in_a_new_process(jump_run, tmp_path, m
   there resuming asks for it, and takes it when passed again."""
   out, _ = jump_run
 
-  class NotebookJump(events.HighJump):
+  class NotebookJump(HighJump):
     pass
   NotebookJump.__module__, NotebookJump.__qualname__ = "__main__", "NotebookJump"
   cfg = dataclasses.replace(JUMP, env=NotebookJump, out_dir=str(tmp_path))
@@ -179,15 +180,17 @@ def test_a_notebook_class_is_passed_again_in_a_new_process(jump_run, tmp_path, m
 
 def test_the_cli_trains_evaluates_and_records_a_task_by_path(tmp_path, capsys):
   args = [a for a in TINY_ARGS if a != "Hopper"]
-  args[args.index("--env")] = "--env=events:HighJump"
+  args[args.index("--env")] = "--env=mjx_hopper.envs.events:HighJump"
   cli.main([*args, "--set", "num_atoms=11", "--env-set", "height_weight=5.0", "--steps", "80",
             "--out", str(tmp_path)])  # JUMP on the command line: its trainer is reused
   saved = json.loads((tmp_path / "config.json").read_text())
-  assert (saved["env"], saved["env_settings"]) == ("events:HighJump", {"height_weight": 5.0})
+  assert (saved["env"], saved["env_settings"]) == ("mjx_hopper.envs.events:HighJump",
+                                                    {"height_weight": 5.0})
   video = tmp_path / "jump.mp4"
   cli.main(["--cpu-devices", "2", "eval", "--checkpoint", str(tmp_path / "checkpoints"),
             "--episodes", "2", "--video", str(video)])
-  assert "events:HighJump / d4pg: return" in capsys.readouterr().out and video.stat().st_size
+  assert "mjx_hopper.envs.events:HighJump / d4pg: return" in capsys.readouterr().out
+  assert video.stat().st_size
   with pytest.raises(SystemExit, match="mjx-hopper train: the task HighJump's setting "
                                        "height_weight takes a value of type float"):
     cli.main([*args, "--env-set", "height_weight=tall", "--out", str(tmp_path / "bad")])
@@ -208,10 +211,10 @@ def test_a_set_value_of_the_wrong_type_is_a_one_line_error(command, value, messa
 
 def test_a_sweep_trains_an_ant_event(tmp_path):
   cfg = dataclasses.replace(
-      notebook.tiny(presets.agent_run_config(events.AntLongJump, "cpu", "d4pg")),
+      notebook.tiny(presets.agent_run_config(AntLongJump, "cpu", "d4pg")),
       seeds=(0, 1), grid={"sigma": (0.2, 0.4)}, time_delta=0.0, out_dir=str(tmp_path))
   result = loop.run(cfg, progress=False)
-  assert isinstance(result.trainer.env, events.AntLongJump)
+  assert isinstance(result.trainer.env, AntLongJump)
   evals = [row for row in result.history if row["kind"] == "eval"]
   assert sorted({row["member"] for row in evals}) == [0, 1, 2, 3]
   assert np.isfinite([row["eval_return"] for row in evals]).all()
