@@ -4,6 +4,9 @@ reaches the robot's target or the time budget runs out. One command per row of B
     python benchmarks/time_to_score.py Hopper --kind gpu              # on one GPU
     python benchmarks/time_to_score.py Hopper --kind cpu              # on the 2-core CPU
     python benchmarks/time_to_score.py Walker2D --render-only runs/time_to_score/Walker2D_gpu
+    python benchmarks/time_to_score.py mjx_hopper.envs.events:HighJump --kind cpu --target 1500
+
+A task of your own (module:Class, a subclass of a robot) runs with its robot's preset.
 
 The seeds run one after another, each with the machine to itself, or with --at-once as one
 sweep (one compiled program, every seed's envs at once: one compile, but where one seed already
@@ -114,7 +117,9 @@ def render(out: str) -> list[str]:
 def main() -> None:
   p = argparse.ArgumentParser(description=__doc__,
                               formatter_class=argparse.RawDescriptionHelpFormatter)
-  p.add_argument("robot")
+  p.add_argument("robot", help="a robot, or a task of your own as module:Class")
+  p.add_argument("--env-set", action="append", default=[], metavar="NAME=VALUE",
+                 help="a constructor setting of the task")
   p.add_argument("--kind", default="gpu", help="the robot preset: gpu or cpu")
   p.add_argument("--seeds", default="0,1,2")
   p.add_argument("--minutes", type=float, default=None,
@@ -157,7 +162,8 @@ def main() -> None:
     raise SystemExit(f"time_to_score: {error}")
   target = preset.target if args.target is None else args.target
   minutes = preset.minutes if args.minutes is None else args.minutes
-  out = args.out or os.path.join("runs", "time_to_score", f"{args.robot}_{args.kind}")
+  name = args.robot.split(":")[-1]
+  out = args.out or os.path.join("runs", "time_to_score", f"{name}_{args.kind}")
   overrides = cli._overrides(args.set)
   try:
     layout = dataclasses.replace(preset.train, **cli._overrides(args.train))
@@ -174,7 +180,8 @@ def main() -> None:
   results, where = {}, {}
   for group, group_out in zip(groups, folders):
     cfg = presets.run_config(
-        args.robot, args.kind, agent_overrides=overrides, train=layout, seed=group[0],
+        args.robot, args.kind, env_settings=cli._overrides(args.env_set, "--env-set"),
+        agent_overrides=overrides, train=layout, seed=group[0],
         seeds=tuple(group) if len(group) > 1 else (),
         total_env_steps=args.env_steps or 10**12,
         max_minutes=minutes, stop_at_return=None if args.run_on else target,
@@ -189,7 +196,8 @@ def main() -> None:
   episode = record_episode(os.path.join(where[best][0], "checkpoints"), where[best][1],
                            os.path.join(out, "episode.npz"))
   device = jax.local_devices()[0]
-  summary = {"robot": args.robot, "kind": args.kind, "target": target, "minutes": minutes,
+  summary = {"robot": args.robot, "env_settings": cfg.env_settings,
+             "episode_steps": cfg.episode_steps, "kind": args.kind, "target": target, "minutes": minutes,
              "env_steps_budget": args.env_steps,
              "agent": cfg.agent, "agent_preset": cfg.preset, "agent_overrides": cfg.agent_overrides,
              "train": dataclasses.asdict(cfg.train), "at_once": args.at_once,
@@ -199,7 +207,7 @@ def main() -> None:
   with open(os.path.join(out, "summary.json"), "w") as f:
     json.dump(summary, f, indent=1)
   how = "at once" if args.at_once else "one after another"
-  plot(results, args.robot, target,
+  plot(results, name, target,
        f"{cfg.agent} {args.kind} preset, {len(seeds)} seed{'s' if len(seeds) > 1 else ''} {how}"
        f"{', ' + args.label if args.label else ''}", os.path.join(out, "score_curves.png"))
   try:

@@ -15,14 +15,15 @@ from mjx_hopper.envs.hopper import Hopper
 
 
 class HighJump(Hopper):
-  """The high jump: no points for going forward; `height_weight` points per step for each metre
-  the torso is above 1 m (the Hopper stands at 1.25 m); leaning past 45 degrees ends the jump.
+  """The high jump, 300 steps (5 s) by default: no points for going forward; `height_weight`
+  points per step for each metre the torso is above 1 m (the Hopper stands at 1.25 m); leaning
+  past 45 degrees ends the jump.
 
   Its terms: alive (+1), height (+2.5 standing, more in the air), electricity_cost,
   joints_at_limit_cost and feet_collision_cost, PyBullet's."""
 
-  def __init__(self, height_weight: float = 10.0, **kwargs):
-    super().__init__(**kwargs)
+  def __init__(self, height_weight: float = 10.0, episode_steps: int = 300, **kwargs):
+    super().__init__(episode_steps=episode_steps, **kwargs)
     self.height_weight = height_weight
 
   def reward(self, before, after, action):

@@ -265,8 +265,9 @@ def _add_run_flags(t: argparse.ArgumentParser, sweep: bool = False) -> None:
   t.add_argument("--eval-every", type=int, default=None,
                  help="env steps between evaluations (cpu: 200,000)")
   t.add_argument("--eval-episodes", type=int, default=16)
-  t.add_argument("--episode-steps", type=int, default=1000,
-                 help="steps before an episode is truncated (PyBullet's 1000)")
+  t.add_argument("--episode-steps", type=int, default=None,
+                 help="steps before an episode is truncated (default: the task's; PyBullet's "
+                      "1000 for the robots)")
   t.add_argument("--seed", type=int, default=0)
   t.add_argument("--out", default="runs/sweep" if sweep else "runs/train",
                  help="folder for log.csv and config.json")

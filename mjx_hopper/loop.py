@@ -33,9 +33,10 @@ class RunConfig:
   `env` is the task: a robot's name, a name given with `envs.register`, a `module:Class` path,
   or a `LocomotionEnv` subclass or instance (a task of your own). `env_settings` are its
   constructor's settings, and `episode_steps` its time limit (an instance's own settings count
-  as given). Once made, a RunConfig holds the task's id (`envs.task_id`) in `env`, and every
-  constructor setting but episode_steps, defaults included, in `env_settings`: what a
-  checkpoint records of its task.
+  as given; `env_settings` wins over `episode_steps`, which wins over an instance's). Once made,
+  a RunConfig holds the task's id (`envs.task_id`) in `env`, its time limit in `episode_steps`,
+  and every other constructor setting, defaults included, in `env_settings`: what a checkpoint
+  records of its task.
   """
 
   env: Any = "Hopper"
@@ -47,7 +48,7 @@ class RunConfig:
   total_env_steps: int = 1_000_000
   max_minutes: float | None = None  # also stop (and save) after this much wall-clock time
   stop_at_return: float | None = None  # also stop once every member's evaluation reached this
-  episode_steps: int = 1000
+  episode_steps: int | None = None  # the task's time limit; None: its default (the robots' 1000)
   eval_every: int = 200_000      # env steps between evaluations
   eval_episodes: int = 16
   seed: int = 0
@@ -61,8 +62,8 @@ class RunConfig:
 
   def __post_init__(self):
     task = envs.task_class(self.env)
-    given = {"episode_steps": self.episode_steps,
-             **(envs.settings_of(self.env) if isinstance(self.env, envs.LocomotionEnv) else {}),
+    given = {**(envs.settings_of(self.env) if isinstance(self.env, envs.LocomotionEnv) else {}),
+             **({} if self.episode_steps is None else {"episode_steps": self.episode_steps}),
              **self.env_settings}
     settings = envs.task_settings(task, given)
     object.__setattr__(self, "env", envs.task_id(task))

@@ -1,11 +1,12 @@
 """What the Robolympics notebook shows, each in one call: a recorded evaluation of a trained
-policy, inline videos, the seed's per-step reward plot, a run's learning curve, and the tiny
+policy, inline videos (side by side, too), the seed's per-step reward plot, a run's learning curve, and the tiny
 settings the tests run the notebook with.
 
     from mjx_hopper import loop, notebook
     result = loop.run(cfg)
     episodes = notebook.evaluate(result.trainer, result.state, num_episodes=5)
     notebook.video(result.trainer.env, episodes, "policy.mp4")
+    notebook.side_by_side({"random actions": "random.mp4", "trained": "policy.mp4"})
     notebook.plot_episode_rewards(episodes)
     notebook.plot_learning_curve(f"{cfg.out_dir}/log.csv")
 """
@@ -14,6 +15,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import html
 
 import jax
 import numpy as np
@@ -66,6 +68,23 @@ def video(env, episodes: dict, path: str, width: int = 320, height: int = 240):
   qpos = np.asarray(episodes["qpos"])[: int(episodes["length"][0]) + 1]
   render.write_mp4(path, env.render(qpos, width=width, height=height), fps=1 / env.dt)
   return Video(path, embed=True, html_attributes="controls loop autoplay muted")
+
+
+def side_by_side(videos: dict[str, str], width: int = 320):
+  """The mp4 files `videos` ({title: path}) in one row, each under its title, looping, as an
+  inline HTML block for the notebook."""
+  import base64
+
+  from IPython.display import HTML
+  figures = []
+  for title, path in videos.items():
+    with open(path, "rb") as f:
+      data = base64.b64encode(f.read()).decode()
+    figures.append(
+        f'<figure style="display:inline-block;margin:0 8px 0 0"><video width="{width}" controls '
+        f'loop autoplay muted src="data:video/mp4;base64,{data}"></video>'
+        f"<figcaption>{html.escape(title)}</figcaption></figure>")
+  return HTML("".join(figures))
 
 
 def plot_episode_rewards(episodes: dict, ax=None):

@@ -2,6 +2,7 @@
 step's reward), inline videos, the seed's reward plot, the learning curve from log.csv, and
 the tiny settings of the notebook's short mode."""
 
+import base64
 import json
 
 import matplotlib
@@ -55,6 +56,11 @@ def test_video_and_episode_reward_plot(runs, tmp_path):
   shown = notebook.video(resumed.trainer.env, episodes, str(tmp_path / "policy.mp4"))
   assert "<video" in shown._repr_html_()
   assert (tmp_path / "policy.mp4").stat().st_size > 1000
+  (tmp_path / "other.mp4").write_bytes(b"not really a video")
+  pair = notebook.side_by_side({"trained <D4PG>": str(tmp_path / "policy.mp4"),
+                                "random": str(tmp_path / "other.mp4")})._repr_html_()
+  assert pair.count("<video") == 2 and "trained &lt;D4PG&gt;" in pair
+  assert base64.b64encode(b"not really a video").decode() in pair
   lines = notebook.plot_episode_rewards(episodes).get_lines()
   assert len(lines) == 5
   assert lines[-1].get_xdata()[-1] == episodes["length"].sum() - 1  # one after another
