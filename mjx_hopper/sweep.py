@@ -145,14 +145,15 @@ def _mean_interval(values: list[float]) -> tuple[float, float]:
   return float(values.mean()), float(1.96 * values.std(ddof=1) / math.sqrt(len(values)))
 
 
-def extract(directory: str, member: int, out_dir: str, print_fn=print) -> str:
+def extract(directory: str, member: int, out_dir: str, print_fn=print, env=None) -> str:
   """Writes member `member` of the sweep checkpointed in `directory` as the checkpoint of a
   single run (its seed and swept values as plain settings) in `out_dir`/checkpoints, with its
   config.json, so that `mjx-hopper eval` and `train`, `loop.restore` and `loop.run` take it as
-  their own. Returns the checkpoint directory."""
+  their own. `env` is the sweep's task, for a class that cannot be imported (see
+  `loop.resume`). Returns the checkpoint directory."""
   from mjx_hopper import checkpoint, loop
 
-  cfg, state, _ = loop.restore(directory, print_fn)
+  cfg, state, _ = loop.restore(directory, print_fn, env=env)
   saved = checkpoint.read_config(checkpoint.manager(directory), train.iterations(state))
   indices = list(saved.get("member_indices", range(len(cfg.members()))))
   if member not in indices:

@@ -126,6 +126,29 @@ def test_eval_wrapper_sums_each_first_episode(episodes):
   np.testing.assert_array_equal(states.metrics["reward"], states.reward)
 
 
+def test_a_task_of_ones_own_under_brax_training_stack():
+  """The high jump (mjx_hopper.envs.events) under Brax's EpisodeWrapper, AutoResetWrapper and
+  EvalWrapper: its own terms are summed per episode, and Brax's limit ends its episodes."""
+  from mjx_hopper.envs.events import HighJump
+  env = HighJump(episode_steps=300)
+  stack = training.EvalWrapper(training.wrap(env, episode_length=12))
+  hold = jnp.zeros((N, env.action_size))
+
+  @jax.jit
+  def run(keys):
+    def one(state, _):
+      state = stack.step(state, hold)
+      return state, state
+    return jax.lax.scan(one, stack.reset(keys), None, length=12)
+
+  last, states = jax.device_get(run(jax.random.split(jax.random.PRNGKey(2), N)))
+  assert "height" in states.metrics and "progress" not in states.metrics
+  np.testing.assert_array_equal(states.done[-1], 1)          # Brax's 12 steps, not 300
+  np.testing.assert_array_equal(states.info["truncation"][-1], 1)
+  np.testing.assert_allclose(last.info["eval_metrics"].episode_metrics["height"],
+                             states.metrics["height"].sum(0), rtol=1e-5)
+
+
 def heavier_torso(env, sys, scales):
   """Brax's randomization_fn: the torso's mass times each of `scales` (B,), one model each."""
   torso = env.mj_model.body("torso").id
@@ -200,6 +223,7 @@ def check_progress(progress, env_steps, losses):
     assert np.isfinite(progress[-1][1][f"training/{name}"]), name
 
 
+@pytest.mark.slow
 def test_brax_ppo_trains_on_our_env(brax_trainers):
   train_ppo, _ = brax_trainers
   # One iteration collects 8 envs x 4 steps x 4 minibatches = 128 env steps; 2 of them.
@@ -216,6 +240,7 @@ def test_brax_ppo_trains_on_our_env(brax_trainers):
   assert value["params"]["hidden_1"]["kernel"].shape == (16, 1)
 
 
+@pytest.mark.slow
 def test_brax_sac_trains_on_our_env(brax_trainers):
   _, train_sac = brax_trainers
   # 16 prefill steps (2 x 8 envs), then 6 x 8 env steps with one update each.

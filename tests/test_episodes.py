@@ -13,6 +13,8 @@ import pytest
 from conftest import ROBOTS, make_bullet, make_env, mjx_episodes
 from mjx_hopper.envs import pybullet_oracle, render
 
+pytestmark = pytest.mark.slow
+
 TOLERANCE = {  # statistic: (relative, absolute)
     "length": (0.25, 1.0),
     "return": (0.15, 2.0),

@@ -8,6 +8,7 @@ import nbformat
 import pytest
 from nbclient import NotebookClient
 
+pytestmark = pytest.mark.slow
 NOTEBOOK = pathlib.Path(__file__).parent.parent / "notebooks" / "robolympics.ipynb"
 
 # Run in the notebook's kernel after its own cells: what its workflow left behind.

@@ -164,6 +164,7 @@ def free_port():
     return s.getsockname()[1]
 
 
+@pytest.mark.slow
 def test_two_processes_give_one_process_results(tmp_path):
   # jax.distributed: two processes of one CPU device each train one member each; one process
   # with two devices (this one) trains both, one per device: the same program per member.

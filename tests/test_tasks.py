@@ -209,6 +209,7 @@ def test_a_set_value_of_the_wrong_type_is_a_one_line_error(command, value, messa
   assert not (tmp_path / "checkpoints").exists()
 
 
+@pytest.mark.slow
 def test_a_sweep_trains_an_ant_event(tmp_path):
   cfg = dataclasses.replace(
       notebook.tiny(presets.agent_run_config(AntLongJump, "cpu", "d4pg")),

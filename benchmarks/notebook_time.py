@@ -1,0 +1,68 @@
+"""The Robolympics notebook in its full mode (MJX_HOPPER_SHORT unset), executed top to bottom as a
+Colab user runs it, with each section's wall-clock time.
+
+    python benchmarks/notebook_time.py --out runs/notebook_full
+
+Runs in OUT (its runs/ and videos land there), keeps the executed notebook as
+OUT/robolympics.ipynb, and prints a table: each section's seconds, from the first cell's start
+to the last cell's end, and what its training cells printed last.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import os
+import pathlib
+import platform
+import time
+
+NOTEBOOK = pathlib.Path(__file__).parent.parent / "notebooks" / "robolympics.ipynb"
+
+
+def seconds(cell) -> tuple[float, float] | None:
+  """(start, end) of a code cell's execution, as nbclient recorded it."""
+  timing = cell.get("metadata", {}).get("execution", {})
+  if "iopub.execute_input" not in timing or "shell.execute_reply" not in timing:
+    return None
+  parse = lambda t: datetime.datetime.fromisoformat(t.replace("Z", "+00:00")).timestamp()
+  return parse(timing["iopub.execute_input"]), parse(timing["shell.execute_reply"])
+
+
+def main() -> None:
+  p = argparse.ArgumentParser(description=__doc__,
+                              formatter_class=argparse.RawDescriptionHelpFormatter)
+  p.add_argument("--out", default="runs/notebook_full")
+  p.add_argument("--timeout", type=int, default=3600, help="seconds a cell may take")
+  args = p.parse_args()
+  import nbformat
+  from nbclient import NotebookClient
+
+  os.makedirs(args.out, exist_ok=True)
+  os.environ.pop("MJX_HOPPER_SHORT", None)
+  notebook = nbformat.read(NOTEBOOK, as_version=4)
+  start = time.time()
+  try:
+    NotebookClient(notebook, timeout=args.timeout, kernel_name="python3",
+                   resources={"metadata": {"path": args.out}}).execute()
+  finally:
+    nbformat.write(notebook, os.path.join(args.out, "robolympics.ipynb"))
+  total = time.time() - start
+  sections, title = {}, "before section 1"
+  for cell in notebook.cells:
+    if cell.cell_type == "markdown" and cell.source.startswith("## "):
+      title = cell.source.splitlines()[0][3:]
+    elif cell.cell_type == "code" and seconds(cell):
+      first, last = seconds(cell)
+      begun, _ = sections.get(title, (first, last))
+      sections[title] = (begun, last)
+  print(f"{platform.node()}, {os.cpu_count()} cores, {time.strftime('%Y-%m-%d')}: the notebook "
+        f"in {total / 60:.1f} min")
+  print("| section | wall-clock |")
+  print("|---|---|")
+  for title, (begun, ended) in sections.items():
+    print(f"| {title} | {ended - begun:,.0f} s ({(ended - begun) / 60:.1f} min) |")
+
+
+if __name__ == "__main__":
+  main()
