@@ -3,7 +3,7 @@ included), for several seeds, with time-to-score.
 
     python benchmarks/learning.py --agent d4pg --seeds 0,1,2 --sequential --minutes 30   # CPU
     python benchmarks/learning.py --preset gpu --batch-size 1024 --cpu-devices 1 ...      # GPU
-                                                       # (benchmarks/gpu_session.sh has them)
+                          # (through benchmarks/gpu.sh; docs/benchmark-history.md has the runs)
 
 Each seed is a `mjx_hopper.loop.run` in its own process; the seeds run at the same time, sharing
 the machine, or with --sequential one after another. Writes OUT/seed_N/log.csv,

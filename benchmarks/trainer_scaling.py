@@ -2,7 +2,8 @@
 and the batch size grow, for one robot and agent config, on one device.
 
     python benchmarks/trainer_scaling.py --env Hopper --points 512:1024,2048:8192 --updates 2
-    bash benchmarks/gpu_session.sh scaling        # the GPU rows of BENCHMARKS.md
+    bash benchmarks/gpu.sh "python benchmarks/trainer_scaling.py --env Hopper --updates 2 \
+      --chunk 20 --chunks 3 --points 512:1024,4096:8192,16384:32768,16384:65536"   # on a GPU
 
 Each point ENVS:BATCH is a `train.make_trainer` with ENVS envs stepped once per iteration
 (unroll 1) and `--updates` learner updates of BATCH transitions per iteration (replay ratio

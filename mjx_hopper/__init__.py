@@ -13,8 +13,8 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 # On a GPU, matrix products through cuBLAS instead of XLA's Triton GEMM fusions: the gpu
 # preset's training chunk then compiles in 15 s instead of 28 on an H100 (most of the rest was
-# autotuning Triton's kernels), and runs as fast (benchmarks/research/compile_parts.py,
-# docs/benchmark-history.md, "Hopper's first minute"). XLA reads XLA_FLAGS when JAX starts its
+# autotuning Triton's kernels), and runs as fast (docs/benchmark-history.md, "Hopper's first
+# minute"). XLA reads XLA_FLAGS when JAX starts its
 # first backend, so this holds where mjx_hopper is imported before any JAX computation; a
 # setting of the flag in XLA_FLAGS wins.
 # CPUs ignore it.

@@ -295,12 +295,18 @@ def main(argv: list[str] | None = None) -> None:
   elif args.command == "eval":
     evaluate(args)
   elif args.command == "demo":
+    from mjx_hopper import envs
+    try:
+      envs.task_class(args.env)
+    except ValueError as error:
+      parser.error(f"unknown --env {args.env!r}; choose from {envs.list_envs()}, or a task of your "
+                   "own as module:Class" if ":" not in args.env else str(error))
     if args.num_envs < 1 or args.steps < 1:
       parser.error("--num-envs and --steps must be >= 1")
     try:
       demo(args)
-    except ValueError as error:
-      raise SystemExit(f"mjx-hopper demo: {error}")
+    except ValueError as error:  # the task's reward (envs.check_task)
+      parser.error(str(error))
 
 
 if __name__ == "__main__":

@@ -5,9 +5,9 @@ import dataclasses
 import os
 
 # Two devices; and XLA:CPU's loop emitters instead of its fusion emitters, which compile MJX's
-# physics a quarter to a third faster (benchmarks/research/xla_cpu_flags.py), as the suite's time
-# is mostly compiling. Users keep XLA's default: the programs' speed depends on the robot
-# (docs/benchmark-history.md). And single-threaded matrix products within a device: XLA:CPU
+# physics a quarter to a third faster (docs/benchmark-history.md, "XLA:CPU's fusion emitters"),
+# as the suite's time is mostly compiling. Users keep XLA's default: the programs' speed
+# depends on the robot (docs/benchmark-history.md). And single-threaded matrix products within a device: XLA:CPU
 # splits a product over its thread pool only in single-device programs, which changes the
 # order of its sums, so a sweep member would not be bit-identical to its single run on one
 # device (test_sweep.py). And LLVM's optimisation level 1 instead of 2: a Hopper rollout

@@ -22,7 +22,10 @@ print("FACTS " + json.dumps({
     "checkpoints": sorted(int(s) for s in os.listdir(f"{cfg.out_dir}/checkpoints") if s.isdigit()),
     "rewards": list(episodes["rewards"].shape),
     "evaluations": {c.out_dir: len(notebook.read_log(f"{c.out_dir}/log.csv")["eval"]["env_steps"])
-                    for c in (ddpg, dmpo, walker)},
+                    for c in (ddpg, dmpo, walker, jump_cfg, ant_cfg)},
+    "tasks": [json.load(open(f"{c.out_dir}/config.json"))["env"] for c in (cfg, jump_cfg, ant_cfg)],
+    "jump_settings": json.load(open(f"{jump_cfg.out_dir}/config.json"))["env_settings"],
+    "jump_terms": sorted(k for k in jump_episodes if k not in ("return", "length", "rewards", "qpos")),
     "videos": sorted(p for p in os.listdir() if p.endswith(".mp4")),
 }))
 """
@@ -71,15 +74,25 @@ def test_trains_checkpoints_and_resumes_from_the_saved_step(executed):
   assert max(log["train"]) == 160
   assert facts["checkpoints"] == [10, 20]          # iterations of 8 env steps
   assert "resumed from" in text(cells) and "step 10" in text(cells)
-  assert all(count == 2 for count in facts["evaluations"].values())  # DDPG, DMPO, Walker2D
+  assert all(count == 2 for count in facts["evaluations"].values())  # and the events
+
+
+def test_trains_section_2s_classes_and_records_them(executed):
+  _, facts = executed
+  assert facts["tasks"] == ["__main__:Hopper", "__main__:HighJump", "__main__:AntLongJump"]
+  assert facts["jump_settings"] == {"height_weight": 10.0}
+  assert "height" in facts["jump_terms"] and "progress" not in facts["jump_terms"]
 
 
 def test_shows_frames_plots_videos_and_totals(executed):
   cells, facts = executed
   images = [o for o in outputs(cells) if "image/png" in o.get("data", {})]
-  assert len(images) >= 6  # a frame, the reward plot, four learning curves
-  videos = [o for o in outputs(cells) if "<video" in o.get("data", {}).get("text/html", "")]
-  assert len(videos) == 3
-  assert facts["videos"] == ["hopper_d4pg.mp4", "hopper_random.mp4", "walker2d_d4pg.mp4"]
+  assert len(images) >= 8  # a frame, two reward plots, five learning curves
+  html = [o.get("data", {}).get("text/html", "") for o in outputs(cells)]
+  # Random actions; trained beside random, for the Hopper and the high jump; the Ant's long
+  # jump; Walker2D.
+  assert [h.count("<video") for h in html if "<video" in h] == [1, 2, 2, 1, 1]
+  assert facts["videos"] == ["ant_long_jump.mp4", "high_jump_d4pg.mp4", "high_jump_random.mp4",
+                             "hopper_d4pg.mp4", "hopper_random.mp4", "walker2d_d4pg.mp4"]
   assert facts["rewards"] == [5, 30]
   assert text(cells).count("Total reward in episode") == 5
