@@ -149,8 +149,6 @@ def sweep(args: argparse.Namespace) -> None:
   if replay_ratio is not None:
     args.replay_ratio = replay_ratio
   try:
-    if isinstance(replay_ratio, str):
-      raise ValueError(f"replay_ratio takes a float, got {replay_ratio!r}")
     cfg = _run_config(args, fixed, seeds=tuple(range(args.seed, args.seed + args.seeds)),
                       grid=grid)
     loop.run(cfg, checkpoint_dir=args.checkpoint_dir, progress=not args.no_progress,
@@ -161,9 +159,9 @@ def sweep(args: argparse.Namespace) -> None:
 
 def extract(args: argparse.Namespace) -> None:
   """Writes one member of a sweep's checkpoint as a single run's checkpoint."""
-  from mjx_hopper import sweep as sweep_lib
+  from mjx_hopper import loop
   try:
-    sweep_lib.extract(args.checkpoint, args.member, args.out)
+    loop.extract(args.checkpoint, args.member, args.out)
   except (ValueError, FileNotFoundError) as error:
     raise SystemExit(f"mjx-hopper extract: {error}")
 

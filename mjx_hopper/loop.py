@@ -20,7 +20,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from mjx_hopper import agents, checkpoint, envs, sweep, train
-from mjx_hopper.logger import LEARNER_FIELDS, RETURNS, Logger
+from mjx_hopper.logger import LEARNER_FIELDS, Logger
 
 
 @dataclasses.dataclass(frozen=True)
@@ -204,32 +204,48 @@ def run(cfg: RunConfig, checkpoint_dir: str | None = None, progress: bool = True
   every `time_delta` seconds and each evaluation, above the progress bar. Checkpoints go to
   `checkpoint_dir` (default `out_dir`/checkpoints) every `checkpoint_minutes`, at the end,
   and on Ctrl-C or SIGTERM (after the chunk in flight); a run whose checkpoint_dir already
-  holds one resumes from it.
+  holds one resumes from it. A single run and a sweep take the same path: a sweep's own lines,
+  ranking and curves come from `sweep.Report`.
   """
-  t_start = time.perf_counter()
-  say = _above_progress_bars(print_fn)
-  everyone, indices = cfg.members(), process_members(cfg, process)
-  members, is_sweep = [everyone[i] for i in indices], len(everyone) > 1
-  out_dir = (os.path.join(cfg.out_dir, f"process{process[0]}") if process and process[1] > 1
-             else cfg.out_dir)
-  os.makedirs(out_dir, exist_ok=True)
-  checkpoint_dir = checkpoint_dir or os.path.join(out_dir, "checkpoints")
-  trainer = build(cfg, len(members))
-  mngr = checkpoint.manager(checkpoint_dir, cfg.keep_checkpoints)
-  saved_config = {**cfg.to_json(), "member_indices": indices}
-  steps_per_iteration = trainer.config.steps_per_iteration
-  # Compiling is the user's first wait, so its parts overlap: the training chunk compiles in a
-  # thread from the state's shapes while the state is made (or restored) here, and the
-  # evaluation is traced once the chunk's tracing is done (tracing holds Python's lock) and
-  # compiles beside it. Nothing compiles when the newest checkpoint already ends the run.
-  shapes = jax.tree.map(
-      lambda sharding, part: jax.tree.map(
-          lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sharding), part),
-      trainer.shardings, jax.eval_shape(lambda: init(cfg, trainer, members)))
-  keys = jax.ShapeDtypeStruct((len(members), 2), jnp.uint32)
+  session = _Session(cfg, checkpoint_dir, print_fn, process)
+  state = session.start()
+  with checkpoint.StopRequest() as stop, session.logger:
+    state, evaluation = session.run_chunks(state, progress, stop)
+  return session.finish(state, evaluation, stop)
 
-  def start_compiling():
-    # Futures of (the compiled chunk, the compiled evaluation).
+
+class _Session:
+  """One call of `run`: this process's members, their trainer, files and programs."""
+
+  def __init__(self, cfg: RunConfig, checkpoint_dir: str | None, print_fn,
+               process: tuple[int, int] | None):
+    self.t_start = time.perf_counter()
+    self.cfg, self.say = cfg, _above_progress_bars(print_fn)
+    everyone, self.indices = cfg.members(), process_members(cfg, process)
+    self.members = [everyone[i] for i in self.indices]
+    self.out_dir = (os.path.join(cfg.out_dir, f"process{process[0]}")
+                    if process and process[1] > 1 else cfg.out_dir)
+    os.makedirs(self.out_dir, exist_ok=True)
+    self.checkpoint_dir = checkpoint_dir or os.path.join(self.out_dir, "checkpoints")
+    self.trainer = build(cfg, len(self.members))
+    self.mngr = checkpoint.manager(self.checkpoint_dir, cfg.keep_checkpoints)
+    self.saved_config = {**cfg.to_json(), "member_indices": self.indices}
+    self.report = sweep.Report(cfg.grid, self.members, self.indices, self.say,
+                               single=len(everyone) == 1)
+    self.steps_per_iteration = self.trainer.config.steps_per_iteration
+    self.programs = None
+
+  def _start_compiling(self):
+    """Futures of (the compiled chunk, the compiled evaluation). Compiling is the user's first
+    wait, so its parts overlap: the training chunk compiles in a thread from the state's shapes
+    while the state is made (or restored), and the evaluation is traced once the chunk's
+    tracing is done (tracing holds Python's lock) and compiles beside it."""
+    trainer = self.trainer
+    shapes = jax.tree.map(
+        lambda sharding, part: jax.tree.map(
+            lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sharding), part),
+        trainer.shardings, jax.eval_shape(lambda: init(self.cfg, trainer, self.members)))
+    keys = jax.ShapeDtypeStruct((len(self.members), 2), jnp.uint32)
     pool = concurrent.futures.ThreadPoolExecutor(2)
     lowered = pool.submit(trainer.train_chunk.lower, shapes)
     chunk = pool.submit(lambda: lowered.result().compile())
@@ -238,115 +254,106 @@ def run(cfg: RunConfig, checkpoint_dir: str | None = None, progress: bool = True
     pool.shutdown(wait=False)
     return chunk, evaluator
 
-  newest = (mngr.latest_step() or 0) * steps_per_iteration
-  programs = start_compiling() if newest < cfg.total_env_steps else None
-  state = checkpoint.resume(mngr, init(cfg, trainer, members), saved_config, say,
-                            defaults={"agent_config": _field_defaults(cfg.agent_config()),
-                                      "env_settings": {}})
-  with open(os.path.join(out_dir, "config.json"), "w") as f:  # once resuming is agreed
-    json.dump(saved_config, f, indent=1)
-  env_steps = train.iterations(state) * steps_per_iteration
-  if programs is None and env_steps < cfg.total_env_steps:  # an older step was read
-    programs = start_compiling()
-  # A sweep's rows (one per member) go to the files only; its terminal lines sum them up.
-  logger = Logger(os.path.join(out_dir, "log.csv"), cfg.time_delta,
-                  (lambda line: None) if is_sweep else say, LEARNER_FIELDS[cfg.agent],
-                  cfg.tensorboard_dir, start_step=env_steps,
-                  id_fields=("member", *members[0]) if is_sweep else ())
-  per_chunk = steps_per_iteration * trainer.config.iterations_per_chunk
-  who = f"{len(members)} members, " if is_sweep else ""
-  say(f"{cfg.env} with {cfg.agent} ({cfg.preset}): {who}{cfg.train.num_envs} envs"
-      f"{' each' if is_sweep else ''} on {len(jax.local_devices())} "
-      f"{jax.local_devices()[0].platform} device(s), {per_chunk:,} env steps and "
-      f"{trainer.config.updates_per_iteration * trainer.config.iterations_per_chunk:,} "
-      f"updates per chunk{' per member' if is_sweep else ''}")
-  bar = (_progress_bar(cfg.total_env_steps, env_steps)
-         if progress and env_steps < cfg.total_env_steps else None)
-  _status(bar, "compiling the training step")
-  next_eval = (env_steps // cfg.eval_every + 1) * cfg.eval_every
-  evaluation, last_save, last_line = None, time.monotonic(), -float("inf")
-  reached = np.zeros(len(members), bool)  # members whose evaluation reached stop_at_return
+  def start(self) -> train.TrainState:
+    """The state to train from (fresh, or the newest readable checkpoint's), with the programs
+    compiling meanwhile (none when the newest checkpoint already ends the run), config.json
+    written and the logger open."""
+    cfg = self.cfg
+    if (self.mngr.latest_step() or 0) * self.steps_per_iteration < cfg.total_env_steps:
+      self.programs = self._start_compiling()
+    state = checkpoint.resume(
+        self.mngr, init(cfg, self.trainer, self.members), self.saved_config, self.say,
+        defaults={"agent_config": _field_defaults(cfg.agent_config()), "env_settings": {}})
+    with open(os.path.join(self.out_dir, "config.json"), "w") as f:  # once resuming is agreed
+      json.dump(self.saved_config, f, indent=1)
+    env_steps = train.iterations(state) * self.steps_per_iteration
+    if self.programs is None and env_steps < cfg.total_env_steps:  # an older step was read
+      self.programs = self._start_compiling()
+    self.logger = Logger(os.path.join(self.out_dir, "log.csv"), cfg.time_delta,
+                         self.report.logger_print, LEARNER_FIELDS[cfg.agent],
+                         cfg.tensorboard_dir, start_step=env_steps,
+                         id_fields=self.report.id_fields)
+    config = self.trainer.config
+    self.per_chunk = self.steps_per_iteration * config.iterations_per_chunk
+    self.say(f"{cfg.env} with {cfg.agent} ({cfg.preset}): {self.report.who}{cfg.train.num_envs}"
+             f" envs{self.report.each} on {len(jax.local_devices())} "
+             f"{jax.local_devices()[0].platform} device(s), {self.per_chunk:,} env steps and "
+             f"{config.updates_per_iteration * config.iterations_per_chunk:,} updates per chunk"
+             f"{self.report.per_member}")
+    return state
 
-  def tags(m: int) -> dict:
-    """The columns that name member m of this process (none in a single run)."""
-    return {"member": indices[m], **members[m]} if is_sweep else {}
-
-  def eval_keys():
-    return jnp.stack([jax.random.fold_in(jax.random.PRNGKey(m["seed"]), env_steps)
-                      for m in members])
-
-  def evaluate():
+  def evaluate(self, state: train.TrainState, env_steps: int, bar) -> dict:
+    """Evaluates every member's policy; its rows to the log, a sweep's line to the terminal."""
     _status(bar, "evaluating")
-    result = jax.device_get(programs[1].result()(state.agent, eval_keys()))
-    for m in range(len(members)):
-      logger.write({"kind": "eval", **tags(m), "env_steps": env_steps,
-                    "wall_s": time.perf_counter() - t_start,
-                    "eval_return": float(np.mean(result["return"][m])),
-                    "eval_return_std": float(np.std(result["return"][m])),
-                    "eval_length": float(np.mean(result["length"][m]))}, force=True)
-    if is_sweep:
-      say(f"[eval] {env_steps:,} env steps | " + _members_line(result["return"].mean(-1),
-                                                                members, cfg.grid))
+    keys = jnp.stack([jax.random.fold_in(jax.random.PRNGKey(m["seed"]), env_steps)
+                      for m in self.members])
+    result = jax.device_get(self.programs[1].result()(state.agent, keys))
+    for m in range(len(self.members)):
+      self.logger.write({"kind": "eval", **self.report.tags(m), "env_steps": env_steps,
+                         "wall_s": time.perf_counter() - self.t_start,
+                         "eval_return": float(np.mean(result["return"][m])),
+                         "eval_return_std": float(np.std(result["return"][m])),
+                         "eval_length": float(np.mean(result["length"][m]))}, force=True)
+    self.report.evaluated(env_steps, result["return"].mean(-1))
     return result
 
-  with checkpoint.StopRequest() as stop, logger:
-    deadline = t_start + 60 * cfg.max_minutes if cfg.max_minutes else float("inf")
+  def run_chunks(self, state: train.TrainState, progress: bool, stop):
+    """Chunks until the run's end, a stop request, its deadline or its target: (state, the
+    last evaluation or None)."""
+    cfg = self.cfg
+    env_steps = train.iterations(state) * self.steps_per_iteration
+    bar = (_progress_bar(cfg.total_env_steps, env_steps)
+           if progress and env_steps < cfg.total_env_steps else None)
+    _status(bar, "compiling the training step")
+    next_eval = (env_steps // cfg.eval_every + 1) * cfg.eval_every
+    evaluation, last_save = None, time.monotonic()
+    self.reached = np.zeros(len(self.members), bool)  # members at stop_at_return
+    deadline = self.t_start + 60 * cfg.max_minutes if cfg.max_minutes else float("inf")
     while (env_steps < cfg.total_env_steps and not stop.requested
-           and time.perf_counter() < deadline and not reached.all()):
+           and time.perf_counter() < deadline and not self.reached.all()):
       t0 = time.perf_counter()
-      state, metrics = programs[0].result()(state)
+      state, metrics = self.programs[0].result()(state)
       metrics = jax.device_get(metrics)
-      env_steps = train.iterations(state) * steps_per_iteration
-      rate = per_chunk * len(members) / (time.perf_counter() - t0)
+      env_steps = train.iterations(state) * self.steps_per_iteration
+      rate = self.per_chunk * len(self.members) / (time.perf_counter() - t0)
       updates = np.asarray(jax.device_get(state.updates))
-      for m in range(len(members)):
-        logger.write({"kind": "train", **tags(m), "env_steps": env_steps,
-                      "updates": int(updates[m]), "wall_s": time.perf_counter() - t_start,
-                      "steps_per_s": rate, **{k: float(v[m]) for k, v in metrics.items()}})
-      if is_sweep and time.monotonic() - last_line >= cfg.time_delta:
-        last_line = time.monotonic()
-        say(f"[train] {env_steps:,} env steps | {rate:,.0f} steps/s (all members) | train "
-            "return " + _members_line(metrics["episode_return"], members, cfg.grid))
+      for m in range(len(self.members)):
+        self.logger.write({"kind": "train", **self.report.tags(m), "env_steps": env_steps,
+                           "updates": int(updates[m]),
+                           "wall_s": time.perf_counter() - self.t_start, "steps_per_s": rate,
+                           **{k: float(v[m]) for k, v in metrics.items()}})
+      self.report.trained(env_steps, rate, metrics["episode_return"], cfg.time_delta)
       if (env_steps >= next_eval or env_steps >= cfg.total_env_steps
           or time.perf_counter() >= deadline):
-        evaluation = evaluate()
+        evaluation = self.evaluate(state, env_steps, bar)
         next_eval += cfg.eval_every
         if cfg.stop_at_return is not None:
-          reached |= np.asarray(evaluation["return"]).mean(-1) >= cfg.stop_at_return
+          self.reached |= np.asarray(evaluation["return"]).mean(-1) >= cfg.stop_at_return
       if time.monotonic() - last_save >= 60 * cfg.checkpoint_minutes:
-        checkpoint.save(mngr, state, saved_config)
+        checkpoint.save(self.mngr, state, self.saved_config)
         last_save = time.monotonic()
       if bar is not None:
         bar.update(min(env_steps, cfg.total_env_steps) - bar.n)
-        _status(bar, f"{rate:,.0f} steps/s" if is_sweep
-                else logger.describe(RETURNS, sep=", "))
+        _status(bar, self.report.status(rate, self.logger))
     if bar is not None:
       bar.close()
-    checkpoint.save(mngr, state, saved_config)
-    checkpoint.finish(mngr)
-  if not is_sweep and evaluation is not None:
-    evaluation = jax.tree.map(lambda x: x[0], evaluation)  # a single run is one member
-  if is_sweep:
-    say("ranking by the last evaluation (mean over seeds):\n"
-        + sweep.ranking(logger.rows, cfg.grid))
-    curves = sweep.plot(logger.rows, cfg.grid, os.path.join(out_dir, "curves.png"))
-    say(f"learning curves: {curves}")
-  say(_summary(cfg, "stopped by a signal" if stop.requested else
-               f"every member reached {cfg.stop_at_return:g}" if reached.all() else "done",
-               env_steps, time.perf_counter() - t_start,
-               None if is_sweep else evaluation, logger.csv_path, checkpoint_dir))
-  return Result(state, trainer, logger.rows, evaluation)
+    checkpoint.save(self.mngr, state, self.saved_config)
+    checkpoint.finish(self.mngr)
+    return state, evaluation
 
-
-def _members_line(values, members: list[dict], grid: dict) -> str:
-  """'best 2,480 (seed=1 learning_rate=0.0003), mean 1,920' over finite values."""
-  values = np.asarray(values, np.float64)
-  if not np.isfinite(values).any():
-    return "none yet"
-  best = int(np.nanargmax(np.where(np.isfinite(values), values, -np.inf)))
-  name = " ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}"
-                  for k, v in members[best].items() if k == "seed" or k in grid)
-  return f"best {values[best]:,.1f} ({name}), mean {np.nanmean(values):,.1f}"
+  def finish(self, state: train.TrainState, evaluation, stop) -> Result:
+    """The run's last lines (a sweep's ranking and curves first) and its Result."""
+    cfg = self.cfg
+    env_steps = train.iterations(state) * self.steps_per_iteration
+    single = self.report.single
+    if single and evaluation is not None:
+      evaluation = jax.tree.map(lambda x: x[0], evaluation)  # a single run is one member
+    self.report.finish(self.logger.rows, self.out_dir)
+    why = ("stopped by a signal" if stop.requested else
+           f"every member reached {cfg.stop_at_return:g}" if self.reached.all() else "done")
+    self.say(_summary(cfg, why, env_steps, time.perf_counter() - self.t_start,
+                      evaluation if single else None, self.logger.csv_path, self.checkpoint_dir))
+    return Result(state, self.trainer, self.logger.rows, evaluation)
 
 
 def _summary(cfg: RunConfig, why: str, env_steps: int, seconds: float,
@@ -420,6 +427,25 @@ def _saved_run(mngr, step, env: Any = None) -> tuple[RunConfig, list[dict]]:
     raise checkpoint.ConfigMismatch(f"{mngr.directory}: {error}") from None
   everyone = cfg.members()
   return cfg, [everyone[i] for i in saved.get("member_indices", range(len(everyone)))]
+
+
+def extract(directory: str, member: int, out_dir: str, print_fn=print, env: Any = None) -> str:
+  """Writes member `member` of the sweep checkpointed in `directory` as the checkpoint of a
+  single run (its seed and swept values as plain settings) in `out_dir`/checkpoints, with its
+  config.json, so that `mjx-hopper eval` and `train`, `restore` and `run` take it as their own.
+  `env` is the sweep's task, for a class that cannot be imported (see `resume`). Returns the
+  checkpoint directory."""
+  cfg, state, _ = restore(directory, print_fn, env=env)
+  saved = checkpoint.read_config(checkpoint.manager(directory), train.iterations(state))
+  indices = list(saved.get("member_indices", range(len(cfg.members()))))
+  try:
+    target = sweep.write_member(cfg, state, indices, member, out_dir)
+  except ValueError as error:
+    raise ValueError(f"{directory}: {error}") from None
+  chosen = cfg.members()[member]
+  print_fn(f"member {member} ({', '.join(f'{k}={v}' for k, v in chosen.items())}) of "
+           f"{directory} is now the single run in {target}")
+  return target
 
 
 def _progress_bar(total: int, initial: int):

@@ -1,6 +1,6 @@
 """What the Robolympics notebook shows, each in one call: a recorded evaluation of a trained
-policy, inline videos (side by side, too), the seed's per-step reward plot, a run's learning curve, and the tiny
-settings the tests run the notebook with.
+policy, inline videos (side by side, too), the seed's per-step reward plot, a run's learning
+curve, and the tiny settings the tests run the notebook with.
 
     from mjx_hopper import loop, notebook
     result = loop.run(cfg)

@@ -7,7 +7,7 @@ axis of one TrainState in one compiled program.
     result = loop.run(cfg)                       # 8 members; log.csv has one row per member
     print(sweep.ranking(result.history, cfg.grid))   # loop.run prints it, and
     sweep.plot(result.history, cfg.grid, "runs/sweep/curves.png")  # writes this, itself
-    sweep.extract("runs/sweep/checkpoints", member=3, out_dir="runs/member3")
+    loop.extract("runs/sweep/checkpoints", member=3, out_dir="runs/member3")
 
 A single run is a sweep of one member (no seeds or grid). Only dynamic settings can be swept:
 the agent's `Config.DYNAMIC` (learning rates, discount, n-step, sigma, vmin/vmax, MPO's
@@ -24,12 +24,14 @@ import itertools
 import json
 import math
 import os
+import time
 from typing import Any
 
 import jax
 import numpy as np
 
 from mjx_hopper import agents, train
+from mjx_hopper.logger import RETURNS
 
 TRAINER_DYNAMIC = ("replay_ratio",)
 
@@ -145,19 +147,68 @@ def _mean_interval(values: list[float]) -> tuple[float, float]:
   return float(values.mean()), float(1.96 * values.std(ddof=1) / math.sqrt(len(values)))
 
 
-def extract(directory: str, member: int, out_dir: str, print_fn=print, env=None) -> str:
-  """Writes member `member` of the sweep checkpointed in `directory` as the checkpoint of a
-  single run (its seed and swept values as plain settings) in `out_dir`/checkpoints, with its
-  config.json, so that `mjx-hopper eval` and `train`, `loop.restore` and `loop.run` take it as
-  their own. `env` is the sweep's task, for a class that cannot be imported (see
-  `loop.resume`). Returns the checkpoint directory."""
-  from mjx_hopper import checkpoint, loop
+class Report:
+  """What a run shows of its members. A single run (`single`) prints the logger's own lines;
+  a sweep's rows (one per member) go to the files only, its terminal lines sum them up (the
+  best member and the mean), and at the end it prints the ranking and draws the curves."""
 
-  cfg, state, _ = loop.restore(directory, print_fn, env=env)
-  saved = checkpoint.read_config(checkpoint.manager(directory), train.iterations(state))
-  indices = list(saved.get("member_indices", range(len(cfg.members()))))
+  def __init__(self, grid: dict, members: list[dict], indices: list[int], say,
+               single: bool):
+    self.grid, self.members, self.indices, self.say = grid, members, indices, say
+    self.single = single
+    self.last_line = -float("inf")
+    self.logger_print = say if single else (lambda line: None)
+    self.id_fields = () if single else ("member", *members[0])
+    self.who = "" if single else f"{len(members)} members, "
+    self.each = "" if single else " each"
+    self.per_member = "" if single else " per member"
+
+  def tags(self, m: int) -> dict:
+    """The columns that name member m of this process (none in a single run)."""
+    return {} if self.single else {"member": self.indices[m], **self.members[m]}
+
+  def trained(self, env_steps: int, rate: float, returns, time_delta: float) -> None:
+    """A sweep's train line, every `time_delta` seconds."""
+    if not self.single and time.monotonic() - self.last_line >= time_delta:
+      self.last_line = time.monotonic()
+      self.say(f"[train] {env_steps:,} env steps | {rate:,.0f} steps/s (all members) | train "
+               "return " + self.members_line(returns))
+
+  def evaluated(self, env_steps: int, returns) -> None:
+    """A sweep's evaluation line (a single run's is the logger's)."""
+    if not self.single:
+      self.say(f"[eval] {env_steps:,} env steps | " + self.members_line(returns))
+
+  def status(self, rate: float, logger) -> str:
+    """The progress bar's text."""
+    return logger.describe(RETURNS, sep=", ") if self.single else f"{rate:,.0f} steps/s"
+
+  def members_line(self, values) -> str:
+    """'best 2,480 (seed=1 learning_rate=0.0003), mean 1,920' over finite values."""
+    values = np.asarray(values, np.float64)
+    if not np.isfinite(values).any():
+      return "none yet"
+    best = int(np.nanargmax(np.where(np.isfinite(values), values, -np.inf)))
+    name = " ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}"
+                    for k, v in self.members[best].items() if k == "seed" or k in self.grid)
+    return f"best {values[best]:,.1f} ({name}), mean {np.nanmean(values):,.1f}"
+
+  def finish(self, rows: list[dict], out_dir: str) -> None:
+    """A sweep's ranking and learning curves."""
+    if not self.single:
+      self.say("ranking by the last evaluation (mean over seeds):\n" + ranking(rows, self.grid))
+      self.say(f"learning curves: {plot(rows, self.grid, os.path.join(out_dir, 'curves.png'))}")
+
+
+def write_member(cfg, state, indices: list[int], member: int, out_dir: str) -> str:
+  """Writes member `member` of a sweep's restored `state` (which holds the members `indices` of
+  the RunConfig `cfg`) as the checkpoint of a single run, its seed and swept values as plain
+  settings, in `out_dir`/checkpoints, with its config.json. Returns the checkpoint directory;
+  `loop.extract` is the call that reads the sweep's checkpoint first."""
+  from mjx_hopper import checkpoint
+
   if member not in indices:
-    raise ValueError(f"member {member} is not in {directory}: it holds members {indices}")
+    raise ValueError(f"member {member} is not in the sweep: it holds members {indices}")
   chosen = cfg.members()[member]
   agent_values = {k: v for k, v in chosen.items() if k not in ("seed", *TRAINER_DYNAMIC)}
   single = dataclasses.replace(
@@ -177,6 +228,4 @@ def extract(directory: str, member: int, out_dir: str, print_fn=print, env=None)
   checkpoint.finish(mngr)
   with open(os.path.join(out_dir, "config.json"), "w") as f:
     json.dump(config, f, indent=1)
-  print_fn(f"member {member} ({', '.join(f'{k}={v}' for k, v in chosen.items())}) of "
-           f"{directory} is now the single run in {target}")
   return target

@@ -22,6 +22,7 @@ one device.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from typing import Any, NamedTuple
 
@@ -140,34 +141,39 @@ def mesh_shape(num_members: int, num_devices: int) -> tuple[int, int]:
   return groups, num_devices // groups
 
 
-def make_trainer(env: LocomotionEnv, agent: Agent, cfg: TrainConfig, eval_episodes: int = 16,
-                 num_members: int = 1, dynamic_updates: bool = False,
-                 devices: list | None = None) -> Trainer:
-  """The compiled trainer of `num_members` members on `devices` (default: every local one).
+class Layout(NamedTuple):
+  """Where a trainer's members live: a (members, devices) mesh of gcd(S, D) groups of devices,
+  each group holding `local_members` members, and each member's envs, replay and batches split
+  over its group's `group_size` devices."""
 
-  With `dynamic_updates`, each member runs round(its replay_ratio * num_envs * unroll_length /
-  batch_size) updates per iteration, at most `cfg`'s (the rest are skipped); without, every
-  member runs `cfg`'s count, whatever its replay_ratio.
-  """
-  devices = list(jax.local_devices() if devices is None else devices)
+  mesh: Mesh
+  local_members: int
+  group_size: int
+  specs: TrainState       # each part's PartitionSpec
+  shardings: TrainState   # each part's NamedSharding
+
+  @property
+  def axis(self) -> str | None:
+    """The mapped axis of a member's devices; None for a member on one device, which then
+    needs no collectives (its program is the same whether other devices run other members)."""
+    return AXIS if self.group_size > 1 else None
+
+  def device_index(self):
+    return jax.lax.axis_index(AXIS) if self.axis else 0
+
+  def total(self, x):
+    """`x` summed over a member's devices."""
+    return jax.lax.psum(x, AXIS) if self.axis else x
+
+  def members(self, fn):
+    """`fn` of one member, over this device's members."""
+    return per_member(fn, self.local_members)
+
+
+def layout(num_members: int, devices: list) -> Layout:
+  """The mesh, and where each part of a TrainState lives on it."""
   groups, group_size = mesh_shape(num_members, len(devices))
-  cfg.check(group_size)
   mesh = Mesh(np.array(devices).reshape(groups, group_size), (MEMBERS, AXIS))
-  local_members = num_members // groups
-  train_env = AutoReset(env)
-  rows = cfg.replay_rows()
-  min_rows = max(-(-cfg.min_replay // cfg.num_envs), agent.n_step)
-  local_batch = cfg.batch_size // group_size
-  # A member on one device needs no collectives: leaving them out makes its program the same
-  # whether other devices run other members or not.
-  axis = AXIS if group_size > 1 else None
-
-  def device_index():
-    return jax.lax.axis_index(AXIS) if axis else 0
-
-  def total(x):
-    return jax.lax.psum(x, AXIS) if axis else x
-  max_updates = cfg.updates_per_iteration
 
   def member_spec(*axes):
     return P(MEMBERS, *axes)
@@ -180,6 +186,32 @@ def make_trainer(env: LocomotionEnv, agent: Agent, cfg: TrainConfig, eval_episod
                      replay_ratio=member_spec())
   shardings = jax.tree.map(lambda spec: NamedSharding(mesh, spec), specs,
                            is_leaf=lambda x: isinstance(x, P))
+  return Layout(mesh, num_members // groups, group_size, specs, shardings)
+
+
+def make_trainer(env: LocomotionEnv, agent: Agent, cfg: TrainConfig, eval_episodes: int = 16,
+                 num_members: int = 1, dynamic_updates: bool = False,
+                 devices: list | None = None) -> Trainer:
+  """The compiled trainer of `num_members` members on `devices` (default: every local one).
+
+  With `dynamic_updates`, each member runs round(its replay_ratio * num_envs * unroll_length /
+  batch_size) updates per iteration, at most `cfg`'s (the rest are skipped); without, every
+  member runs `cfg`'s count, whatever its replay_ratio.
+  """
+  where = layout(num_members, list(jax.local_devices() if devices is None else devices))
+  cfg.check(where.group_size)
+  # One member's evaluation as plain code (vmap of one traces much slower), several under vmap.
+  evaluate_members = per_member(lambda s, k: evaluate(env, agent, s, k, eval_episodes),
+                                num_members)
+  return Trainer(_make_init(env, agent, cfg, where, num_members),
+                 _make_chunk(env, agent, cfg, where, dynamic_updates),
+                 jax.jit(evaluate_members), cfg, env, agent, num_members, where.shardings)
+
+
+def _make_init(env: LocomotionEnv, agent: Agent, cfg: TrainConfig, where: Layout,
+               num_members: int):
+  """Trainer.init: the members' fresh TrainState, placed on the mesh."""
+  train_env = AutoReset(env)
 
   def init_member(key, hp):
     agent_key, env_key, key = jax.random.split(key, 3)
@@ -188,12 +220,13 @@ def make_trainer(env: LocomotionEnv, agent: Agent, cfg: TrainConfig, eval_episod
     env_state = jax.vmap(train_env.reset)(jax.random.split(env_key, cfg.num_envs))
     return TrainState(
         agent=agent.init(agent_key, hp),
-        replay=replay.init(rows, cfg.num_envs, env.observation_size, env.action_size),
+        replay=replay.init(cfg.replay_rows(), cfg.num_envs, env.observation_size,
+                           env.action_size),
         env=env_state, episode_return=jnp.zeros(cfg.num_envs), key=key,
         iteration=jnp.zeros((), jnp.int32), updates=jnp.zeros((), jnp.int32),
         replay_ratio=jnp.asarray(ratio, jnp.float32))
 
-  compiled_init = jax.jit(jax.vmap(init_member), out_shardings=shardings)
+  compiled_init = jax.jit(jax.vmap(init_member), out_shardings=where.shardings)
 
   def init(keys, hparams=None):
     keys = jnp.asarray(keys)
@@ -208,59 +241,78 @@ def make_trainer(env: LocomotionEnv, agent: Agent, cfg: TrainConfig, eval_episod
     batched = {k: jnp.broadcast_to(jnp.asarray(v, defaults[k].dtype), (num_members,))
                for k, v in values.items()}
     return compiled_init(keys, batched)
+  return init
 
-  def members(fn):
-    return per_member(fn, local_members)
 
-  def collect(agent_state, env_state, episode_return, key):
-    """unroll_length steps of one member's envs on this device: (env, return, steps (T, n,
-    ...), ended episodes' (count, return sum))."""
-    def one(carry, step_key):
-      env_state, ep_return = carry
-      action = agent.act(agent_state, env_state.obs, step_key)
-      nxt = jax.vmap(train_env.step)(env_state, action)
-      terminated = nxt.done * (1.0 - nxt.info["truncation"])
-      step = replay.Step(obs=env_state.obs, action=action, reward=nxt.reward,
-                         discount=1.0 - terminated, done=nxt.done,
-                         next_obs=nxt.info["final_obs"])
-      ep_return = ep_return + nxt.reward
-      ended = (jnp.sum(nxt.done), jnp.sum(nxt.done * ep_return))
-      return (nxt, ep_return * (1.0 - nxt.done)), (step, ended)
-    (env_state, episode_return), (steps, ended) = jax.lax.scan(
-        one, (env_state, episode_return), jax.random.split(key, cfg.unroll_length))
-    return env_state, episode_return, steps, jax.tree.map(jnp.sum, ended)
+def _collect(agent: Agent, train_env: AutoReset, unroll_length: int, agent_state, env_state,
+             episode_return, key):
+  """unroll_length steps of one member's envs on this device: (env, return, steps (T, n,
+  ...), ended episodes' (count, return sum))."""
+  def one(carry, step_key):
+    env_state, ep_return = carry
+    action = agent.act(agent_state, env_state.obs, step_key)
+    nxt = jax.vmap(train_env.step)(env_state, action)
+    terminated = nxt.done * (1.0 - nxt.info["truncation"])
+    step = replay.Step(obs=env_state.obs, action=action, reward=nxt.reward,
+                       discount=1.0 - terminated, done=nxt.done,
+                       next_obs=nxt.info["final_obs"])
+    ep_return = ep_return + nxt.reward
+    ended = (jnp.sum(nxt.done), jnp.sum(nxt.done * ep_return))
+    return (nxt, ep_return * (1.0 - nxt.done)), (step, ended)
+  (env_state, episode_return), (steps, ended) = jax.lax.scan(
+      one, (env_state, episode_return), jax.random.split(key, unroll_length))
+  return env_state, episode_return, steps, jax.tree.map(jnp.sum, ended)
 
-  def learn(agent_state, buffer, key, n_updates):
-    """`max_updates` updates, of which the first `n_updates` count (all, unless
-    dynamic_updates): (agent state, metrics averaged over the updates that counted)."""
-    hp = agent_state.hparams
 
-    def one(agent_state, x):
-      i, update_key = x
-      sample_key = jax.random.fold_in(update_key, device_index())
-      batch = replay.sample(buffer, sample_key, local_batch, hp["n_step"], hp["discount"],
-                            window=agent.n_step)
-      new, metrics = agent.update(agent_state, batch, update_key, axis_name=axis)
-      if dynamic_updates:
-        new = jax.tree.map(lambda a, b: jnp.where(i < n_updates, a, b), new, agent_state)
-      return new, metrics
-    steps = jnp.arange(max_updates)
-    agent_state, metrics = jax.lax.scan(one, agent_state,
-                                        (steps, jax.random.split(key, max_updates)))
-    weight = (steps < n_updates) / n_updates
-    return agent_state, jax.tree.map(lambda m: jnp.sum(m * weight), metrics)
+def _learn(agent: Agent, cfg: TrainConfig, where: Layout, dynamic_updates: bool, agent_state,
+           buffer, key, n_updates):
+  """cfg's updates per iteration of one member, of which the first `n_updates` count (all,
+  unless dynamic_updates): (agent state, metrics averaged over the updates that counted)."""
+  hp = agent_state.hparams
+  max_updates = cfg.updates_per_iteration
 
-  example = replay.Transition(jnp.zeros((1, env.observation_size)), jnp.zeros((1, env.action_size)),
-                              jnp.zeros(1), jnp.zeros(1), jnp.zeros((1, env.observation_size)))
+  def one(agent_state, x):
+    i, update_key = x
+    sample_key = jax.random.fold_in(update_key, where.device_index())
+    batch = replay.sample(buffer, sample_key, cfg.batch_size // where.group_size, hp["n_step"],
+                          hp["discount"], window=agent.n_step)
+    new, metrics = agent.update(agent_state, batch, update_key, axis_name=where.axis)
+    if dynamic_updates:
+      new = jax.tree.map(lambda a, b: jnp.where(i < n_updates, a, b), new, agent_state)
+    return new, metrics
+  steps = jnp.arange(max_updates)
+  agent_state, metrics = jax.lax.scan(one, agent_state,
+                                      (steps, jax.random.split(key, max_updates)))
+  weight = (steps < n_updates) / n_updates
+  return agent_state, jax.tree.map(lambda m: jnp.sum(m * weight), metrics)
+
+
+def _metric_shapes(env: LocomotionEnv, agent: Agent):
+  """The shapes of one update's metrics."""
+  example = replay.Transition(jnp.zeros((1, env.observation_size)),
+                              jnp.zeros((1, env.action_size)), jnp.zeros(1), jnp.zeros(1),
+                              jnp.zeros((1, env.observation_size)))
   key0 = jax.random.PRNGKey(0)
-  metric_shapes = jax.eval_shape(lambda s: agent.update(s, example, key0)[1],
-                                 jax.eval_shape(agent.init, key0))
+  return jax.eval_shape(lambda s: agent.update(s, example, key0)[1],
+                        jax.eval_shape(agent.init, key0))
+
+
+def _make_chunk(env: LocomotionEnv, agent: Agent, cfg: TrainConfig, where: Layout,
+                dynamic_updates: bool):
+  """Trainer.train_chunk: `iterations_per_chunk` iterations of every member, compiled under
+  shard_map over the mesh."""
+  members = where.members
+  collect = functools.partial(_collect, agent, AutoReset(env), cfg.unroll_length)
+  learn = functools.partial(_learn, agent, cfg, where, dynamic_updates)
+  min_rows = max(-(-cfg.min_replay // cfg.num_envs), agent.n_step)
+  max_updates = cfg.updates_per_iteration
+  metric_shapes = _metric_shapes(env, agent)
 
   def iteration(state: TrainState, _):
     """One iteration of the local members (every leaf with their leading axis): each one's
     collection and insert, then their updates."""
     key, act_key, learn_key = members(lambda k: tuple(jax.random.split(k, 3)))(state.key)
-    act_key = members(lambda k: jax.random.fold_in(k, device_index()))(act_key)
+    act_key = members(lambda k: jax.random.fold_in(k, where.device_index()))(act_key)
     env_state, ep_return, steps, (ended, ended_return) = members(collect)(
         state.agent, state.env, state.episode_return, act_key)
     buffer = members(replay.insert)(state.replay, steps)
@@ -268,7 +320,8 @@ def make_trainer(env: LocomotionEnv, agent: Agent, cfg: TrainConfig, eval_episod
     # branch for all of them. (A branch per member would be a select under the member vmap,
     # which runs the updates of members that are not learning yet.)
     learning = buffer.filled[0] >= min_rows
-    zeros = jax.tree.map(lambda s: jnp.zeros((local_members,) + s.shape, s.dtype), metric_shapes)
+    zeros = jax.tree.map(lambda s: jnp.zeros((where.local_members,) + s.shape, s.dtype),
+                         metric_shapes)
     if dynamic_updates:
       n_updates = members(lambda ratio: jnp.round(
           ratio * cfg.steps_per_iteration / cfg.batch_size).astype(jnp.int32))(state.replay_ratio)
@@ -281,8 +334,8 @@ def make_trainer(env: LocomotionEnv, agent: Agent, cfg: TrainConfig, eval_episod
     new = state._replace(agent=agent_state, replay=buffer, env=env_state,
                          episode_return=ep_return, key=key, iteration=state.iteration + 1,
                          updates=state.updates + learning * n_updates)
-    learning = jnp.broadcast_to(learning, (local_members,))
-    return new, (metrics, learning, total(ended), total(ended_return))
+    learning = jnp.broadcast_to(learning, (where.local_members,))
+    return new, (metrics, learning, where.total(ended), where.total(ended_return))
 
   def chunk(state: TrainState):
     state, (metrics, learning, ended, ended_return) = jax.lax.scan(
@@ -295,18 +348,12 @@ def make_trainer(env: LocomotionEnv, agent: Agent, cfg: TrainConfig, eval_episod
 
   # Explicit shardings, the same in and out, so that a chunk's output feeds the next call
   # without a second compilation.
-  train_chunk = jax.jit(
-      jax.shard_map(chunk, mesh=mesh, in_specs=(specs,),
-                    out_specs=(specs, member_spec()), check_vma=False),
-      in_shardings=(shardings,),
-      out_shardings=(shardings, NamedSharding(mesh, member_spec())), donate_argnums=0)
-
-  # One member's evaluation as plain code (vmap of one traces much slower), several under vmap.
-  evaluate_members = per_member(lambda s, k: evaluate(env, agent, s, k, eval_episodes),
-                                num_members)
-
-  return Trainer(init, train_chunk, jax.jit(evaluate_members), cfg, env, agent, num_members,
-                 shardings)
+  per_member_out = NamedSharding(where.mesh, P(MEMBERS))
+  return jax.jit(
+      jax.shard_map(chunk, mesh=where.mesh, in_specs=(where.specs,),
+                    out_specs=(where.specs, P(MEMBERS)), check_vma=False),
+      in_shardings=(where.shardings,), out_shardings=(where.shardings, per_member_out),
+      donate_argnums=0)
 
 
 def iterations(state: TrainState) -> int:

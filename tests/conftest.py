@@ -74,8 +74,11 @@ def shared_builds():
 # --durations=0 --junitxml`), for the order in which the two test workers take the files:
 # longest first, so that neither is left with a long file at the end while the other idles
 # (scripts/test.sh turns off xdist's own order, by number of tests). A file not listed goes last.
-FILE_SECONDS = {"test_sweep.py": 204, "test_brax.py": 177, "test_notebooks.py": 168,
-                "test_train.py": 145, "test_episodes.py": 142, "test_checkpoint.py": 78,
+# The notebook's and test_tasks.py's: estimates from the slowest tests' durations of a run with
+# the notebook's trained events.
+FILE_SECONDS = {"test_notebooks.py": 260, "test_sweep.py": 204, "test_brax.py": 177,
+                "test_train.py": 145, "test_episodes.py": 142, "test_tasks.py": 100,
+                "test_checkpoint.py": 78,
                 "test_env_api.py": 76, "test_observation.py": 57, "test_dpg.py": 42,
                 "test_mpo.py": 37, "test_presets.py": 31, "test_render.py": 20,
                 "test_notebook_helpers.py": 20}

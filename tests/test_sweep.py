@@ -113,15 +113,15 @@ def test_sweep_writes_results_resumes_exactly_and_extracts(single, tmp_path, cap
   assert (tmp_path / "straight" / "curves.png").stat().st_size > 10_000
 
   # Member 2 (seed 0, sigma 0.3) becomes a single run's checkpoint.
-  target = sweep.extract(str(tmp_path / "straight" / "checkpoints"), 2, str(tmp_path / "m2"))
+  target = loop.extract(str(tmp_path / "straight" / "checkpoints"), 2, str(tmp_path / "m2"))
   one_cfg, one_state, _ = loop.restore(target)
   assert (one_cfg.seed, one_cfg.agent_overrides["sigma"], one_cfg.seeds, one_cfg.grid) == (
       0, 0.3, (), {})
   assert_same(member(one_state), member(straight.state, 2))
   with pytest.raises(ValueError, match="already holds a checkpoint"):
-    sweep.extract(str(tmp_path / "straight" / "checkpoints"), 2, str(tmp_path / "m2"))
+    loop.extract(str(tmp_path / "straight" / "checkpoints"), 2, str(tmp_path / "m2"))
   with pytest.raises(ValueError, match=r"member 7 is not in .*: it holds members \[0, 1, 2, 3\]"):
-    sweep.extract(str(tmp_path / "straight" / "checkpoints"), 7, str(tmp_path / "m7"))
+    loop.extract(str(tmp_path / "straight" / "checkpoints"), 7, str(tmp_path / "m7"))
 
 
 @pytest.mark.parametrize("grid, message", [
