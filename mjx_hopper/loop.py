@@ -308,13 +308,14 @@ class _Session:
     next_eval = (env_steps // cfg.eval_every + 1) * cfg.eval_every
     evaluation, last_save = None, time.monotonic()
     self.reached = np.zeros(len(self.members), bool)  # members at stop_at_return
+    self.diverged = np.zeros(len(self.members), bool)  # members whose learning went non-finite
     deadline = self.t_start + 60 * cfg.max_minutes if cfg.max_minutes else float("inf")
     while (env_steps < cfg.total_env_steps and not stop.requested
            and time.perf_counter() < deadline and not self.reached.all()):
       t0 = time.perf_counter()
-      state, metrics = self.programs[0].result()(state)
-      metrics = jax.device_get(metrics)
+      state, metrics = self._chunk(state)
       env_steps = train.iterations(state) * self.steps_per_iteration
+      diverged = self._check_finite(metrics, env_steps)
       rate = self.per_chunk * len(self.members) / (time.perf_counter() - t0)
       updates = np.asarray(jax.device_get(state.updates))
       for m in range(len(self.members)):
@@ -322,6 +323,8 @@ class _Session:
                            "updates": int(updates[m]),
                            "wall_s": time.perf_counter() - self.t_start, "steps_per_s": rate,
                            **{k: float(v[m]) for k, v in metrics.items()}})
+      if diverged.all():
+        break  # every member diverged: this state is not evaluated, and never saved
       self.report.trained(env_steps, rate, metrics["episode_return"], cfg.time_delta)
       if (env_steps >= next_eval or env_steps >= cfg.total_env_steps
           or time.perf_counter() >= deadline):
@@ -337,9 +340,27 @@ class _Session:
         _status(bar, self.report.status(rate, self.logger))
     if bar is not None:
       bar.close()
-    checkpoint.save(self.mngr, state, self.saved_config)
+    if not self.diverged.all():
+      checkpoint.save(self.mngr, state, self.saved_config)
     checkpoint.finish(self.mngr)
     return state, evaluation
+
+  def _chunk(self, state: train.TrainState):
+    """One compiled chunk: (state, its metrics on the host)."""
+    state, metrics = self.programs[0].result()(state)
+    return state, jax.device_get(metrics)
+
+  def _check_finite(self, metrics: dict, env_steps: int) -> np.ndarray:
+    """Marks the members whose learner metrics (losses, values) went non-finite in this chunk,
+    saying so once for each, and returns the marks of every member so far."""
+    learner = [k for k in metrics if k not in ("episode_return", "episodes", "learning")]
+    for m in range(len(self.members)):
+      bad = [k for k in learner if not np.isfinite(metrics[k][m])]
+      if bad and not self.diverged[m]:
+        self.diverged[m] = True
+        who = "" if self.report.single else f"member {self.indices[m]} "
+        self.say(f"[diverged] {who}at {env_steps:,} env steps: {', '.join(bad)} not finite")
+    return self.diverged
 
   def finish(self, state: train.TrainState, evaluation, stop) -> Result:
     """The run's last lines (a sweep's ranking and curves first) and its Result."""
@@ -349,7 +370,13 @@ class _Session:
     if single and evaluation is not None:
       evaluation = jax.tree.map(lambda x: x[0], evaluation)  # a single run is one member
     self.report.finish(self.logger.rows, self.out_dir)
-    why = ("stopped by a signal" if stop.requested else
+    if self.diverged.all():
+      kept = self.mngr.latest_step()
+      self.say("training diverged; nothing was saved after it: "
+               + (f"the last finite checkpoint is step {kept} in {self.checkpoint_dir}, which "
+                  "loop.resume continues (a lower learning rate may avoid it)" if kept is not None
+                  else "no checkpoint was saved before it"))
+    why = ("stopped by a signal" if stop.requested else "diverged" if self.diverged.all() else
            f"every member reached {cfg.stop_at_return:g}" if self.reached.all() else "done")
     self.say(_summary(cfg, why, env_steps, time.perf_counter() - self.t_start,
                       evaluation if single else None, self.logger.csv_path, self.checkpoint_dir))

@@ -9,7 +9,7 @@ import jax
 import numpy as np
 import pytest
 
-from mjx_hopper import cli, logger, loop, notebook, train
+from mjx_hopper import checkpoint, cli, logger, loop, notebook, train
 
 # The notebook's short mode (notebook.tiny): the run of the notebook's own cells and of
 # test_notebook_helpers, so that they share its compiled programs (and, in one test worker,
@@ -176,3 +176,30 @@ def test_every_agent_trains_from_the_same_cli(tmp_path, capsys, agent, extra):
   for name in names:
     assert np.isfinite(float(train_rows[-1][name])), name
   assert json.load(open(tmp_path / "config.json"))["agent"] == agent
+
+
+def test_a_run_that_diverges_stops_and_keeps_its_last_finite_checkpoint(tmp_path, monkeypatch,
+                                                                        capsys):
+  """The third chunk's critic loss goes NaN: the run stops there, says so, and never saves
+  that state; the checkpoint of the chunk before stays the newest, and resumes."""
+  chunk, calls = loop._Session._chunk, []
+
+  def poisoned(self, state):
+    state, metrics = chunk(self, state)
+    calls.append(state)
+    if len(calls) == 3:
+      metrics = {**metrics, "critic_loss": np.full_like(metrics["critic_loss"], np.nan)}
+    return state, metrics
+  monkeypatch.setattr(loop._Session, "_chunk", poisoned)
+  cfg = dataclasses.replace(TINY, out_dir=str(tmp_path), total_env_steps=400,
+                            checkpoint_minutes=0.0)
+  result = loop.run(cfg, progress=False)
+  out = capsys.readouterr().out
+  assert "[diverged] at 120 env steps: critic_loss not finite" in out
+  assert f"the last finite checkpoint is step 10 in {tmp_path / 'checkpoints'}" in out
+  assert "diverged: 120 env steps" in out and len(calls) == 3
+  assert checkpoint.manager(str(tmp_path / "checkpoints")).all_steps() == [5, 10]
+  assert np.isnan(result.history[-1]["critic_loss"])  # the diverged chunk's row is logged
+  monkeypatch.setattr(loop._Session, "_chunk", chunk)
+  resumed = loop.resume(str(tmp_path / "checkpoints"), progress=False, total_env_steps=160)
+  assert train.iterations(resumed.state) == 20
