@@ -30,6 +30,7 @@ import mujoco
 import numpy as np
 
 from mjx_hopper.envs.base import LocomotionEnv
+from mjx_hopper.fields import convert
 
 _REGISTRY: dict[str, type[LocomotionEnv]] = {}
 # Classes given by object in this process, by id: a class defined in a notebook cell or inside
@@ -138,21 +139,33 @@ def _parameters(cls) -> dict[str, inspect.Parameter]:
   return out
 
 
-def task_settings(cls: type[LocomotionEnv], given: dict | None = None) -> dict:
-  """Every constructor setting of `cls`, defaults included, with `given` in place. Raises
-  ValueError for an unknown or missing setting, or one that a JSON config cannot hold."""
+def _check_names(cls: type[LocomotionEnv], given: dict) -> dict[str, inspect.Parameter]:
+  """`cls`'s constructor parameters; a ValueError naming them when `given` has another name."""
   params = _parameters(cls)
-  given = dict(given or {})
   unknown = sorted(set(given) - set(params))
   if unknown:
     raise ValueError(f"unknown setting(s) {unknown} of the task {cls.__name__}; its settings are "
                      f"{sorted(params)}")
+  return params
+
+
+def task_settings(cls: type[LocomotionEnv], given: dict | None = None) -> dict:
+  """Every constructor setting of `cls`, defaults included, with `given` in place. Raises
+  ValueError for an unknown or missing setting, one whose value is not of its default's type
+  (an int is a float), or one that a JSON config cannot hold."""
+  given = dict(given or {})
+  params = _check_names(cls, given)
   out = {}
   for name, p in sorted(params.items()):
     if name in given:
       value = given[name]
-      if p.default is not p.empty and p.default is not None:
-        value = _typed(cls, name, value, p.default)
+      if isinstance(p.default, (bool, int, float, str)):
+        try:
+          value = convert(type(p.default), value)
+        except TypeError:
+          raise ValueError(f"the task {cls.__name__}'s setting {name} takes a value of type "
+                           f"{type(p.default).__name__} (like its default, {p.default!r}), got "
+                           f"{value!r}") from None
     elif p.default is not p.empty:
       value = p.default
     else:
@@ -167,22 +180,6 @@ def task_settings(cls: type[LocomotionEnv], given: dict | None = None) -> dict:
   return out
 
 
-def _typed(cls, name: str, value, default):
-  """`value` checked against the type of the setting's default (an int is a float)."""
-  kind = type(default)
-  if isinstance(default, bool) or not isinstance(default, (int, float)):
-    ok = isinstance(value, kind) if isinstance(default, (bool, str)) else True
-  elif isinstance(default, int):
-    ok = isinstance(value, (int, np.integer)) and not isinstance(value, bool)
-  else:
-    ok = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
-    value = float(value) if ok else value
-  if not ok:
-    raise ValueError(f"the task {cls.__name__}'s setting {name} takes a value of type "
-                     f"{kind.__name__} (like its default, {default!r}), got {value!r}")
-  return int(value) if kind is int else value
-
-
 def settings_of(env: LocomotionEnv) -> dict:
   """The constructor settings an env was built with, defaults included."""
   return task_settings(type(env), getattr(env, "_given_settings", {}))
@@ -193,9 +190,7 @@ def make(spec: Any, **settings) -> LocomotionEnv:
   constructor settings (e.g. episode_steps); an unknown setting is a ValueError naming the
   task's settings."""
   cls = task_class(spec)
-  unknown = sorted(set(settings) - set(_parameters(cls)))
-  if unknown:
-    task_settings(cls, settings)  # raises, naming them
+  _check_names(cls, settings)
   return cls(**settings)
 
 

@@ -21,20 +21,20 @@ def _kind(hint) -> str:
   return "None" if hint is type(None) else hint.__name__
 
 
-def _convert(hint, value):
+def convert(hint, value):
   """`value` as `hint` asks (an int is a float; a list a tuple), or raise TypeError."""
   origin, args = typing.get_origin(hint), typing.get_args(hint)
   if origin in (typing.Union, types.UnionType):
     for arg in args:
       try:
-        return _convert(arg, value)
+        return convert(arg, value)
       except TypeError:
         pass
     raise TypeError
   if origin is tuple:
     if not isinstance(value, (tuple, list)):
       raise TypeError
-    return tuple(_convert(args[0], v) for v in value)
+    return tuple(convert(args[0], v) for v in value)
   if hint is type(None):
     if value is not None:
       raise TypeError
@@ -65,7 +65,7 @@ def check_types(cfg) -> None:
   for field in dataclasses.fields(cfg):
     value = getattr(cfg, field.name)
     try:
-      converted = _convert(hints[field.name], value)
+      converted = convert(hints[field.name], value)
     except TypeError:
       raise ValueError(f"{field.name} takes a {_kind(hints[field.name])}, got {value!r}") from None
     if converted is not value:

@@ -273,13 +273,14 @@ class _Session:
                          self.report.logger_print, LEARNER_FIELDS[cfg.agent],
                          cfg.tensorboard_dir, start_step=env_steps,
                          id_fields=self.report.id_fields)
-    config = self.trainer.config
+    config, many = self.trainer.config, not self.report.single
     self.per_chunk = self.steps_per_iteration * config.iterations_per_chunk
-    self.say(f"{cfg.env} with {cfg.agent} ({cfg.preset}): {self.report.who}{cfg.train.num_envs}"
-             f" envs{self.report.each} on {len(jax.local_devices())} "
+    self.say(f"{cfg.env} with {cfg.agent} ({cfg.preset}): "
+             f"{f'{len(self.members)} members, ' if many else ''}{cfg.train.num_envs} envs"
+             f"{' each' if many else ''} on {len(jax.local_devices())} "
              f"{jax.local_devices()[0].platform} device(s), {self.per_chunk:,} env steps and "
              f"{config.updates_per_iteration * config.iterations_per_chunk:,} updates per chunk"
-             f"{self.report.per_member}")
+             f"{' per member' if many else ''}")
     return state
 
   def evaluate(self, state: train.TrainState, env_steps: int, bar) -> dict:

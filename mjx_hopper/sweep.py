@@ -30,7 +30,7 @@ from typing import Any
 import jax
 import numpy as np
 
-from mjx_hopper import agents, train
+from mjx_hopper import agents, checkpoint, train
 from mjx_hopper.logger import RETURNS
 
 TRAINER_DYNAMIC = ("replay_ratio",)
@@ -159,9 +159,6 @@ class Report:
     self.last_line = -float("inf")
     self.logger_print = say if single else (lambda line: None)
     self.id_fields = () if single else ("member", *members[0])
-    self.who = "" if single else f"{len(members)} members, "
-    self.each = "" if single else " each"
-    self.per_member = "" if single else " per member"
 
   def tags(self, m: int) -> dict:
     """The columns that name member m of this process (none in a single run)."""
@@ -205,8 +202,6 @@ def write_member(cfg, state, indices: list[int], member: int, out_dir: str) -> s
   the RunConfig `cfg`) as the checkpoint of a single run, its seed and swept values as plain
   settings, in `out_dir`/checkpoints, with its config.json. Returns the checkpoint directory;
   `loop.extract` is the call that reads the sweep's checkpoint first."""
-  from mjx_hopper import checkpoint
-
   if member not in indices:
     raise ValueError(f"member {member} is not in the sweep: it holds members {indices}")
   chosen = cfg.members()[member]
