@@ -1,15 +1,10 @@
-"""Checkpoint cost: how long a save stops training, how long the write takes, how long a restore
-takes, and the size on disk, for full TrainStates with 1M-transition replays.
+"""Checkpoint cost, for full TrainStates with 1M-transition replays of random numbers (the least
+compressible case): how long `checkpoint.save` stops training (the copy to host memory), its
+write on orbax's background thread, the manifest (file sizes and CRC32s), the restores and the
+size on disk; each the median of --repeats saves and restores into fresh folders under --dir.
 
     python benchmarks/checkpoint_io.py                       # Hopper and Humanoid
     python benchmarks/checkpoint_io.py --envs Hopper --replay-size 100000
-
-The replay is filled with random normal numbers (what a full buffer holds, at its least
-compressible), the rest is the trainer's initial state. "stall" is the time `checkpoint.save`
-blocks the caller (the copy to host memory); "write" runs on orbax's background thread while
-training would go on; "manifest" lists the finished step's files with sizes and CRC32s (done
-before the next save). Each figure is the median of --repeats saves and restores into a fresh
-directory under --dir.
 """
 
 from __future__ import annotations
@@ -40,34 +35,32 @@ def measure(env_id: str, replay_size: int, directory: str, repeats: int) -> dict
   replay_bytes = sum(x.nbytes for x in jax.tree.leaves(state.replay))
   total_bytes = sum(x.nbytes for x in jax.tree.leaves(state))
   config = cfg.to_json()
-  stall, write, manifest, restore, restore_agent, size = [], [], [], [], [], []
+  figures = {k: [] for k in ("stall_s", "write_s", "manifest_s", "restore_s", "restore_agent_s",
+                             "disk_mb")}
   for i in range(repeats):
     where = os.path.join(directory, f"{env_id}_{i}")
     mngr = checkpoint.manager(where)
     t0 = time.perf_counter()
     step = checkpoint.save(mngr, state, config)
-    stall.append(time.perf_counter() - t0)
+    figures["stall_s"].append(time.perf_counter() - t0)
     mngr.wait_until_finished()
-    write.append(time.perf_counter() - t0)
+    figures["write_s"].append(time.perf_counter() - t0)
     t0 = time.perf_counter()
     checkpoint.finish(mngr)
-    manifest.append(time.perf_counter() - t0)
-    size.append(sum(os.path.getsize(os.path.join(root, name))
-                    for root, _, names in os.walk(os.path.join(where, str(step)))
-                    for name in names))
+    figures["manifest_s"].append(time.perf_counter() - t0)
+    folder = os.path.join(where, str(step))
+    figures["disk_mb"].append(sum(os.path.getsize(os.path.join(root, name))
+                                  for root, _, names in os.walk(folder) for name in names) / 1e6)
     fresh = checkpoint.manager(where)
     t0 = time.perf_counter()
     jax.block_until_ready(checkpoint.restore(fresh, step, state))
-    restore.append(time.perf_counter() - t0)
+    figures["restore_s"].append(time.perf_counter() - t0)
     t0 = time.perf_counter()
     jax.block_until_ready(checkpoint.restore_agent(fresh, step, state.agent))
-    restore_agent.append(time.perf_counter() - t0)
+    figures["restore_agent_s"].append(time.perf_counter() - t0)
     shutil.rmtree(where)
   return {"env": env_id, "replay_size": replay_size, "state_mb": total_bytes / 1e6,
-          "replay_mb": replay_bytes / 1e6, "disk_mb": statistics.median(size) / 1e6,
-          "stall_s": statistics.median(stall), "write_s": statistics.median(write),
-          "manifest_s": statistics.median(manifest), "restore_s": statistics.median(restore),
-          "restore_agent_s": statistics.median(restore_agent)}
+          "replay_mb": replay_bytes / 1e6, **{k: statistics.median(v) for k, v in figures.items()}}
 
 
 def main() -> None:

@@ -1,64 +1,44 @@
 """What a task of one's own costs: env steps/s of each robot beside the same robot with an
-event's extra reward term, measured side by side in one process.
+event's extra reward term: stepping (random actions, the preset's num_envs, at least 4,096 on a
+GPU) and training (the preset's chunk, once the replay has filled), the medians of --rounds
+rounds, robot and event timed in turns so that the machine's drift falls on both.
 
     python benchmarks/event_cost.py                       # the 2-core CPU: cpu presets
     python benchmarks/event_cost.py --kind gpu            # one GPU: gpu presets
-
-Two figures per pair, each the median of the rounds, the base and the event timed in turns
-(base, event, base, event, ...) so that the machine's drift falls on both:
-- stepping: random-action env steps/s of an auto-resetting batch (the preset's num_envs, at
-  least 4,096 on a GPU), 50 steps per compiled call;
-- training: env steps/s of the preset's training chunk (collection and learner updates), after
-  the replay has filled.
 """
 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import os
 import platform
 import statistics
 import time
 
+import common
+
 PAIRS = (("Hopper", "mjx_hopper.envs.events:HighJump"),
          ("Ant", "mjx_hopper.envs.events:AntLongJump"))
 
 
-def stepper(env, num_envs: int, steps: int = 50):
-  """() -> seconds of one compiled call of `steps` random-action steps of `num_envs` envs."""
+def stepper(env, num_envs: int, steps: int = 50) -> common.Timed:
+  """Compiled calls of `steps` random-action steps of `num_envs` envs."""
   import jax
 
   from mjx_hopper import rollout
   init, run = rollout.make_stepper(env, num_envs, steps)
   key = jax.random.PRNGKey(0)
-  state = [init(key)]
-  compiled = run.lower(state[0], key).compile()
-
-  def timed():
-    t0 = time.perf_counter()
-    state[0], reward = compiled(state[0], key)
-    reward.block_until_ready()
-    return time.perf_counter() - t0
-  timed()
-  return timed
+  return common.Timed(run, init(key), key)
 
 
-def trainer(cfg):
-  """() -> seconds of one training chunk of `cfg`'s trainer, once learning has started."""
+def trainer(cfg) -> common.Timed:
+  """`cfg`'s compiled training chunk, once learning has started."""
   import jax
 
   from mjx_hopper import loop, train
   built = loop.build(cfg)
-  state = [built.init(jax.random.PRNGKey(0))]
-  chunk = built.train_chunk.lower(state[0]).compile()
-
-  def timed():
-    t0 = time.perf_counter()
-    state[0], metrics = chunk(state[0])
-    jax.block_until_ready(metrics)
-    return time.perf_counter() - t0
-  while train.iterations(state[0]) * cfg.train.num_envs * cfg.train.unroll_length < (
+  timed = common.Timed(built.train_chunk, built.init(jax.random.PRNGKey(0)))
+  while train.iterations(timed.state) * cfg.train.num_envs * cfg.train.unroll_length < (
       cfg.train.min_replay + cfg.train.steps_per_iteration):
     timed()
   timed()
@@ -88,10 +68,9 @@ def main() -> None:
   for robot, event in PAIRS:
     if robot not in args.robots.split(","):
       continue
-    cfgs = [presets.run_config(task, args.kind) for task in (robot, event)]
-    cfgs = [dataclasses.replace(c, episode_steps=1000) for c in cfgs]  # the same episodes
-    num_envs = cfgs[0].train.num_envs if args.kind == "cpu" else max(4096,
-                                                                     cfgs[0].train.num_envs)
+    # The same episodes (an event may have its own length) for both.
+    cfgs = [presets.run_config(task, args.kind, episode_steps=1000) for task in (robot, event)]
+    num_envs = cfgs[0].train.num_envs if args.kind == "cpu" else max(4096, cfgs[0].train.num_envs)
     steps = [stepper(c.make_env(), num_envs) for c in cfgs]
     chunks = [trainer(c) for c in cfgs]
     rates = {"step": ([], []), "train": ([], [])}

@@ -1,16 +1,13 @@
 #!/usr/bin/env bash
-# Runs benchmark commands on the lent GPU machine (the device tool), one after another:
-#   1. installs the wheels carried in .whl/ (the machine has JAX, flax, optax and orbax, but not
-#      MuJoCo, MJX or Brax) and this project, and the GL loaders carried in .gl/;
-#   2. runs each command given, its output to $OUT/<n>.txt;
-#   3. packs what the commands wrote under runs/ into $OUT/runs.tgz (checkpoints left out).
-# Each table of BENCHMARKS.md names the command it comes from; on the GPU, run it through this:
+# Runs benchmark commands on the lent GPU machine (the device tool), one after another, each
+# command's output to $OUT/<n>.txt, then packs runs/ into $OUT/runs.tgz (checkpoints left out):
 #   bash benchmarks/gpu.sh "python benchmarks/event_cost.py --kind gpu"
-# The wheels, once, here (Python 3.12, x86-64; add .whl to .git/info/exclude):
+# The machine has JAX, flax, optax and orbax, but not MuJoCo, MJX or Brax: their wheels are carried
+# in .whl/, downloaded once here (Python 3.12, x86-64; add .whl to .git/info/exclude) with
 #   pip download --no-deps --only-binary=:all: --python-version 3.12 --platform
-#   manylinux_2_28_x86_64 --platform any -d .whl mujoco==4.0.0 mujoco-core==4.0.0 mujoco-studio==4.0.0
-#   websockets glfw PyOpenGL mujoco-mjx==3.17.0 brax==0.14.2 jaxopt ml_collections trimesh Flask
-#   flask-cors blinker itsdangerous tensorboardX
+#   manylinux_2_28_x86_64 --platform any -d .whl mujoco==4.0.0 mujoco-core==4.0.0
+#   mujoco-studio==4.0.0 websockets glfw PyOpenGL mujoco-mjx==3.17.0 brax==0.14.2 jaxopt
+#   ml_collections trimesh Flask flask-cors blinker itsdangerous tensorboardX
 # MuJoCo's import needs the GL loaders (mujoco.egl), which the machine lacks: carry their Debian
 # packages in .gl/ (the device tool's README says how) and they are unpacked here.
 set -uo pipefail
@@ -22,8 +19,7 @@ vendor=/usr/local/nvidia/share/glvnd/egl_vendor.d/10_nvidia.json
 python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --target /tmp/site \
   .whl/*.whl || exit 1
 python3 -m pip install -q --no-index --no-deps --no-build-isolation --no-compile --upgrade \
-  --target /tmp/site . \
-  || exit 1
+  --target /tmp/site . || exit 1
 export PYTHONPATH=/tmp/site PYTHONUNBUFFERED=1
 nvidia-smi -L
 n=0

@@ -1,14 +1,10 @@
 """Learner throughput: updates/s at a given batch size for each agent preset, with compile time
-and the achieved FLOP/s against this machine's measured fp32 matmul peak, in one run.
+and the achieved FLOP/s against this machine's measured fp32 matmul peak, in one run: K updates
+in one compiled `lax.scan` over K random Hopper-sized batches, split over the devices as the
+trainer does (BENCHMARKS.md, "Learner throughput"); FLOPs are XLA's count for one update.
 
     python benchmarks/learner_throughput.py                     # CPU: 1 and 2 XLA devices
     python benchmarks/learner_throughput.py --devices 1         # on a GPU
-
-Each row runs K updates in one compiled `lax.scan` over K random Hopper-sized batches (the
-trainer's layout: with D devices, each holds batch/D transitions and gradients are averaged
-over devices). Replay sampling and env stepping are left out: this is the learner alone. FLOPs
-per update are XLA's own count (`cost_analysis`) for one update on one device. The peak is the
-best of a few fp32 matmuls (n x n, 2n^3 FLOPs each) on all the devices at once.
 """
 
 from __future__ import annotations
@@ -18,17 +14,12 @@ import json
 import os
 import platform
 import statistics
-import subprocess
 import sys
 import time
 
+import common
+
 OBS, ACT = 15, 3  # Hopper
-
-
-def _flops(compiled) -> float:
-  cost = compiled.cost_analysis()
-  cost = cost[0] if isinstance(cost, (list, tuple)) else cost
-  return float(cost.get("flops", float("nan")))
 
 
 def matmul_peak(n: int = 2048, repeats: int = 10) -> float:
@@ -74,8 +65,9 @@ def learner_rows(agent_name: str, presets: list[str], batch: int, updates: int) 
     agent = agents.make(agent_name, OBS, ACT, agents.config(agent_name, preset))
     state = agent.init(jax.random.PRNGKey(0))
     one = jax.tree.map(lambda x: x[0], batches(1))
-    flops = _flops(jax.jit(lambda s, b, k: agent.update(s, b, k)).lower(
-        state, one, jax.random.PRNGKey(0)).compile())
+    cost = jax.jit(lambda s, b, k: agent.update(s, b, k)).lower(
+        state, one, jax.random.PRNGKey(0)).compile().cost_analysis()
+    flops = float((cost[0] if isinstance(cost, (list, tuple)) else cost).get("flops", np.nan))
 
     def run(state, data, key):
       def step(state, inputs):
@@ -91,22 +83,12 @@ def learner_rows(agent_name: str, presets: list[str], batch: int, updates: int) 
     data = jax.device_put(batches(updates), jax.tree.map(
         lambda s: NamedSharding(mesh, s), data_spec, is_leaf=lambda x: isinstance(x, P)))
     state = jax.device_put(state, NamedSharding(mesh, P()))
-    key = jax.random.PRNGKey(1)
-    t0 = time.perf_counter()
-    compiled = run.lower(state, data, key).compile()
-    compile_s = time.perf_counter() - t0
-    state, metrics = compiled(state, data, key)
-    jax.block_until_ready(state)
-    times = []
-    for i in range(3):
-      t0 = time.perf_counter()
-      state, metrics = compiled(state, data, jax.random.fold_in(key, i))
-      jax.block_until_ready(state)
-      times.append(time.perf_counter() - t0)
-    losses = {k: float(v) for k, v in metrics.items()}
+    timed = common.Timed(run, state, data, jax.random.PRNGKey(1))
+    compile_s = timed.trace_s + timed.compile_s
+    rate = updates / statistics.median(timed() for _ in range(3))
+    losses = {k: float(v) for k, v in timed.out.items()}
     if not all(np.isfinite(v) for v in losses.values()):
       raise SystemExit(f"{agent_name}/{preset}: non-finite metrics {losses}")
-    rate = updates / statistics.median(times)
     rows.append({"agent": agent_name, "preset": preset, "platform": devices[0].platform,
                  "devices": len(devices), "batch": batch, "compile_s": compile_s,
                  "updates_per_s": rate, "gflop_per_update": flops / 1e9,
@@ -115,18 +97,6 @@ def learner_rows(agent_name: str, presets: list[str], batch: int, updates: int) 
           f"{rate * flops / 1e9:.1f} GFLOP/s, compile {compile_s:.1f} s", file=sys.stderr,
           flush=True)
   return rows
-
-
-def table(rows: list[dict], peaks: dict[int, float]) -> str:
-  lines = ["| agent | preset | platform | devices | batch | compile (s) | updates/s "
-           "| GFLOP/update | GFLOP/s | % of matmul peak |", "|---" * 10 + "|"]
-  for r in rows:
-    peak = peaks[r["devices"]]
-    lines.append(f"| {r['agent']} | {r['preset']} | {r['platform']} | {r['devices']} "
-                 f"| {r['batch']} | {r['compile_s']:.1f} | {r['updates_per_s']:,.0f} "
-                 f"| {r['gflop_per_update']:.3f} | {r['gflops']:.1f} "
-                 f"| {100 * r['gflops'] / peak:.0f}% |")
-  return "\n".join(lines)
 
 
 def main() -> None:
@@ -139,13 +109,12 @@ def main() -> None:
   parser.add_argument("--devices", default="1,2",
                       help="XLA CPU device counts (on a GPU: GPUs used)")
   parser.add_argument("--json", help="also write the rows to this file")
-  parser.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
+  parser.add_argument("--worker", help=argparse.SUPPRESS)  # the arguments, as JSON
   args = parser.parse_args()
-  presets = args.presets.split(",")
-
   if args.worker:  # one device count per process: XLA reads the flag at start-up
+    args = argparse.Namespace(**json.loads(args.worker))
     rows = [r for a in args.agents.split(",")
-            for r in learner_rows(a, presets, args.batch, args.updates)]
+            for r in learner_rows(a, args.presets.split(","), args.batch, args.updates)]
     print(json.dumps({"peak": matmul_peak(), "rows": rows}))
     return
 
@@ -153,21 +122,19 @@ def main() -> None:
   for d in [int(x) for x in args.devices.split(",")]:
     if args.batch % d:
       raise SystemExit(f"--batch {args.batch} must divide over {d} devices")
-    env = dict(os.environ, XLA_FLAGS=f"--xla_force_host_platform_device_count={d}",
-               CUDA_VISIBLE_DEVICES=os.environ.get("CUDA_VISIBLE_DEVICES",
-                                                   ",".join(map(str, range(d)))))
-    out = subprocess.run([sys.executable, __file__, "--worker", "--agents", args.agents,
-                          "--presets", args.presets, "--batch", str(args.batch),
-                          "--updates", str(args.updates)],
-                         env=env, stdout=subprocess.PIPE, text=True)
-    if out.returncode:
-      raise SystemExit(f"the worker on {d} device(s) failed (exit {out.returncode})")
-    result = json.loads(out.stdout.strip().splitlines()[-1])
+    result = common.worker(__file__, vars(args), d)
+    if result is None:
+      raise SystemExit(1)
     peaks[d] = result["peak"] / 1e9
     rows += result["rows"]
   print(f"# learner throughput, {time.strftime('%Y-%m-%d')}, {platform.node()}, "
         f"{os.cpu_count()} CPUs\n")
-  print(table(rows, peaks))
+  print(common.table(
+      ["agent", "preset", "platform", "devices", "batch", "compile (s)", "updates/s",
+       "GFLOP/update", "GFLOP/s", "% of matmul peak"],
+      [[r["agent"], r["preset"], r["platform"], r["devices"], r["batch"], f"{r['compile_s']:.1f}",
+        f"{r['updates_per_s']:,.0f}", f"{r['gflop_per_update']:.3f}", f"{r['gflops']:.1f}",
+        f"{100 * r['gflops'] / peaks[r['devices']]:.0f}%"] for r in rows]))
   print("\nmeasured fp32 matmul peak (GFLOP/s): "
         + ", ".join(f"{d} device(s): {p:,.1f}" for d, p in peaks.items()))
   if args.json:

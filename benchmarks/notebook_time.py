@@ -1,11 +1,9 @@
 """The Robolympics notebook in its full mode (MJX_HOPPER_SHORT unset), executed top to bottom as a
-Colab user runs it, with each section's wall-clock time.
+Colab user runs it, with each section's wall-clock time (its first cell's start to its last's end).
 
     python benchmarks/notebook_time.py --out runs/notebook_full
 
-Runs in OUT (its runs/ and videos land there) with an empty compile cache (OUT/jax_cache), as
-on a fresh Colab runtime, keeps the executed notebook as OUT/robolympics.ipynb, and prints a
-table: each section's seconds, from its first cell's start to its last cell's end.
+Runs in OUT with an empty compile cache (OUT/jax_cache) and keeps OUT/robolympics.ipynb.
 """
 
 from __future__ import annotations

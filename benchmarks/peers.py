@@ -1,39 +1,14 @@
-"""Peers: our best agent, Brax's SAC and Brax's PPO on the same env in one run (one GPU); and
-the seed-era baseline, PyBullet with Stable-Baselines3's SAC, beside our CPU preset (CPU).
+"""Peers: our D4PG beside Brax's SAC and PPO on our Hopper, all at once on one GPU, each run a
+process with its share of the GPU; or, with --cpu-baseline MINUTES, SB3's SAC with
+rl-baselines3-zoo's HopperBulletEnv-v0 settings on PyBullet, then our D4PG cpu preset, MINUTES
+each, on the CPU (the `peers` extra). Evaluations: 16 deterministic 1,000-step episodes of our
+Hopper (SB3's on PyBullet with its clock paused, and on ours at the end), timed from each
+process's start. The table goes to the screen and, with every curve, to
+benchmarks/results/peers_LABEL.json. BENCHMARKS.md, "Peers", has the commands and the results.
 
-    # GPU: D4PG (gpu preset), Brax SAC and Brax PPO at once, 8 minutes each
-    python benchmarks/peers.py --minutes 8 --label h100 --out runs/peers_h100
-    # A Brax tuning run: every combination of the --grid values, all at once
-    python benchmarks/peers.py --trainers sac --minutes 8 --label h100_sac_tuning \\
-        --grid sac:reward_scaling=1,5,30 --grid sac:discounting=0.99,0.997
-    python benchmarks/peers.py --trainers ppo --minutes 8 --label h100_ppo_tuning \\
-        --grid ppo:reward_scaling=1,10 --grid ppo:num_envs+batch_size=4096+2048,2048+1024
-    # CPU: SB3 SAC (rl-zoo settings) on PyBullet's HopperBulletEnv, then our D4PG cpu preset
-    python benchmarks/peers.py --cpu-baseline 10 --label cpu --out runs/peers_cpu
-
-Each run is a process of its own (`--parallel` of them at a time; each gets
-XLA_PYTHON_CLIENT_MEM_FRACTION = 0.9 / parallel of the GPU) that writes OUT/<run>/evals.csv:
-wall_s (seconds since its process was started: imports and compiles included), env_steps,
-eval_return, eval_return_std, eval_length. Every evaluation is the same: our Hopper
-(`envs.make("Hopper")`, 1,000-step episodes), the deterministic policy, --eval-episodes
-episodes. Every process compiles from OUT/jax_cache, empty on a first run (cold compiles).
-At the end a table (time to 1,000, 2,000 and 2,500, best and final return, env steps) is
-printed and written, with every curve, to benchmarks/results/peers_<label>.json. (1,000 is
-about what a Hopper scores by standing through the whole episode: alive 1 a step.)
-
-The Brax trainers start from Brax's own settings for its hopper (SAC: its training notebook's
-`hopper`; PPO: that notebook trains its hopper with SAC, so its locomotion PPO settings, its
-`ant`'s), with evaluation added; `--grid TRAINER:NAME=V1,V2` replaces one (NAME+NAME=V+V,...
-sets several together). Brax's reward differs from ours (PyBullet's: alive 1 a step,
-progress ~ forward speed, electricity cost), so reward_scaling and discounting are the first
-to tune.
-
---cpu-baseline MINUTES trains SB3's SAC with rl-baselines3-zoo's HopperBulletEnv-v0 settings
-on PyBullet for MINUTES of training (its wall_s is training time: its evaluations pause the
-clock), evaluating it at each quarter on PyBullet and at the end on our Hopper too; then our
-D4PG cpu preset for MINUTES (compile and evaluations on its clock). One after the other, each
-with the whole CPU. It needs the `peers` extra (`pip install -e .[peers]`, with torch's CPU
-build installed first).
+--grid TRAINER:NAME=V1,V2 replaces one of the settings the Brax trainers start from (Brax's for
+its hopper: SAC's from its training notebook, PPO's its locomotion ones, the notebook's `ant`);
+NAME+NAME=V+V,... sets several together; every combination of the --grid values is a run.
 """
 
 from __future__ import annotations
@@ -41,6 +16,7 @@ from __future__ import annotations
 import argparse
 import ast
 import csv
+import inspect
 import itertools
 import json
 import os
@@ -49,9 +25,11 @@ import subprocess
 import sys
 import time
 
+import common
+
 HERE = os.path.dirname(os.path.abspath(__file__))
-THRESHOLDS = (1000, 2000, 2500)
-EPISODE_STEPS = 1000
+THRESHOLDS = (1000, 2000, 2500)  # 1,000: standing through the episode (alive 1 a step)
+EPISODE_STEPS, EVAL_EPISODES, SEED = 1000, 16, 0
 # Brax's training notebook, `hopper` (SAC), and its locomotion PPO (`ant`); eval_every (env
 # steps between evaluations) and num_timesteps (an upper bound: runs stop at --minutes) are ours.
 BRAX = {
@@ -64,9 +42,8 @@ BRAX = {
                 num_minibatches=32, num_updates_per_batch=4, discounting=0.97,
                 learning_rate=3e-4, entropy_cost=1e-2, num_envs=4096, batch_size=2048, seed=1),
 }
-OURS_GPU = ("--agent d4pg --preset gpu --num-envs 512 --batch-size 1024 --replay-ratio 4 "
-            "--eval-every 200000")
-OURS_CPU = "--agent d4pg --preset cpu --eval-every 200000"
+OURS = {"gpu": "--agent d4pg --preset gpu --num-envs 512 --batch-size 1024 --replay-ratio 4 "
+               "--eval-every 200000", "cpu": "--agent d4pg --preset cpu --eval-every 200000"}
 # rl-baselines3-zoo, hyperparams/sac.yml: HopperBulletEnv-v0 (its pybullet defaults with a
 # linear learning-rate schedule over n_timesteps).
 RL_ZOO_SAC = dict(n_timesteps=1_000_000, learning_rate=7.3e-4, buffer_size=300_000,
@@ -79,13 +56,15 @@ class Deadline(Exception):
   """Raised from a trainer's callback once a run has used its minutes."""
 
 
-# ---- Runs: what to start ---------------------------------------------------------------------
+def brax_train(trainer: str):
+  from brax.training.agents.ppo import train as ppo
+  from brax.training.agents.sac import train as sac
+  return {"sac": sac.train, "ppo": ppo.train}[trainer]
+
 
 def parse_grid(specs: list[str], trainers: list[str]) -> dict[str, list[dict]]:
   """{trainer: [settings, ...]}: every combination of the --grid values, per Brax trainer.
-
-  A spec is TRAINER:NAME=V1,V2,... or TRAINER:NAME+NAME=V+V,...; values are Python literals.
-  """
+  A spec is TRAINER:NAME=V1,V2,... or TRAINER:NAME+NAME=V+V,...; values are Python literals."""
   axes = {t: [] for t in BRAX}
   for spec in specs:
     trainer, _, assignment = spec.partition(":")
@@ -94,7 +73,7 @@ def parse_grid(specs: list[str], trainers: list[str]) -> dict[str, list[dict]]:
       raise SystemExit(f"--grid {spec!r}: want TRAINER:NAME=V1,V2 with TRAINER one of "
                        f"--trainers' {sorted(set(trainers) & set(BRAX))}")
     names = names.split("+")
-    known = brax_settings(trainer)
+    known = set(inspect.signature(brax_train(trainer)).parameters) | {"eval_every"}
     for name in set(names) - known:
       raise SystemExit(f"--grid {spec!r}: {trainer} has no setting {name!r}; it has "
                        f"{sorted(known)}")
@@ -109,42 +88,26 @@ def parse_grid(specs: list[str], trainers: list[str]) -> dict[str, list[dict]]:
               for combo in itertools.product(*axes[t])] for t in BRAX if t in trainers}
 
 
-def brax_settings(trainer: str) -> set[str]:
-  """The names a Brax trainer's settings may have: its `train` arguments, and eval_every."""
-  import inspect
-  from brax.training.agents.ppo import train as ppo
-  from brax.training.agents.sac import train as sac
-  train = {"sac": sac.train, "ppo": ppo.train}[trainer]
-  return set(inspect.signature(train).parameters) | {"eval_every"}
-
-
 def plan(args) -> list[dict]:
-  """The runs, each {name, trainer, settings, minutes, eval_episodes, limit_s: when the
-  parent stops it}."""
+  """The runs, each {name, trainer, settings, minutes, limit_s: when the parent stops it}."""
   if args.cpu_baseline:
-    specs = [("sb3", dict(RL_ZOO_SAC, seed=args.seed)), ("ours", args.ours or OURS_CPU)]
+    specs = [("sb3", dict(RL_ZOO_SAC, seed=SEED)), ("ours", OURS["cpu"])]
     minutes = args.cpu_baseline
   else:
-    trainers = args.trainers.split(",")
-    unknown = sorted(set(trainers) - {"ours", *BRAX})
-    if unknown:
-      raise SystemExit(f"--trainers: unknown {unknown}; choose from ['ours', 'ppo', 'sac']")
-    grid = parse_grid(args.grid, trainers)
-    specs = [("ours", args.ours or OURS_GPU)] if "ours" in trainers else []
-    specs += [(t, s) for t in ("sac", "ppo") if t in trainers for s in grid[t]]
+    grid = parse_grid(args.grid, args.trainers)
+    specs = [("ours", OURS["gpu"])] if "ours" in args.trainers else []
+    specs += [(t, s) for t in ("sac", "ppo") if t in args.trainers for s in grid[t]]
     minutes = args.minutes
   runs = []
   for i, (trainer, settings) in enumerate(specs):
     if trainer == "ours":
-      settings = settings.split() + ["--seed", str(args.seed)]
+      settings = settings.split() + ["--seed", str(SEED)]
     # SB3's clock leaves out its evaluations (on PyBullet, sequential), so it runs longer.
     limit_s = 60 * minutes * (1.5 if trainer == "sb3" else 1) + args.grace
     runs.append({"name": f"{i}_{trainer}", "trainer": trainer, "settings": settings,
-                 "minutes": minutes, "eval_episodes": args.eval_episodes, "limit_s": limit_s})
+                 "minutes": minutes, "eval_episodes": EVAL_EPISODES, "limit_s": limit_s})
   return runs
 
-
-# ---- The parent: start, wait, summarise --------------------------------------------------------
 
 def start(run: dict, out: str, mem_fraction: float) -> subprocess.Popen:
   folder = os.path.join(out, run["name"])
@@ -157,51 +120,39 @@ def start(run: dict, out: str, mem_fraction: float) -> subprocess.Popen:
   return subprocess.Popen([sys.executable, __file__, "--worker", folder], env=env)
 
 
-def wait(procs: dict, limit_s: float) -> None:
-  """Waits for the runs; a run still going `limit_s` after its start is stopped (one
-  SIGTERM: ours saves and exits), and killed if still there 60 s later."""
-  stopped = set()
-  while any(p.poll() is None for p, _ in procs.values()):
-    for name, (proc, started) in procs.items():
-      late = time.time() - started - limit_s
-      if proc.poll() is None and late > 60:
-        proc.kill()
-      elif proc.poll() is None and late > 0 and name not in stopped:
-        proc.send_signal(signal.SIGTERM)
-        stopped.add(name)
-    time.sleep(2)
-
-
-def run_all(runs: list[dict], out: str, parallel: int, mem_fraction: float) -> None:
+def run_all(runs: list[dict], out: str, parallel: int) -> None:
+  """Runs `parallel` at a time, each with 0.9 / parallel of the GPU; a run still going limit_s
+  after its start is stopped (one SIGTERM: ours saves and exits), and killed 60 s later."""
   for i in range(0, len(runs), parallel):
     group = runs[i:i + parallel]
     print(f"starting {', '.join(r['name'] for r in group)} for {group[0]['minutes']} min",
           flush=True)
-    procs = {r["name"]: (start(r, out, mem_fraction), time.time()) for r in group}
-    wait(procs, max(r["limit_s"] for r in group))
-    for name, (proc, _) in procs.items():
+    procs = [(r, start(r, out, 0.9 / parallel)) for r in group]
+    stopped = set()
+    while any(proc.poll() is None for _, proc in procs):
+      for run, proc in procs:
+        late = time.time() - run["launch_time"] - run["limit_s"]
+        if proc.poll() is None and late > 60:
+          proc.kill()
+        elif proc.poll() is None and late > 0 and run["name"] not in stopped:
+          proc.send_signal(signal.SIGTERM)
+          stopped.add(run["name"])
+      time.sleep(2)
+    for run, proc in procs:
       if proc.returncode:
-        print(f"{name} exited with {proc.returncode}; see its output above", flush=True)
+        print(f"{run['name']} exited with {proc.returncode}; see its output above", flush=True)
 
 
 def evaluations(folder: str) -> list[dict]:
-  """Every evaluation of a run so far: {wall_s (since its process started), env_steps,
-  eval_return, ...}."""
-  path = os.path.join(folder, "evals.csv")
-  rows = []
-  if os.path.exists(path):
-    with open(path) as f:
-      rows = [{k: float(v) for k, v in r.items()} for r in csv.DictReader(f)]
-  loop_log = os.path.join(folder, "log.csv")  # ours: mjx_hopper.loop's log, from its start
-  if os.path.exists(loop_log):
+  """Every evaluation of a run so far, {EVAL_FIELDS}, wall_s counted from its process's start."""
+  if os.path.exists(os.path.join(folder, "log.csv")):  # ours: mjx_hopper.loop's log
     offset = read_json(os.path.join(folder, "started.json"))["loop_start_s"]
-    with open(loop_log) as f:
-      rows = [{"wall_s": float(r["wall_s"]) + offset, "env_steps": float(r["env_steps"]),
-               "eval_return": float(r["eval_return"]),
-               "eval_return_std": float(r["eval_return_std"]),
-               "eval_length": float(r["eval_length"])}
-              for r in csv.DictReader(f) if r["kind"] == "eval"]
-  return rows
+    rows = common.evaluations(os.path.join(folder, "log.csv")).get(0, [])
+    return [dict(r, wall_s=r["wall_s"] + offset) for r in rows]
+  if not os.path.exists(os.path.join(folder, "evals.csv")):
+    return []
+  with open(os.path.join(folder, "evals.csv")) as f:
+    return [{k: float(v) for k, v in r.items()} for r in csv.DictReader(f)]
 
 
 def summarise(runs: list[dict], out: str) -> list[dict]:
@@ -254,13 +205,11 @@ def report(rows: list[dict]) -> None:
             "episodes each)")
 
 
-# ---- Workers: one run each ---------------------------------------------------------------------
-
 def log_eval(folder: str, row: dict) -> None:
   path = os.path.join(folder, "evals.csv")
   new = not os.path.exists(path)
   with open(path, "a", newline="") as f:
-    writer = csv.DictWriter(f, fieldnames=list(row))
+    writer = csv.DictWriter(f, fieldnames=common.EVAL_FIELDS)
     if new:
       writer.writeheader()
     writer.writerow(row)
@@ -282,9 +231,8 @@ def write_meta(folder: str, **meta) -> None:
 
 
 def device_put_replicated(tree, devices):
-  """What `jax.device_put_replicated` did, which Brax 0.14's trainers call and jax 0.10
-  removed: each leaf (shape S) as one (len(devices), *S) array, a copy on each device.
-  tests/test_brax.py checks Brax's trainers with this same function."""
+  """jax.device_put_replicated, which Brax 0.14's trainers call and jax 0.10 removed (as in
+  docs/brax.md and tests/test_brax.py): each leaf as one array with a copy per device."""
   import jax
   import jax.numpy as jnp
   import numpy as np
@@ -315,8 +263,6 @@ def worker_brax(run: dict, folder: str) -> None:
   import jax
   import brax
   import mjx_hopper
-  from brax.training.agents.ppo import train as ppo
-  from brax.training.agents.sac import train as sac
   from mjx_hopper import envs
   mjx_hopper.use_compile_cache()
   jax.device_put_replicated = device_put_replicated
@@ -335,12 +281,12 @@ def worker_brax(run: dict, folder: str) -> None:
     if wall > deadline:
       raise Deadline
 
-  train = {"sac": sac.train, "ppo": ppo.train}[run["trainer"]]
   try:
-    train(environment=envs.make("Hopper", episode_steps=EPISODE_STEPS),
-          episode_length=EPISODE_STEPS, num_evals=settings["num_timesteps"] // eval_every + 1,
-          num_eval_envs=run["eval_episodes"], deterministic_eval=True, progress_fn=progress,
-          **settings)
+    brax_train(run["trainer"])(
+        environment=envs.make("Hopper", episode_steps=EPISODE_STEPS),
+        episode_length=EPISODE_STEPS, num_evals=settings["num_timesteps"] // eval_every + 1,
+        num_eval_envs=run["eval_episodes"], deterministic_eval=True, progress_fn=progress,
+        **settings)
   except Deadline:
     pass
 
@@ -375,8 +321,7 @@ def bullet_hopper():
 
 
 def returns_on_ours(model, episodes: int, seed: int) -> list[float]:
-  """Each return of `episodes` whole episodes of an SB3 policy (deterministic) on our
-  Hopper, stepped as one batch."""
+  """The returns of `episodes` episodes of an SB3 policy (deterministic) on our Hopper, at once."""
   import jax
   import numpy as np
   from mjx_hopper import envs
@@ -442,49 +387,32 @@ def worker_sb3(run: dict, folder: str) -> None:
              final_returns_ours=ours)
 
 
-def worker(folder: str) -> None:
-  with open(os.path.join(folder, "run.json")) as f:
-    run = json.load(f)
-  {"ours": worker_ours, "sac": worker_brax, "ppo": worker_brax,
-   "sb3": worker_sb3}[run["trainer"]](run, folder)
-
-
-# ---- Command line ------------------------------------------------------------------------------
-
 def main() -> None:
   p = argparse.ArgumentParser(description=__doc__,
                               formatter_class=argparse.RawDescriptionHelpFormatter)
-  p.add_argument("--trainers", default="ours,sac,ppo", help="any of ours, sac, ppo")
+  p.add_argument("--trainers", nargs="+", choices=["ours", "sac", "ppo"],
+                 default=["ours", "sac", "ppo"])
   p.add_argument("--minutes", type=float, default=8.0, help="wall-clock budget of each run")
   p.add_argument("--grid", action="append", default=[], metavar="TRAINER:NAME=V1,V2",
                  help="Brax settings to try (repeatable; every combination is a run)")
-  p.add_argument("--ours", default=None,
-                 help=f"`mjx-hopper train` flags of our run (GPU default: {OURS_GPU!r}; "
-                      f"--cpu-baseline: {OURS_CPU!r})")
-  p.add_argument("--eval-episodes", type=int, default=16)
-  p.add_argument("--seed", type=int, default=0, help="our run's and SB3's seed")
-  p.add_argument("--parallel", type=int, default=None,
-                 help="runs at a time (default: all; --cpu-baseline: 1)")
-  p.add_argument("--mem-fraction", type=float, default=None,
-                 help="each run's XLA_PYTHON_CLIENT_MEM_FRACTION (default 0.9 / parallel)")
   p.add_argument("--grace", type=float, default=60.0,
                  help="seconds past --minutes before a run is stopped")
   p.add_argument("--cpu-baseline", type=float, default=None, metavar="MINUTES",
                  help="SB3 SAC on PyBullet, then our D4PG cpu preset, MINUTES each")
-  p.add_argument("--label", default="run", help="results go to benchmarks/results/"
-                                                "peers_LABEL.json")
+  p.add_argument("--label", default="run", help="results: benchmarks/results/peers_LABEL.json")
   p.add_argument("--out", default="runs/peers")
   p.add_argument("--summarise-only", action="store_true",
                  help="only redo the table and the results file from OUT")
   p.add_argument("--worker", default=None, help=argparse.SUPPRESS)
   args = p.parse_args()
-  if args.worker:
-    return worker(args.worker)
+  if args.worker:  # one run, in a process of its own
+    run = read_json(os.path.join(args.worker, "run.json"))
+    workers = {"ours": worker_ours, "sac": worker_brax, "ppo": worker_brax, "sb3": worker_sb3}
+    return workers[run["trainer"]](run, args.worker)
   runs = plan(args)
   if not args.summarise_only:
-    parallel = 1 if args.cpu_baseline else (args.parallel or len(runs))
     os.makedirs(args.out, exist_ok=True)
-    run_all(runs, args.out, parallel, args.mem_fraction or 0.9 / parallel)
+    run_all(runs, args.out, 1 if args.cpu_baseline else len(runs))
   else:
     for run in runs:
       saved = read_json(os.path.join(args.out, run["name"], "run.json"))

@@ -1,15 +1,11 @@
 """Sweep throughput: S members in one compiled program against S single runs one after another.
 
     python benchmarks/sweep_throughput.py                                  # 2-core CPU
-    python benchmarks/sweep_throughput.py --preset gpu --num-envs 512 --batch-size 1024 \\
-        --members 1,4,16,64 --out benchmarks/results/sweep_throughput_h100.json   # one GPU
 
-Each S runs in a fresh process (its own compile and memory): a sweep of S seeds of D4PG on
-Hopper, learning from the first iteration (min_replay = one iteration's steps), timed over
-`--chunks` chunks after a warm-up chunk. S single runs one after another run at the S = 1
-rate, so "x sequential" is the sweep's combined env steps/s over the single run's. Compile is
-XLA's compile of the training chunk (trace excluded); memory is the GPU's peak bytes in use,
-or on a CPU the process's peak resident size.
+Each S in a fresh process: S seeds of D4PG on Hopper learning from the first iteration, timed
+over --chunks chunks after a warm-up chunk; "x sequential" is their env steps/s over S = 1's.
+Compile is the chunk's, trace excluded; memory the GPU's peak in use or the process's peak RSS.
+BENCHMARKS.md, "Sweeps", has the GPU's command.
 """
 
 from __future__ import annotations
@@ -20,15 +16,14 @@ import json
 import os
 import platform
 import resource
-import subprocess
 import sys
 import time
 
+import common
 
-def run_sweep(args):
-  """Builds the sweep of args.members members, compiles its chunk, runs a warm-up chunk and
-  times args.chunks more: (its RunConfig, the compiled chunk, the state after them, the compile's
-  seconds, the timed chunks' seconds)."""
+
+def measure(args) -> dict:
+  """One sweep of args.members members: compile time, rates and memory."""
   import jax
 
   from mjx_hopper import cli, loop, train
@@ -47,25 +42,8 @@ def run_sweep(args):
       cfg.train, min_replay=args.replay_size if args.collect_only
       else cfg.train.steps_per_iteration))
   trainer = loop.build(cfg)
-  state = loop.init(cfg, trainer, cfg.members())
-  lowered = trainer.train_chunk.lower(state)
-  start = time.perf_counter()
-  compiled = lowered.compile()
-  compile_s = time.perf_counter() - start
-  state, metrics = compiled(state)
-  jax.block_until_ready(metrics)
-  start = time.perf_counter()
-  for _ in range(args.chunks):
-    state, metrics = compiled(state)
-  jax.block_until_ready(metrics)
-  return cfg, compiled, state, compile_s, time.perf_counter() - start
-
-
-def measure(args) -> dict:
-  """One sweep of args.members members: compile time, rates and memory."""
-  import jax
-
-  cfg, _, _, compile_s, seconds = run_sweep(args)
+  timed = common.Timed(trainer.train_chunk, loop.init(cfg, trainer, cfg.members()))
+  seconds = timed(args.chunks)
   per_chunk = args.members * cfg.train.steps_per_iteration * args.chunk * args.chunks
   updates = (0 if args.collect_only else
              args.members * cfg.train.updates_per_iteration * args.chunk * args.chunks)
@@ -73,8 +51,8 @@ def measure(args) -> dict:
   stats = device.memory_stats() if device.platform == "gpu" else None
   memory = (stats["peak_bytes_in_use"] if stats
             else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024)
-  return {"members": args.members, "compile_s": compile_s, "env_steps_per_s": per_chunk / seconds,
-          "updates_per_s": updates / seconds, "memory_gb": memory / 1e9,
+  return {"members": args.members, "compile_s": timed.compile_s, "memory_gb": memory / 1e9,
+          "env_steps_per_s": per_chunk / seconds, "updates_per_s": updates / seconds,
           "platform": device.platform, "devices": len(jax.local_devices())}
 
 
@@ -97,42 +75,32 @@ def main() -> None:
                  help="learning off: time the env steps, actions and replay inserts alone")
   p.add_argument("--cpu-devices", type=int, default=os.cpu_count() or 1)
   p.add_argument("--out", default="benchmarks/results/sweep_throughput_cpu.json")
-  p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
+  p.add_argument("--worker", help=argparse.SUPPRESS)  # one sweep size's arguments, as JSON
   args = p.parse_args()
-  import mjx_hopper  # its own imports only: JAX starts in measure
   if args.worker:
-    args.members = int(args.members)
+    import mjx_hopper  # its own imports only: JAX starts in measure
     mjx_hopper.use_compile_cache()
-    print(json.dumps(measure(args)))
+    print(json.dumps(measure(argparse.Namespace(**json.loads(args.worker)))))
     return
-  env = dict(os.environ, XLA_FLAGS=mjx_hopper.xla_flags_with_cpu_devices(args.cpu_devices))
   rows = []
-  settings = [f"--{name.replace('_', '-')}={value}" for name, value in vars(args).items()
-              if name not in ("members", "worker", "out", "cpu_devices", "collect_only", "set")]
-  settings += [f"--set={pair}" for pair in args.set]
-  settings += ["--collect-only"] if args.collect_only else []
   for members in [int(m) for m in args.members.split(",")]:
-    done = subprocess.run([sys.executable, __file__, "--worker", f"--members={members}",
-                           *settings], env=env, stdout=subprocess.PIPE, text=True)
-    if done.returncode:
-      print(f"S = {members}: failed (exit {done.returncode}), stopping here", file=sys.stderr)
+    row = common.worker(__file__, dict(vars(args), members=members), args.cpu_devices, False)
+    if row is None:  # the sizes before it still make a table
       break
-    rows.append(json.loads(done.stdout.strip().splitlines()[-1]))
+    rows.append(row)
     print(f"  S = {members}: {rows[-1]['env_steps_per_s']:,.0f} env steps/s", file=sys.stderr,
           flush=True)
   base = rows[0]["env_steps_per_s"] if rows and rows[0]["members"] == 1 else None
-  lines = ["| members | compile (s) | env steps/s | updates/s | memory (GB) | x sequential |",
-           "|---|---|---|---|---|---|"]
-  for r in rows:
-    ratio = f"{r['env_steps_per_s'] / base:.2f}" if base else "-"
-    lines.append(f"| {r['members']} | {r['compile_s']:.1f} | {r['env_steps_per_s']:,.0f} | "
-                 f"{r['updates_per_s']:,.0f} | {r['memory_gb']:.2f} | {ratio} |")
+  lines = common.table(
+      ["members", "compile (s)", "env steps/s", "updates/s", "memory (GB)", "x sequential"],
+      [[r["members"], f"{r['compile_s']:.1f}", f"{r['env_steps_per_s']:,.0f}",
+        f"{r['updates_per_s']:,.0f}", f"{r['memory_gb']:.2f}",
+        f"{r['env_steps_per_s'] / base:.2f}" if base else "-"] for r in rows])
   print(f"{platform.node()}, {rows[0]['devices'] if rows else '?'} "
         f"{rows[0]['platform'] if rows else ''} device(s), {args.env} {args.agent} "
         f"({args.preset}{', ' + ', '.join(args.set) if args.set else ''}), {args.num_envs} envs "
         f"and batch {args.batch_size} per member"
-        f"{', collect only (learning off)' if args.collect_only else ''}\n"
-        + "\n".join(lines))
+        f"{', collect only (learning off)' if args.collect_only else ''}\n{lines}")
   os.makedirs(os.path.dirname(args.out) or ".", exist_ok=True)
   with open(args.out, "w") as f:
     json.dump({"date": time.strftime("%Y-%m-%d"), "machine": platform.node(),

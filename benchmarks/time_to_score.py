@@ -1,29 +1,16 @@
-"""Time to score: one robot trained with its preset (mjx_hopper.presets), 3 seeds, until each
-reaches the robot's target or the time budget runs out. One command per row of BENCHMARKS.md.
+"""Time to score: one robot trained with its preset (mjx_hopper.presets), seeds one after another
+(or --at-once, as one sweep), each until the robot's target or the time budget; a task of your
+own (module:Class, a subclass of a robot) with its robot's preset. Writes OUT/summary.json,
+OUT/score_curves.png and the best seed's final episode (episode.npz, rendered to frame.png and
+robot.gif where a renderer works). BENCHMARKS.md, "Every robot, time to score", has the commands.
 
-    python benchmarks/time_to_score.py Hopper --kind gpu              # on one GPU
     python benchmarks/time_to_score.py Hopper --kind cpu              # on the 2-core CPU
     python benchmarks/time_to_score.py Walker2D --render-only runs/time_to_score/Walker2D_gpu
-    python benchmarks/time_to_score.py mjx_hopper.envs.events:HighJump --kind cpu --target 1500
-
-A task of your own (module:Class, a subclass of a robot) runs with its robot's preset.
-
-The seeds run one after another, each with the machine to itself, or with --at-once as one
-sweep (one compiled program, every seed's envs at once: one compile, but where one seed already
-fills the learner, as the gpu presets do, each seed then trains at about 1/S of its speed
-alone). Recorded per
-seed: the wall-clock time to the first evaluation at or above the target (compile included,
-from the start of the process's work), the env steps by then, the best evaluation, and the last
-evaluation, which is the final one: deterministic, over 20 episodes. Writes OUT/summary.json,
-OUT/score_curves.png (return against wall-clock seconds and against env steps), and the joint
-angles of one final episode of the best seed (episode.npz), rendered to OUT/frame.png and
-OUT/robot.gif where a renderer works (--render-only renders them later from episode.npz).
 """
 
 from __future__ import annotations
 
 import argparse
-import csv
 import dataclasses
 import json
 import os
@@ -32,23 +19,11 @@ import time
 
 import numpy as np
 
-
-def evaluations(path: str) -> dict[int, list[dict]]:
-  """Each member's evaluation rows of a log.csv, in order."""
-  out: dict[int, list[dict]] = {}
-  with open(path) as f:
-    for row in csv.DictReader(f):
-      if row["kind"] == "eval":
-        out.setdefault(int(row.get("member") or 0), []).append(
-            {"env_steps": int(row["env_steps"]), "wall_s": float(row["wall_s"]),
-             "eval_return": float(row["eval_return"]),
-             "eval_length": float(row["eval_length"])})
-  return out
+import common
 
 
 def summarise(rows: list[dict], target: float, offset_s: float = 0.0) -> dict:
-  """One seed's figures from its evaluation rows; `offset_s` is added to every wall time
-  (the seconds spent before the run's clock started)."""
+  """One seed's figures from its evaluations, `offset_s` (before the run's clock) added to times."""
   hit = next((r for r in rows if r["eval_return"] >= target), None)
   return {"target_wall_s": hit["wall_s"] + offset_s if hit else None,
           "target_env_steps": hit["env_steps"] if hit else None,
@@ -64,11 +39,9 @@ def plot(seeds: dict, robot: str, target: float, title: str, path: str) -> None:
   import matplotlib.pyplot as plt
   fig, axes = plt.subplots(1, 2, figsize=(11, 4))
   for seed, s in seeds.items():
-    wall = [p["wall_s"] for p in s["curve"]]
-    steps = [p["env_steps"] for p in s["curve"]]
-    ret = [p["eval_return"] for p in s["curve"]]
-    axes[0].plot(wall, ret, marker=".", label=f"seed {seed}")
-    axes[1].plot(steps, ret, marker=".", label=f"seed {seed}")
+    for ax, x in zip(axes, ("wall_s", "env_steps")):
+      ax.plot([p[x] for p in s["curve"]], [p["eval_return"] for p in s["curve"]], marker=".",
+              label=f"seed {seed}")
   for ax, label in zip(axes, ("wall-clock seconds (compile included)", "env steps")):
     ax.axhline(target, color="grey", ls="--", lw=1)
     ax.set_xlabel(label)
@@ -101,11 +74,9 @@ def render(out: str) -> list[str]:
   from PIL import Image  # matplotlib's dependency
 
   from mjx_hopper import envs
-  from mjx_hopper.envs import render as render_lib
   saved = np.load(os.path.join(out, "episode.npz"))
   env = envs.make(str(saved["env"]))
-  qpos = saved["qpos"][::4][:250]
-  frames = render_lib.render_frames(env.mj_model, qpos, width=320, height=240)
+  frames = env.render(saved["qpos"][::4][:250], width=320, height=240)
   paths = [os.path.join(out, "frame.png"), os.path.join(out, "robot.gif")]
   images = [Image.fromarray(frame) for frame in frames]
   images[(3 * len(images)) // 4].save(paths[0])
@@ -134,13 +105,10 @@ def main() -> None:
                  help="the seeds as one sweep (one program) instead of one after another")
   p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                  help="an agent setting replacing the preset's")
-  p.add_argument("--train", action="append", default=[], metavar="NAME=VALUE",
-                 help="a TrainConfig setting replacing the preset's (replay_ratio=8, ...)")
   p.add_argument("--no-compile-cache", action="store_true",
                  help="compile every seed afresh, as a first run on a new machine does (by "
                  "default the compile cache loads the programs of the seeds after the first)")
   p.add_argument("--cpu-devices", type=int, default=os.cpu_count() or 1)
-  p.add_argument("--label", default="")
   p.add_argument("--out", default=None, help="default: runs/time_to_score/ROBOT_KIND")
   p.add_argument("--render-only", metavar="OUT", default=None,
                  help="only render OUT/episode.npz to frame.png and robot.gif")
@@ -164,12 +132,6 @@ def main() -> None:
   minutes = preset.minutes if args.minutes is None else args.minutes
   name = args.robot.split(":")[-1]
   out = args.out or os.path.join("runs", "time_to_score", f"{name}_{args.kind}")
-  overrides = cli._overrides(args.set)
-  try:
-    layout = dataclasses.replace(preset.train, **cli._overrides(args.train))
-    layout.check()
-  except (TypeError, ValueError) as error:
-    raise SystemExit(f"time_to_score: --train: {error}")
   seeds = [int(s) for s in args.seeds.split(",")]
   groups = [seeds] if args.at_once else [[s] for s in seeds]
   folders = [out if args.at_once else os.path.join(out, f"seed_{g[0]}") for g in groups]
@@ -181,14 +143,13 @@ def main() -> None:
   for group, group_out in zip(groups, folders):
     cfg = presets.run_config(
         args.robot, args.kind, env_settings=cli._overrides(args.env_set, "--env-set"),
-        agent_overrides=overrides, train=layout, seed=group[0],
-        seeds=tuple(group) if len(group) > 1 else (),
-        total_env_steps=args.env_steps or 10**12,
+        agent_overrides=cli._overrides(args.set), seed=group[0], eval_episodes=20,
+        seeds=tuple(group) if len(group) > 1 else (), total_env_steps=args.env_steps or 10**12,
         max_minutes=minutes, stop_at_return=None if args.run_on else target,
-        eval_episodes=20, out_dir=group_out, checkpoint_minutes=10**6)
+        out_dir=group_out, checkpoint_minutes=10**6)
     offset = time.perf_counter() - t0 if group is groups[0] else 0.0  # imports, before the run
     loop.run(cfg, progress=False)
-    rows = evaluations(os.path.join(group_out, "log.csv"))
+    rows = common.evaluations(os.path.join(group_out, "log.csv"))
     for m, seed in enumerate(group):
       results[seed] = summarise(rows[m], target, offset)
       where[seed] = (group_out, m)
@@ -197,19 +158,19 @@ def main() -> None:
                            os.path.join(out, "episode.npz"))
   device = jax.local_devices()[0]
   summary = {"robot": args.robot, "env_settings": cfg.env_settings,
-             "episode_steps": cfg.episode_steps, "kind": args.kind, "target": target, "minutes": minutes,
-             "env_steps_budget": args.env_steps,
-             "agent": cfg.agent, "agent_preset": cfg.preset, "agent_overrides": cfg.agent_overrides,
+             "episode_steps": cfg.episode_steps, "kind": args.kind, "target": target,
+             "minutes": minutes, "env_steps_budget": args.env_steps, "agent": cfg.agent,
+             "agent_preset": cfg.preset, "agent_overrides": cfg.agent_overrides,
              "train": dataclasses.asdict(cfg.train), "at_once": args.at_once,
              "device": f"{device.platform} {device.device_kind}", "machine": platform.node(),
-             "date": time.strftime("%Y-%m-%d"), "label": args.label,
-             "best_seed": best, "best_seed_episode": episode, "seeds": results}
+             "date": time.strftime("%Y-%m-%d"), "best_seed": best, "best_seed_episode": episode,
+             "seeds": results}
   with open(os.path.join(out, "summary.json"), "w") as f:
     json.dump(summary, f, indent=1)
   how = "at once" if args.at_once else "one after another"
   plot(results, name, target,
-       f"{cfg.agent} {args.kind} preset, {len(seeds)} seed{'s' if len(seeds) > 1 else ''} {how}"
-       f"{', ' + args.label if args.label else ''}", os.path.join(out, "score_curves.png"))
+       f"{cfg.agent} {args.kind} preset, {len(seeds)} seed{'s' if len(seeds) > 1 else ''} {how}",
+       os.path.join(out, "score_curves.png"))
   try:
     rendered = render(out)
   except Exception as error:  # no renderer here: episode.npz keeps the episode for later
@@ -217,12 +178,11 @@ def main() -> None:
   steps = f" or {args.env_steps:,} env steps" if args.env_steps else ""
   print(f"\n{args.robot}, {args.kind} preset, target {target:g}, budget {minutes:g} min{steps}, "
         f"{summary['device']}")
-  print("| seed | time to target (s) | env steps to target | best | final (20 episodes) |")
-  print("|---|---|---|---|---|")
-  for seed, s in results.items():
-    hit = f"{s['target_wall_s']:.0f}" if s["target_wall_s"] is not None else "not reached"
-    steps = f"{s['target_env_steps']:,}" if s["target_env_steps"] is not None else "-"
-    print(f"| {seed} | {hit} | {steps} | {s['best_return']:,.0f} | {s['final_return']:,.0f} |")
+  print(common.table(
+      ["seed", "time to target (s)", "env steps to target", "best", "final (20 episodes)"],
+      [[seed, "not reached" if s["target_wall_s"] is None else f"{s['target_wall_s']:.0f}",
+        "-" if s["target_env_steps"] is None else f"{s['target_env_steps']:,}",
+        f"{s['best_return']:,.0f}", f"{s['final_return']:,.0f}"] for seed, s in results.items()]))
   print(f"files: {out}/summary.json, score_curves.png, episode.npz; " + ", ".join(rendered))
 
 

@@ -2,42 +2,21 @@
 and the batch size grow, for one robot and agent config, on one device.
 
     python benchmarks/trainer_scaling.py --env Hopper --points 512:1024,2048:8192 --updates 2
-    bash benchmarks/gpu.sh "python benchmarks/trainer_scaling.py --env Hopper --updates 2 \
-      --chunk 20 --chunks 3 --points 512:1024,4096:8192,16384:32768,16384:65536"   # on a GPU
 
-Each point ENVS:BATCH is a `train.make_trainer` with ENVS envs stepped once per iteration
-(unroll 1) and `--updates` learner updates of BATCH transitions per iteration (replay ratio
-updates * BATCH / ENVS), learning from the first iteration, timed over `--chunks` chunks after a
-warm-up chunk. "collect only" is the same trainer with learning off (the env step, the policy's
-actions and the replay insert): the rest of an iteration is the learner, so "update ms" is
-(iteration - collect) / updates. Compile is XLA's compile of the chunk (trace excluded).
+A point ENVS:BATCH steps ENVS envs once and makes --updates updates of BATCH per iteration,
+learning from the first, timed over --chunks chunks after a warm-up; "collect only" is the same
+trainer with learning off, "update ms" the rest of an iteration per update, compile the chunk's
+(trace excluded). BENCHMARKS.md, "Trainer scaling", has the GPU's command.
 """
 
 from __future__ import annotations
 
 import argparse
-import ast
-import dataclasses
 import json
 import os
 import platform
-import time
 
-
-def timed_chunks(trainer, state, chunks: int) -> tuple[float, float]:
-  """(compile seconds, seconds per iteration) of `trainer`'s chunk from `state`."""
-  import jax
-  lowered = trainer.train_chunk.lower(state)
-  start = time.perf_counter()
-  compiled = lowered.compile()
-  compile_s = time.perf_counter() - start
-  state, metrics = compiled(state)       # warm-up
-  jax.block_until_ready(metrics)
-  start = time.perf_counter()
-  for _ in range(chunks):
-    state, metrics = compiled(state)
-  jax.block_until_ready(metrics)
-  return compile_s, (time.perf_counter() - start) / (chunks * trainer.config.iterations_per_chunk)
+import common
 
 
 def measure(args, envs: int, batch: int, collect_s: dict) -> dict:
@@ -50,18 +29,19 @@ def measure(args, envs: int, batch: int, collect_s: dict) -> dict:
                       agents.config(args.agent, args.preset, **args.overrides))
   rows = 2 * args.chunk * (args.chunks + 1)
 
-  def trainer_state(learning: bool):
+  def timed_trainer(learning: bool) -> common.Timed:
     cfg = train.TrainConfig(num_envs=envs, unroll_length=1, batch_size=batch,
-                            replay_ratio=args.updates * batch / envs,
-                            replay_size=rows * envs,
+                            replay_ratio=args.updates * batch / envs, replay_size=rows * envs,
                             min_replay=envs if learning else rows * envs,
                             iterations_per_chunk=args.chunk)
     trainer = train.make_trainer(env, agent, cfg, devices=jax.local_devices()[:1])
-    return trainer, trainer.init(jax.random.PRNGKey(0))
+    return common.Timed(trainer.train_chunk, trainer.init(jax.random.PRNGKey(0)))
 
+  iterations = args.chunks * args.chunk
   if envs not in collect_s:
-    collect_s[envs] = timed_chunks(*trainer_state(False), args.chunks)[1]
-  compile_s, iteration_s = timed_chunks(*trainer_state(True), args.chunks)
+    collect_s[envs] = timed_trainer(False)(args.chunks) / iterations
+  timed = timed_trainer(True)
+  compile_s, iteration_s = timed.compile_s, timed(args.chunks) / iterations
   device = jax.local_devices()[0]
   stats = device.memory_stats() if device.platform == "gpu" else None
   return {"env": args.env, "envs": envs, "batch": batch, "updates_per_iteration": args.updates,
@@ -88,10 +68,8 @@ def main() -> None:
   p.add_argument("--chunks", type=int, default=3, help="timed chunks")
   p.add_argument("--json", help="also append the rows to this JSON file")
   args = p.parse_args()
-  args.overrides = {}
-  for pair in args.set:
-    name, _, value = pair.partition("=")
-    args.overrides[name] = ast.literal_eval(value)
+  from mjx_hopper import cli
+  args.overrides = cli._overrides(args.set)
   points = [tuple(int(x) for x in point.split(":")) for point in args.points.split(",")]
   collect_s, rows = {}, []
   print(f"{args.env}, {args.agent} ({args.preset}{', ' if args.overrides else ''}"

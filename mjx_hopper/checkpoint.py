@@ -1,8 +1,10 @@
 """Orbax checkpoints of the whole TrainState, beside a JSON item with the run's config.
 
-A checkpoint step holds three items: "agent" (the agent's pytree: params, targets, optimizer
-states), "trainer" (replay, env states, keys, counters) and "config" (JSON: the RunConfig, env,
-agent and package versions). Keeping the agent apart lets `restore_agent` load a policy
+A checkpoint step holds up to four items: "agent" (the agent's pytree: params, targets,
+optimizer states), "trainer" (replay, env states, keys, counters), "best" (the agent's pytree
+at each member's best evaluation so far, once there is one) and "config" (JSON: the RunConfig,
+env, agent, package versions, and the run's `record` of its members: their best evaluations,
+divergence and, under PBT, lineage). Keeping the agent apart lets `restore_agent` load a policy
 without reading the replay.
 """
 
@@ -40,7 +42,7 @@ def manager(directory: str, max_to_keep: int = 3) -> ocp.CheckpointManager:
   options = ocp.CheckpointManagerOptions(max_to_keep=max_to_keep,
                                          enable_async_checkpointing=True)
   return ocp.CheckpointManager(os.path.abspath(directory), options=options,
-                               item_names=("agent", "trainer", "config"))
+                               item_names=("agent", "trainer", "best", "config"))
 
 
 def _split(state: train.TrainState) -> tuple:
@@ -117,16 +119,20 @@ def damage(mngr: ocp.CheckpointManager, step: int) -> list[str]:
   return out
 
 
-def save(mngr: ocp.CheckpointManager, state: train.TrainState, config: dict) -> int:
-  """Starts saving `state` as step = its iteration count, after finishing the previous save
-  (see `finish`); returns the step. Call `finish(mngr)` before relying on it."""
+def save(mngr: ocp.CheckpointManager, state: train.TrainState, config: dict,
+         best=None) -> int:
+  """Starts saving `state` (and `best`, the agent's pytree at its best evaluations, when given)
+  as step = its iteration count, after finishing the previous save (see `finish`); returns the
+  step. Call `finish(mngr)` before relying on it."""
   finish(mngr)
   step = train.iterations(state)
   agent, trainer = _split(state)
-  mngr.save(step, args=ocp.args.Composite(
-      agent=ocp.args.StandardSave(_nonempty(agent)),
-      trainer=ocp.args.StandardSave(_nonempty(trainer)),
-      config=ocp.args.JsonSave({**config, "versions": versions()})))
+  items = dict(agent=ocp.args.StandardSave(_nonempty(agent)),
+               trainer=ocp.args.StandardSave(_nonempty(trainer)),
+               config=ocp.args.JsonSave({**config, "versions": versions()}))
+  if best is not None:
+    items["best"] = ocp.args.StandardSave(_nonempty(best))
+  mngr.save(step, args=ocp.args.Composite(**items))
   return step
 
 
@@ -154,18 +160,25 @@ def read_config(mngr: ocp.CheckpointManager, step: int) -> dict:
   return mngr.restore(step, args=ocp.args.Composite(config=ocp.args.JsonRestore())).config
 
 
-def restore_agent(mngr: ocp.CheckpointManager, step: int, like_agent):
-  """Only the agent's pytree saved at `step` (no replay is read)."""
+def has_best(mngr: ocp.CheckpointManager, step: int) -> bool:
+  """Whether `step` holds the agent at its best evaluations (steps saved before any
+  evaluation, or by older versions, do not)."""
+  return os.path.isdir(os.path.join(mngr.directory, str(step), "best"))
+
+
+def restore_agent(mngr: ocp.CheckpointManager, step: int, like_agent, item: str = "agent"):
+  """Only the agent's pytree saved at `step` (no replay is read): the latest ("agent") or the
+  one of the best evaluations ("best")."""
   like_agent = _abstract(like_agent)
   saved = mngr.restore(step, args=ocp.args.Composite(
-      agent=ocp.args.StandardRestore(_nonempty(like_agent)))).agent
+      **{item: ocp.args.StandardRestore(_nonempty(like_agent))}))[item]
   return _rebuild(like_agent, saved)
 
 
 # The settings a checkpoint's state depends on; the others (run length, logging, evaluation)
 # may change between a run and its resumption.
 MUST_MATCH = ("env", "env_settings", "agent", "agent_config", "train", "episode_steps", "seed",
-              "seeds", "grid", "member_indices")
+              "seeds", "grid", "pbt", "member_indices")
 
 
 class ConfigMismatch(ValueError):
@@ -203,8 +216,8 @@ def _first_line(error: Exception, limit: int = 300) -> str:
 
 
 def resume(mngr: ocp.CheckpointManager, fresh: train.TrainState, config: dict,
-           print_fn=print, defaults: dict | None = None) -> train.TrainState:
-  """The latest readable checkpoint's state, or `fresh` when there is none.
+           print_fn=print, defaults: dict | None = None) -> tuple[train.TrainState, int | None]:
+  """(the latest readable checkpoint's state, its step), or (`fresh`, None) when there is none.
 
   Falls back to older steps, with a warning naming the error, when the newest cannot be read.
   A checkpoint of another config is a ConfigMismatch (a ValueError) naming the settings that
@@ -216,7 +229,7 @@ def resume(mngr: ocp.CheckpointManager, fresh: train.TrainState, config: dict,
   defaults = json.loads(json.dumps(defaults or {}))
   if not mngr.all_steps():
     print_fn(f"no checkpoint in {mngr.directory}: starting a fresh run")
-    return fresh
+    return fresh, None
 
   def load(step):
     saved = read_config(mngr, step)
@@ -233,7 +246,7 @@ def resume(mngr: ocp.CheckpointManager, fresh: train.TrainState, config: dict,
 
   step, state = load_newest(mngr, load, print_fn)
   print_fn(f"resumed from {mngr.directory}, step {step}")
-  return state
+  return state, step
 
 
 class StopRequest:

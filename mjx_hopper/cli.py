@@ -150,11 +150,36 @@ def sweep(args: argparse.Namespace) -> None:
     args.replay_ratio = replay_ratio
   try:
     cfg = _run_config(args, fixed, seeds=tuple(range(args.seed, args.seed + args.seeds)),
-                      grid=grid)
+                      grid=grid, pbt=_pbt(args))
     loop.run(cfg, checkpoint_dir=args.checkpoint_dir, progress=not args.no_progress,
              process=process)
   except ValueError as error:
     raise SystemExit(f"mjx-hopper sweep: {error}")
+
+
+def _pbt(args: argparse.Namespace):
+  """The sweep.PBT of sweep's --pbt flags (None without --pbt)."""
+  from mjx_hopper import sweep
+  given = [flag for flag, value in (("--pbt-every", args.pbt_every),
+                                    ("--pbt-fraction", args.pbt_fraction),
+                                    ("--pbt-bounds", args.pbt_bounds)) if value]
+  if not args.pbt:
+    if given:
+      raise ValueError(f"{', '.join(given)} set(s) population-based training: add --pbt")
+    return None
+  settings = dict(every=args.pbt_every, fraction=args.pbt_fraction,
+                  bounds=_overrides(args.pbt_bounds, "--pbt-bounds"))
+  return sweep.PBT(**{k: v for k, v in settings.items() if v is not None})
+
+
+def _member(text: str) -> int | str:
+  """extract's --member: an index, or "best"."""
+  if text == "best":
+    return text
+  try:
+    return int(text)
+  except ValueError:
+    raise argparse.ArgumentTypeError(f"takes a member's index or 'best', got {text!r}") from None
 
 
 def extract(args: argparse.Namespace) -> None:
@@ -174,7 +199,8 @@ def evaluate(args: argparse.Namespace) -> None:
   from mjx_hopper import loop, train as train_lib
   from mjx_hopper.envs import render
   try:
-    cfg, agent_state, trainer = loop.load_policy(args.checkpoint, args.member)
+    cfg, agent_state, trainer = loop.load_policy(args.checkpoint, args.member,
+                                                 which="latest" if args.latest else "best")
   except (ValueError, FileNotFoundError) as error:
     raise SystemExit(f"mjx-hopper eval: {error}")
   result = jax.device_get(jax.jit(
@@ -208,13 +234,26 @@ def build_parser() -> argparse.ArgumentParser:
                       "--process-id); each process trains its share of the members")
   w.add_argument("--num-processes", type=int, default=None)
   w.add_argument("--process-id", type=int, default=None)
+  w.add_argument("--pbt", action="store_true",
+                 help="population-based training: the worst members copy the best and "
+                      "perturb the swept settings (docs/pbt.md)")
+  w.add_argument("--pbt-every", type=int, default=None, metavar="N",
+                 help="evaluations between PBT steps (default 2)")
+  w.add_argument("--pbt-fraction", type=float, default=None, metavar="F",
+                 help="the worst F of the members copy one of the best F (default 0.25)")
+  w.add_argument("--pbt-bounds", action="append", default=[], metavar="NAME=LOW,HIGH",
+                 help="bounds of a swept setting under PBT (default: the grid's smallest and "
+                      "largest value)")
   x = sub.add_parser("extract", help="write one member of a sweep as a single run's checkpoint")
   x.add_argument("--checkpoint", required=True, help="the sweep's checkpoint directory")
-  x.add_argument("--member", type=int, required=True, help="the member's index (log.csv)")
+  x.add_argument("--member", type=_member, required=True,
+                 help="the member's index (log.csv), or best: the member of the best evaluation")
   x.add_argument("--out", required=True, help="folder for its checkpoints/ and config.json")
   e = sub.add_parser("eval", help="evaluate a checkpoint's policy and write an mp4")
   e.add_argument("--checkpoint", required=True, help="a checkpoint directory")
   e.add_argument("--member", type=int, default=0, help="which member of a sweep's checkpoint")
+  e.add_argument("--latest", action="store_true",
+                 help="the latest policy, not the one of the best evaluation (the default)")
   e.add_argument("--episodes", type=int, default=16)
   e.add_argument("--seed", type=int, default=0)
   e.add_argument("--video", default="runs/eval/policy.mp4")

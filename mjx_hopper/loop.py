@@ -29,6 +29,8 @@ class RunConfig:
 
   A sweep is a run of several members: `seeds` (default: just `seed`) times the combinations
   of `grid`'s values ({dynamic setting: values}; see `mjx_hopper.sweep`), trained at once.
+  With `pbt` (a `sweep.PBT`), the members train as a population: the worst copy the best and
+  perturb the grid's settings every few evaluations (docs/pbt.md).
 
   `env` is the task: a robot's name, a name given with `envs.register`, a `module:Class` path,
   or a `LocomotionEnv` subclass or instance (a task of your own). `env_settings` are its
@@ -54,6 +56,7 @@ class RunConfig:
   seed: int = 0
   seeds: tuple = ()              # a sweep's seeds (default: (seed,))
   grid: dict = dataclasses.field(default_factory=dict)  # a sweep's {setting: values}
+  pbt: Any = None                # a sweep.PBT: population-based training of the members
   out_dir: str = "runs/train"     # log.csv, config.json and (by default) checkpoints/
   tensorboard_dir: str | None = None  # also log.csv's scalars as TensorBoard events here
   time_delta: float = 10.0       # seconds between terminal log lines
@@ -78,6 +81,13 @@ class RunConfig:
       raise ValueError(f"seeds must be distinct integers, got {list(self.seeds)}")
     self.train.check()
     sweep.check_grid(self.agent, self.preset, self.grid, self.train, self.agent_overrides)
+    if isinstance(self.pbt, dict):  # as a config.json holds it
+      object.__setattr__(self, "pbt", sweep.PBT(**self.pbt))
+    if self.pbt is not None:
+      if not isinstance(self.pbt, sweep.PBT):
+        raise ValueError(f"pbt takes a sweep.PBT or None, got {self.pbt!r}")
+      self.pbt.check(self.grid, len(self.members()), lambda name, value: sweep.check_value(
+          self.agent, self.preset, name, value, self.train, self.agent_overrides))
 
   def make_env(self) -> envs.LocomotionEnv:
     """The task's env, built with its settings."""
@@ -88,16 +98,22 @@ class RunConfig:
     return sweep.members(tuple(self.seeds) or (self.seed,), self.grid)
 
   def agent_config(self):
-    """The agent's config; in a sweep of n-step values, its n_step is the largest (the
-    window the replay reads), each member using its own."""
-    window = {"n_step": max(self.grid["n_step"])} if "n_step" in self.grid else {}
+    """The agent's config; in a sweep of n-step values, its n_step is the largest a member
+    may have (the window the replay reads), each member using its own."""
+    window = {"n_step": int(self._largest("n_step"))} if "n_step" in self.grid else {}
     return agents.config(self.agent, self.preset, **{**self.agent_overrides, **window})
 
   def train_config(self) -> train.TrainConfig:
-    """The trainer's config; in a sweep of replay ratios, the largest (the most updates)."""
+    """The trainer's config; in a sweep of replay ratios, the largest a member may have (the
+    most updates)."""
     if "replay_ratio" not in self.grid:
       return self.train
-    return dataclasses.replace(self.train, replay_ratio=max(self.grid["replay_ratio"]))
+    return dataclasses.replace(self.train, replay_ratio=self._largest("replay_ratio"))
+
+  def _largest(self, name: str):
+    """The largest value of the swept setting `name` that a member may take."""
+    return (self.pbt.ranges(self.grid)[name][1] if self.pbt is not None
+            else max(self.grid[name]))
 
   def to_json(self) -> dict:
     out = dataclasses.asdict(self)
@@ -134,6 +150,16 @@ class Result:
   trainer: train.Trainer
   history: list[dict]            # every logged row (train and eval)
   evaluation: dict[str, Any]     # the final evaluation's per-episode arrays
+  best: Any = None               # the agent at each member's best evaluation (None before any)
+  best_return: Any = None        # (members,) those evaluations' mean returns
+
+  def policy(self, which: str = "best", member: int = 0):
+    """The agent state of member `member` (a single run's: 0), without the member axis: at its
+    best evaluation (the latest when there was none), or with which="latest", the latest."""
+    if which not in ("best", "latest"):
+      raise ValueError(f"which must be 'best' or 'latest', got {which!r}")
+    agent = self.state.agent if which == "latest" or self.best is None else self.best
+    return jax.tree.map(lambda x: x[member], agent)
 
 
 def _settings_text(settings: dict) -> str:
@@ -231,9 +257,19 @@ class _Session:
     self.mngr = checkpoint.manager(self.checkpoint_dir, cfg.keep_checkpoints)
     self.saved_config = {**cfg.to_json(), "member_indices": self.indices}
     self.report = sweep.Report(cfg.grid, self.members, self.indices, self.say,
-                               single=len(everyone) == 1)
+                               single=len(everyone) == 1, pbt=cfg.pbt is not None)
+    if cfg.pbt is not None and len(self.members) < 2:
+      raise ValueError(f"PBT needs at least 2 members per process; this one has "
+                       f"{len(self.members)}")
     self.steps_per_iteration = self.trainer.config.steps_per_iteration
     self.programs = None
+    self.best = None  # the agent at each member's best evaluation
+    agent_sharding = self.trainer.shardings.agent
+    self._copy = jax.jit(lambda tree: jax.tree.map(jnp.copy, tree),
+                         out_shardings=agent_sharding)
+    self._select = jax.jit(_select_members, out_shardings=agent_sharding)
+    self._copy_members = jax.jit(_copy_members, out_shardings=self.trainer.shardings,
+                                 donate_argnums=0)
 
   def _start_compiling(self):
     """Futures of (the compiled chunk, the compiled evaluation). Compiling is the user's first
@@ -261,9 +297,13 @@ class _Session:
     cfg = self.cfg
     if (self.mngr.latest_step() or 0) * self.steps_per_iteration < cfg.total_env_steps:
       self.programs = self._start_compiling()
-    state = checkpoint.resume(
+    state, step = checkpoint.resume(
         self.mngr, init(cfg, self.trainer, self.members), self.saved_config, self.say,
         defaults={"agent_config": _field_defaults(cfg.agent_config()), "env_settings": {}})
+    if step is not None:  # the members' record and best agents, as saved with that state
+      self.report.restore(checkpoint.read_config(self.mngr, step).get("record", {}))
+      if checkpoint.has_best(self.mngr, step):
+        self.best = checkpoint.restore_agent(self.mngr, step, state.agent, "best")
     with open(os.path.join(self.out_dir, "config.json"), "w") as f:  # once resuming is agreed
       json.dump(self.saved_config, f, indent=1)
     env_steps = train.iterations(state) * self.steps_per_iteration
@@ -289,14 +329,28 @@ class _Session:
     keys = jnp.stack([jax.random.fold_in(jax.random.PRNGKey(m["seed"]), env_steps)
                       for m in self.members])
     result = jax.device_get(self.programs[1].result()(state.agent, keys))
+    returns = result["return"].mean(-1)
+    self._mark_diverged(~np.isfinite(returns), env_steps, ["evaluation return"])
+    self._keep_best(state.agent, returns, env_steps)
     for m in range(len(self.members)):
       self.logger.write({"kind": "eval", **self.report.tags(m), "env_steps": env_steps,
                          "wall_s": time.perf_counter() - self.t_start,
                          "eval_return": float(np.mean(result["return"][m])),
                          "eval_return_std": float(np.std(result["return"][m])),
                          "eval_length": float(np.mean(result["length"][m]))}, force=True)
-    self.report.evaluated(env_steps, result["return"].mean(-1))
+    self.report.evaluated(env_steps, returns)
     return result
+
+  def _keep_best(self, agent, returns, env_steps: int) -> None:
+    """Keeps the agent of each member whose evaluation beat its best so far."""
+    report = self.report
+    better = np.isfinite(returns) & (returns > report.best_return) & ~report.diverged
+    if self.best is None:
+      self.best = self._copy(agent)  # members with no best yet hold their latest meanwhile
+    elif better.any():
+      self.best = self._select(better, agent, self.best)
+    report.best_return = np.where(better, returns, report.best_return)
+    report.best_steps = np.where(better, env_steps, report.best_steps)
 
   def run_chunks(self, state: train.TrainState, progress: bool, stop):
     """Chunks until the run's end, a stop request, its deadline or its target: (state, the
@@ -309,14 +363,18 @@ class _Session:
     next_eval = (env_steps // cfg.eval_every + 1) * cfg.eval_every
     evaluation, last_save = None, time.monotonic()
     self.reached = np.zeros(len(self.members), bool)  # members at stop_at_return
-    self.diverged = np.zeros(len(self.members), bool)  # members whose learning went non-finite
+    diverged = self.report.diverged  # members whose learning went non-finite
     deadline = self.t_start + 60 * cfg.max_minutes if cfg.max_minutes else float("inf")
     while (env_steps < cfg.total_env_steps and not stop.requested
            and time.perf_counter() < deadline and not self.reached.all()):
       t0 = time.perf_counter()
+      # A sweep's member that diverges is frozen at its agent before the chunk.
+      before = None if self.report.single else self._copy(state.agent)
       state, metrics = self._chunk(state)
       env_steps = train.iterations(state) * self.steps_per_iteration
-      diverged = self._check_finite(metrics, env_steps)
+      self._check_finite(state, metrics, env_steps)
+      if before is not None and diverged.any():
+        state = state._replace(agent=self._select(diverged, before, state.agent))
       rate = self.per_chunk * len(self.members) / (time.perf_counter() - t0)
       updates = np.asarray(jax.device_get(state.updates))
       for m in range(len(self.members)):
@@ -327,41 +385,86 @@ class _Session:
       if diverged.all():
         break  # every member diverged: this state is not evaluated, and never saved
       self.report.trained(env_steps, rate, metrics["episode_return"], cfg.time_delta)
-      if (env_steps >= next_eval or env_steps >= cfg.total_env_steps
-          or time.perf_counter() >= deadline):
+      scheduled = env_steps >= next_eval
+      if scheduled or env_steps >= cfg.total_env_steps or time.perf_counter() >= deadline:
         evaluation = self.evaluate(state, env_steps, bar)
+        returns = np.asarray(evaluation["return"]).mean(-1)
+        if (cfg.pbt is not None and scheduled and env_steps < cfg.total_env_steps
+            and (next_eval // cfg.eval_every) % cfg.pbt.every == 0):
+          state = self._exploit_explore(state, returns, env_steps)
         next_eval += cfg.eval_every
         if cfg.stop_at_return is not None:
-          self.reached |= np.asarray(evaluation["return"]).mean(-1) >= cfg.stop_at_return
+          self.reached |= returns >= cfg.stop_at_return
       if time.monotonic() - last_save >= 60 * cfg.checkpoint_minutes:
-        checkpoint.save(self.mngr, state, self.saved_config)
+        self._save(state)
         last_save = time.monotonic()
       if bar is not None:
         bar.update(min(env_steps, cfg.total_env_steps) - bar.n)
         _status(bar, self.report.status(rate, self.logger))
     if bar is not None:
       bar.close()
-    if not self.diverged.all():
-      checkpoint.save(self.mngr, state, self.saved_config)
+    if not diverged.all():
+      self._save(state)
     checkpoint.finish(self.mngr)
     return state, evaluation
+
+  def _save(self, state: train.TrainState) -> None:
+    """Starts saving the state, the best agents and the members' record."""
+    checkpoint.save(self.mngr, state, {**self.saved_config, "record": self.report.record()},
+                    best=self.best)
 
   def _chunk(self, state: train.TrainState):
     """One compiled chunk: (state, its metrics on the host)."""
     state, metrics = self.programs[0].result()(state)
     return state, jax.device_get(metrics)
 
-  def _check_finite(self, metrics: dict, env_steps: int) -> np.ndarray:
-    """Marks the members whose learner metrics (losses, values) went non-finite in this chunk,
-    saying so once for each, and returns the marks of every member so far."""
+  def _check_finite(self, state: train.TrainState, metrics: dict, env_steps: int) -> None:
+    """Marks the members whose learner metrics (losses, values) or agent state went non-finite
+    in this chunk."""
     learner = [k for k in metrics if k not in ("episode_return", "episodes", "learning")]
-    for m in range(len(self.members)):
-      bad = [k for k in learner if not np.isfinite(metrics[k][m])]
-      if bad and not self.diverged[m]:
-        self.diverged[m] = True
-        who = "" if self.report.single else f"member {self.indices[m]} "
-        self.say(f"[diverged] {who}at {env_steps:,} env steps: {', '.join(bad)} not finite")
-    return self.diverged
+    finite = np.asarray(jax.device_get(_finite_members(state.agent)))
+    bad = [[k for k in learner if not np.isfinite(metrics[k][m])]
+           + ([] if finite[m] else ["parameters"]) for m in range(len(self.members))]
+    self._mark_diverged(np.array([bool(b) for b in bad]), env_steps, bad)
+
+  def _mark_diverged(self, now, env_steps: int, what) -> None:
+    """Marks the members `now` (a bool per member) diverged, saying so once for each: `what`
+    went non-finite (names, per member or for all)."""
+    for m in np.flatnonzero(now & ~self.report.diverged):
+      self.report.diverged[m] = True
+      names = what[m] if isinstance(what[0], list) else what
+      who = "" if self.report.single else f"member {self.indices[m]} "
+      self.say(f"[diverged] {who}at {env_steps:,} env steps: {', '.join(names)} not finite"
+               + ("" if self.report.single or self.cfg.pbt else "; frozen at its last finite "
+                  "agent"))
+
+  def _exploit_explore(self, state: train.TrainState, returns, env_steps: int):
+    """One PBT step: the worst members become a copy of a better member (all but its key), with
+    the grid's settings perturbed (`sweep.exploit_explore`); says who copied whom."""
+    cfg, report = self.cfg, self.report
+    hparams = jax.device_get(state.agent.hparams)
+    values = {name: np.asarray(jax.device_get(state.replay_ratio) if name == "replay_ratio"
+                               else hparams[name]) for name in cfg.grid}
+    config = self.trainer.config
+    quanta = {name: 1 for name, v in values.items() if np.issubdtype(v.dtype, np.integer)}
+    quanta["replay_ratio"] = config.batch_size / config.steps_per_iteration
+    rng = np.random.default_rng([cfg.seed, env_steps, self.indices[0]])
+    sources, new = sweep.exploit_explore(cfg.pbt, returns, report.diverged, values,
+                                         cfg.pbt.ranges(cfg.grid), quanta, rng)
+    moved = np.flatnonzero(sources != np.arange(len(sources)))
+    ratio = new.pop("replay_ratio", None)
+    state = self._copy_members(state, moved, sources[moved], new,
+                               state.replay_ratio if ratio is None else ratio)
+    if ratio is not None:
+      new["replay_ratio"] = ratio
+    for m in moved:
+      report.parents[m] = self.indices[sources[m]]
+      report.diverged[m] = False
+      report.values[m] = {**report.values[m], **{k: _plain(v[m]) for k, v in new.items()}}
+    self.say(f"[pbt] {env_steps:,} env steps: " + "; ".join(
+        f"member {self.indices[m]} copies member {report.parents[m]}, with "
+        + " ".join(f"{k}={report.values[m][k]:g}" for k in cfg.grid) for m in moved))
+    return state
 
   def finish(self, state: train.TrainState, evaluation, stop) -> Result:
     """The run's last lines (a sweep's ranking and curves first) and its Result."""
@@ -371,17 +474,48 @@ class _Session:
     if single and evaluation is not None:
       evaluation = jax.tree.map(lambda x: x[0], evaluation)  # a single run is one member
     self.report.finish(self.logger.rows, self.out_dir)
-    if self.diverged.all():
+    if self.report.diverged.all():
       kept = self.mngr.latest_step()
       self.say("training diverged; nothing was saved after it: "
                + (f"the last finite checkpoint is step {kept} in {self.checkpoint_dir}, which "
                   "loop.resume continues (a lower learning rate may avoid it)" if kept is not None
                   else "no checkpoint was saved before it"))
-    why = ("stopped by a signal" if stop.requested else "diverged" if self.diverged.all() else
+    why = ("stopped by a signal" if stop.requested else "diverged" if self.report.diverged.all() else
            f"every member reached {cfg.stop_at_return:g}" if self.reached.all() else "done")
     self.say(_summary(cfg, why, env_steps, time.perf_counter() - self.t_start,
                       evaluation if single else None, self.logger.csv_path, self.checkpoint_dir))
-    return Result(state, self.trainer, self.logger.rows, evaluation)
+    return Result(state, self.trainer, self.logger.rows, evaluation, self.best,
+                  self.report.best_return)
+
+
+def _select_members(mask, a, b):
+  """Member m of pytree `a` where mask[m], else of `b`."""
+  return jax.tree.map(
+      lambda x, y: jnp.where(mask.reshape((-1,) + (1,) * (x.ndim - 1)), x, y), a, b)
+
+
+@jax.jit
+def _finite_members(tree) -> jax.Array:
+  """(members,): whether every float of each member's part of `tree` is finite."""
+  checks = [jnp.isfinite(x).reshape(x.shape[0], -1).all(1) for x in jax.tree.leaves(tree)
+            if jnp.issubdtype(x.dtype, jnp.floating) and x.size]
+  return jnp.stack(checks).all(0)
+
+
+def _copy_members(state: train.TrainState, targets, sources, hparams: dict, replay_ratio):
+  """`state` with members `targets` each a copy of member `sources` (its agent, replay, envs and
+  episode returns; each keeps its own key), then the dynamic settings `hparams` ({name:
+  (members,) values}) and `replay_ratio` in place of every member's."""
+  keep = {"key": state.key, "replay_ratio": replay_ratio}
+  copied = jax.tree.map(lambda x: x.at[targets].set(x[sources]), state._replace(**keep))
+  agent = copied.agent._replace(hparams={**copied.agent.hparams, **hparams})
+  return copied._replace(agent=agent, **keep)
+
+
+def _plain(value):
+  """A numpy number as the Python number a config holds (float32's shortest text)."""
+  return int(value) if np.issubdtype(np.asarray(value).dtype, np.integer) else float(
+      str(np.float32(value)))
 
 
 def _summary(cfg: RunConfig, why: str, env_steps: int, seconds: float,
@@ -425,11 +559,16 @@ def _existing_manager(directory: str):
   return mngr
 
 
-def load_policy(directory: str, member: int = 0, env: Any = None):
+def load_policy(directory: str, member: int = 0, env: Any = None, which: str = "best",
+                print_fn=print):
   """(RunConfig, agent state, Trainer) of the newest readable checkpoint in `directory`: the
   agent state of its `member`-th member (of a single run: its only one), without the member
-  axis; reads only the agent's item, not the replay. `env` is the run's task, for one that
-  cannot be imported (see `RunConfig.from_json`)."""
+  axis, at that member's best evaluation (or, with which="latest", the latest; a checkpoint
+  saved before any evaluation holds only the latest); reads neither the replay nor the other
+  agent. Says which one it loaded. `env` is the run's task, for one that cannot be imported
+  (see `RunConfig.from_json`)."""
+  if which not in ("best", "latest"):
+    raise ValueError(f"which must be 'best' or 'latest', got {which!r}")
   mngr = _existing_manager(directory)
 
   def load(step):
@@ -439,7 +578,15 @@ def load_policy(directory: str, member: int = 0, env: Any = None):
                                       f"{len(members)} member(s), 0 to {len(members) - 1}")
     trainer = build(cfg, len(members))
     like = jax.eval_shape(lambda k: init(cfg, trainer, members).agent, 0)
-    agent_state = checkpoint.restore_agent(mngr, step, like)
+    best = which == "best" and checkpoint.has_best(mngr, step)
+    agent_state = checkpoint.restore_agent(mngr, step, like, "best" if best else "agent")
+    record = checkpoint.read_config(mngr, step).get("record", {})
+    if best:
+      print_fn(f"the policy of its best evaluation: return {record['best_return'][member]:.1f} "
+               f"at {record['best_env_steps'][member]:,} env steps")
+    else:
+      print_fn(f"the latest policy, at {step * trainer.config.steps_per_iteration:,} env steps"
+               + ("" if which == "latest" else " (no evaluation was saved yet)"))
     return cfg, jax.tree.map(lambda x: x[member], agent_state), trainer
 
   return checkpoint.load_newest(mngr, load)[1]
@@ -457,20 +604,34 @@ def _saved_run(mngr, step, env: Any = None) -> tuple[RunConfig, list[dict]]:
   return cfg, [everyone[i] for i in saved.get("member_indices", range(len(everyone)))]
 
 
-def extract(directory: str, member: int, out_dir: str, print_fn=print, env: Any = None) -> str:
-  """Writes member `member` of the sweep checkpointed in `directory` as the checkpoint of a
-  single run (its seed and swept values as plain settings) in `out_dir`/checkpoints, with its
-  config.json, so that `mjx-hopper eval` and `train`, `restore` and `run` take it as their own.
-  `env` is the sweep's task, for a class that cannot be imported (see `resume`). Returns the
-  checkpoint directory."""
-  cfg, state, _ = restore(directory, print_fn, env=env)
-  saved = checkpoint.read_config(checkpoint.manager(directory), train.iterations(state))
+def extract(directory: str, member: int | str, out_dir: str, print_fn=print,
+            env: Any = None) -> str:
+  """Writes member `member` (an index, or "best": the member of the best evaluation) of the
+  sweep checkpointed in `directory` as the checkpoint of a single run (its seed and its
+  swept values now as plain settings, its latest state and its best evaluation's agent) in
+  `out_dir`/checkpoints, with its config.json, so that `mjx-hopper eval` and `train`, `restore`
+  and `run` take it as their own. `env` is the sweep's task, for a class that cannot be
+  imported (see `resume`). Returns the checkpoint directory."""
+  mngr = _existing_manager(directory)
+  cfg, state, trainer = restore(directory, print_fn, env=env)
+  step = train.iterations(state)
+  saved = checkpoint.read_config(mngr, step)
   indices = list(saved.get("member_indices", range(len(cfg.members()))))
+  record = saved.get("record", {})
+  if member == "best":
+    scores = [-np.inf if v is None else v for v in record.get("best_return", [None])]
+    if not np.isfinite(scores).any():
+      raise ValueError(f"{directory}: no evaluation was saved yet, so no member is the best; "
+                       "give a member's index")
+    member = indices[int(np.argmax(scores))]
+  best = (checkpoint.restore_agent(mngr, step, state.agent, "best")
+          if checkpoint.has_best(mngr, step) else None)
   try:
-    target = sweep.write_member(cfg, state, indices, member, out_dir)
+    target = sweep.write_member(cfg, state, best, record, indices, member, out_dir)
   except ValueError as error:
     raise ValueError(f"{directory}: {error}") from None
-  chosen = cfg.members()[member]
+  chosen = (record["values"][indices.index(member)] if "values" in record
+            else cfg.members()[member])
   print_fn(f"member {member} ({', '.join(f'{k}={v}' for k, v in chosen.items())}) of "
            f"{directory} is now the single run in {target}")
   return target

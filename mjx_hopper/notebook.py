@@ -4,7 +4,7 @@ curve, and the tiny settings the tests run the notebook with.
 
     from mjx_hopper import loop, notebook
     result = loop.run(cfg)
-    episodes = notebook.evaluate(result.trainer, result.state, num_episodes=5)
+    episodes = notebook.evaluate(result, num_episodes=5)  # its best evaluation's policy
     notebook.video(result.trainer.env, episodes, "policy.mp4")
     notebook.side_by_side({"random actions": "random.mp4", "trained": "policy.mp4"})
     notebook.plot_episode_rewards(episodes)
@@ -43,15 +43,20 @@ def tiny(cfg: loop.RunConfig) -> loop.RunConfig:
                              eval_episodes=2)
 
 
-def evaluate(trainer: train.Trainer, state: train.TrainState, num_episodes: int,
-             seed: int = 0) -> dict[str, np.ndarray]:
-  """Runs `num_episodes` episodes of the deterministic policy of a single run's `state`, in
-  one compiled call, recording what the notebook shows. Returns host arrays: "return" and
-  "length" (num_episodes,), the mean of each reward term, "rewards" (num_episodes,
-  episode_steps: each step's reward, 0 after the episode's end) and "qpos" (episode 0's poses,
-  (episode_steps + 1, nq))."""
-  env, agent = trainer.env, trainer.agent
-  agent_state = jax.tree.map(lambda x: x[0], state.agent)  # a single run is one member
+def evaluate(result: loop.Result, num_episodes: int, seed: int = 0, which: str = "best",
+             print_fn=print) -> dict[str, np.ndarray]:
+  """Runs `num_episodes` episodes of the deterministic policy of a single run's `result`: the
+  policy of its best evaluation (which="latest": the latest), saying which, in one compiled
+  call, recording what the notebook shows. Returns host arrays: "return" and "length"
+  (num_episodes,), the mean of each reward term, "rewards" (num_episodes, episode_steps: each
+  step's reward, 0 after the episode's end) and "qpos" (episode 0's poses, (episode_steps + 1,
+  nq))."""
+  env, agent = result.trainer.env, result.trainer.agent
+  agent_state = result.policy(which)
+  if which == "best" and result.best is not None:
+    print_fn(f"the policy of the best evaluation (return {result.best_return[0]:,.1f})")
+  else:
+    print_fn(f"the latest policy{'' if which == 'latest' else ' (no evaluation yet)'}")
 
   @jax.jit
   def run(agent_state, key):

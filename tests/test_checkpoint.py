@@ -51,12 +51,13 @@ def test_killed_mid_save_keeps_the_previous_checkpoint(tmp_path):
   assert leftovers, "the kill came after step 2 was finished: make it bigger"
   mngr = checkpoint.manager(str(directory))
   assert mngr.all_steps() == [1]
-  assert_same(checkpoint.resume(mngr, state(0), CONFIG), state(1))
+  assert_same(checkpoint.resume(mngr, state(0), CONFIG), (state(1), 1))
   # The next run resumes from step 1 and saves over the half-written step.
   checkpoint.save(mngr, state(2), CONFIG)
   checkpoint.finish(mngr)
   assert mngr.all_steps() == [1, 2]
-  assert_same(checkpoint.resume(checkpoint.manager(str(directory)), state(0), CONFIG), state(2))
+  assert_same(checkpoint.resume(checkpoint.manager(str(directory)), state(0), CONFIG),
+              (state(2), 2))
 
 
 def newest_data_file(directory, step):
@@ -77,9 +78,10 @@ def test_unreadable_newest_step_falls_back_and_names_the_file(tmp_path, fault):
   else:
     os.remove(victim)
   lines = []
-  restored = checkpoint.resume(checkpoint.manager(str(directory)), state(0), CONFIG,
-                               print_fn=lines.append)
+  restored, step = checkpoint.resume(checkpoint.manager(str(directory)), state(0), CONFIG,
+                                     print_fn=lines.append)
   assert_same(restored, state(1))
+  assert step == 1
   warning = next(line for line in lines if line.startswith("WARNING"))
   assert "step 2" in warning and victim in warning
   assert ("is missing" if fault == "deleted" else "bytes") in warning
@@ -118,8 +120,9 @@ def test_missing_or_empty_directory_starts_fresh(tmp_path, make):
     directory.mkdir()
   lines = []
   fresh = state(0)
-  assert checkpoint.resume(checkpoint.manager(str(directory)), fresh, CONFIG,
-                           print_fn=lines.append) is fresh
+  restored, step = checkpoint.resume(checkpoint.manager(str(directory)), fresh, CONFIG,
+                                     print_fn=lines.append)
+  assert restored is fresh and step is None
   assert lines == [f"no checkpoint in {directory}: starting a fresh run"]
 
 
@@ -149,7 +152,7 @@ def test_a_checkpoint_without_a_newer_setting_resumes_at_its_default(tmp_path):
   assert defaults["agent_config"]["compute_dtype"] == "float32"
   assert_same(checkpoint.resume(checkpoint.manager(str(directory)), state(0),
                                 {**CONFIG, "agent_config": now}, print_fn=lambda _: None,
-                                defaults=defaults), state(1))
+                                defaults=defaults)[0], state(1))
   other = {**CONFIG, "agent_config": {**now, "compute_dtype": "bfloat16"}}
   with pytest.raises(checkpoint.ConfigMismatch, match="agent_config: saved .*'float32'.*"
                                                       "now .*'bfloat16'"):

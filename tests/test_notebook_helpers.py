@@ -25,7 +25,7 @@ def runs(tmp_path_factory):
   printed = []
   resumed = loop.resume(str(folder / "checkpoints"), total_env_steps=160, progress=False,
                         print_fn=printed.append)
-  episodes = notebook.evaluate(resumed.trainer, resumed.state, num_episodes=5)
+  episodes = notebook.evaluate(resumed, num_episodes=5)
   return cfg, first, resumed, "\n".join(printed), episodes
 
 

@@ -1,0 +1,70 @@
+"""What several benchmarks share: a compiled call timed again and again, a worker process with
+its own device count, the evaluations of a run's log.csv, and markdown tables."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import subprocess
+import sys
+import time
+
+EVAL_FIELDS = ("wall_s", "env_steps", "eval_return", "eval_return_std", "eval_length")
+
+
+class Timed:
+  """`jitted(state, *args) -> (state, out)` traced and compiled (trace_s, compile_s) and called
+  once to warm up. Calling this object runs it `n` times more, each call from the state the last
+  left, and returns their seconds (one wait, at the end); `out` is the last call's output."""
+
+  def __init__(self, jitted, state, *args):
+    start = time.perf_counter()
+    lowered = jitted.lower(state, *args)
+    traced = time.perf_counter()
+    self.compiled = lowered.compile()
+    self.trace_s, self.compile_s = traced - start, time.perf_counter() - traced
+    self.state, self.args = state, args
+    self()
+
+  def __call__(self, n: int = 1) -> float:
+    import jax
+    start = time.perf_counter()
+    for _ in range(n):
+      self.state, self.out = self.compiled(self.state, *self.args)
+    jax.block_until_ready((self.state, self.out))
+    return time.perf_counter() - start
+
+
+def worker(script: str, args: dict, devices: int, gpus: bool = True):
+  """What `python SCRIPT --worker ARGS` (`args` as JSON) prints last, as JSON, run in a process of
+  its own with XLA:CPU split into `devices` devices (XLA reads its flags at start-up) and, with
+  `gpus`, on the first `devices` GPUs unless CUDA_VISIBLE_DEVICES says; None if it failed."""
+  import mjx_hopper  # its own imports only: JAX starts in the worker
+  env = dict(os.environ, XLA_FLAGS=mjx_hopper.xla_flags_with_cpu_devices(devices))
+  if gpus:
+    env.setdefault("CUDA_VISIBLE_DEVICES", ",".join(map(str, range(devices))))
+  done = subprocess.run([sys.executable, script, "--worker", json.dumps(args)], env=env,
+                        stdout=subprocess.PIPE, text=True)
+  if done.returncode:
+    print(f"{os.path.basename(script)}: the worker on {devices} device(s) failed (exit "
+          f"{done.returncode}): {args}", file=sys.stderr, flush=True)
+    return None
+  return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def evaluations(log_csv: str) -> dict[int, list[dict]]:
+  """Each member's evaluations in a run's log.csv, in order, as {EVAL_FIELDS: value}."""
+  out: dict[int, list[dict]] = {}
+  with open(log_csv) as f:
+    for row in csv.DictReader(f):
+      if row["kind"] == "eval":
+        out.setdefault(int(row.get("member") or 0), []).append(
+            {k: int(row[k]) if k == "env_steps" else float(row[k]) for k in EVAL_FIELDS})
+  return out
+
+
+def table(head: list[str], rows: list[list]) -> str:
+  """A markdown table: the `head` line, then each row's cells."""
+  lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+  return "\n".join(lines + ["| " + " | ".join(str(c) for c in row) + " |" for row in rows])
