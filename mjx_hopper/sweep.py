@@ -188,8 +188,10 @@ def member_evaluations(rows: list[dict], which: str = "best") -> dict[int, float
     raise ValueError(f"which must be 'best' or 'latest', got {which!r}")
   out = {}
   for row in rows:
-    if row.get("kind") == "eval" and (which == "latest" or not float(row.get("diverged") or 0)):
+    if row.get("kind") == "eval":
       member, value = int(row.get("member", 0)), float(row["eval_return"])
+      if which == "best" and float(row.get("diverged") or 0):
+        value = -np.inf  # a member that only ever diverged is listed, last
       keep = which == "latest" or member not in out or value > out[member]
       out[member] = value if keep else out[member]
   return out

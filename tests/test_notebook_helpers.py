@@ -25,15 +25,19 @@ def runs(tmp_path_factory):
   printed = []
   resumed = loop.resume(str(folder / "checkpoints"), total_env_steps=160, progress=False,
                         print_fn=printed.append)
-  episodes = notebook.evaluate(resumed, num_episodes=5)
+  episodes = notebook.evaluate(resumed, num_episodes=5, print_fn=printed.append)
   return cfg, first, resumed, "\n".join(printed), episodes
 
 
 def test_resume_continues_the_saved_run_with_its_config(runs, tmp_path):
   cfg, first, resumed, printed, _ = runs
+  printed_evaluation = printed.splitlines()[-1]
   step = int(first.state.iteration[0])
   assert f"resumed from {cfg.out_dir}/checkpoints, step {step}" in printed
   assert int(resumed.state.iteration[0]) == 2 * step
+  # The best evaluation's record and agent come back with the checkpoint.
+  assert resumed.best_return[0] >= first.best_return[0] > -np.inf
+  assert "the policy of the best evaluation (return" in printed_evaluation
   with open(f"{cfg.out_dir}/config.json") as f:
     assert loop.RunConfig.from_json(json.load(f)).total_env_steps == 160
   with pytest.raises(ValueError, match="from another config .*seed"):

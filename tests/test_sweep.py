@@ -192,3 +192,130 @@ def test_two_processes_give_one_process_results(tmp_path):
       assert {int(r["member"]) for r in csv.DictReader(f)} == {i}  # its own members' results
   mngr = checkpoint.manager(str(tmp_path / "two" / "process1" / "checkpoints"))
   assert checkpoint.read_config(mngr, mngr.latest_step())["member_indices"] == [1]
+
+
+def reference_pbt_step(returns, diverged, values, ranges, quanta, pbt, rng):
+  """PBT's step written out plainly: rank (diverged last, ties by index), then each of the
+  worst `count` takes a random one of the best `count`, and each setting is moved by a random
+  factor, snapped to its quantum (one quantum at least), and clipped."""
+  S = len(returns)
+  key = [(1 if diverged[m] or not np.isfinite(returns[m]) else 0,
+          0.0 if diverged[m] or not np.isfinite(returns[m]) else -returns[m], m) for m in range(S)]
+  ranked = [m for *_, m in sorted(key)]
+  count = max(1, int(S * pbt.fraction))
+  sources, new = list(range(S)), {k: list(v) for k, v in values.items()}
+  for member in ranked[S - count:]:
+    source = ranked[int(rng.integers(count))]
+    sources[member] = source
+    for name in values:
+      now = float(values[name][source])
+      moved = now * pbt.factors[int(rng.integers(len(pbt.factors)))]
+      if name in quanta:
+        q = quanta[name]
+        snapped = round(moved / q) * q
+        if snapped == now:
+          snapped = now + q if moved > now else now - q
+        moved = snapped
+      new[name][member] = min(max(moved, ranges[name][0]), ranges[name][1])
+  return sources, new
+
+
+def test_exploit_explore_matches_a_plain_reference_on_random_populations():
+  pbt = sweep.PBT(fraction=0.3, factors=(0.5, 0.8, 1.25, 2.0))
+  ranges = {"learning_rate": (1e-5, 1e-2), "n_step": (1, 7), "replay_ratio": (0.5, 8.0)}
+  quanta = {"n_step": 1, "replay_ratio": 0.25}
+  draw = np.random.default_rng(0)
+  for trial in range(200):
+    S = int(draw.integers(2, 12))
+    returns = draw.normal(1000, 300, S)
+    returns[draw.random(S) < 0.1] = np.nan
+    diverged = draw.random(S) < 0.2
+    values = {"learning_rate": 10 ** draw.uniform(-5, -2, S).astype(np.float32),
+              "n_step": draw.integers(1, 8, S).astype(np.int32),
+              "replay_ratio": (draw.integers(2, 33, S) * 0.25).astype(np.float32)}
+    sources, new = sweep.exploit_explore(pbt, returns, diverged, values, ranges, quanta,
+                                         np.random.default_rng(trial))
+    want_sources, want = reference_pbt_step(returns, diverged, values, ranges, quanta, pbt,
+                                            np.random.default_rng(trial))
+    np.testing.assert_array_equal(sources, want_sources)
+    for name in values:
+      assert new[name].dtype == values[name].dtype
+      np.testing.assert_allclose(new[name], np.asarray(want[name], values[name].dtype),
+                                 rtol=1e-6)
+    count = max(1, int(S * 0.3))
+    assert (sources != np.arange(S)).sum() == count
+    # Diverged members (or with no finite return) go first: none is kept while a healthy
+    # member is replaced.
+    lost, replaced = diverged | ~np.isfinite(returns), sources != np.arange(S)
+    assert not (lost & ~replaced).any() or (lost[replaced]).all()
+
+
+def test_bad_pbt_specs():
+  with pytest.raises(ValueError, match=r"PBT's fraction must be in \(0, 0.5\], got 0.7"):
+    sweep.PBT(fraction=0.7)
+  with pytest.raises(ValueError, match="PBT perturbs the grid's settings"):
+    dataclasses.replace(TINY, seeds=(0, 1), pbt=sweep.PBT())
+  with pytest.raises(ValueError, match="PBT cannot perturb 'sigma': the grid has one value"):
+    dataclasses.replace(TINY, seeds=(0, 1), grid={"sigma": (0.3,)}, pbt=sweep.PBT())
+  with pytest.raises(ValueError, match="PBT needs at least 2 members"):
+    dataclasses.replace(TINY, pbt=sweep.PBT(bounds={"sigma": (0.1, 0.5)}), grid={"sigma": (0.3,)})
+  with pytest.raises(ValueError, match="learning_rate must be > 0"):
+    dataclasses.replace(TINY, grid={"learning_rate": (1e-3, 1e-2)},
+                        pbt=sweep.PBT(bounds={"learning_rate": (-1.0, 1e-2)}))
+  with pytest.raises(SystemExit, match="--pbt-every set"):
+    cli.main([*TINY_ARGS[:2], "sweep", *TINY_ARGS[3:], "--pbt-every", "3"])
+
+
+ABSURD = dataclasses.replace(TINY, seeds=(0,), grid={"learning_rate": (1e-3, 1e30)},
+                             total_env_steps=120)
+
+
+def test_a_diverged_member_is_frozen_and_the_others_go_on_unchanged(single, tmp_path, capsys):
+  # One member per device: member 0 runs its single run's program, whatever member 1 does.
+  cfg = dataclasses.replace(ABSURD, out_dir=str(tmp_path))
+  result = loop.run(cfg, progress=False)
+  out = capsys.readouterr().out
+  assert ("[diverged] member 1 at 40 env steps: " in out and "parameters not finite; frozen "
+          "at its last finite agent" in out)
+  sane, _ = single_run(single, cfg.members()[0], chunks=3)
+  assert_same(member(result.state, 0), member(sane))
+  # Member 1 diverged in its first chunk: its agent stays the one it started with.
+  trainer = loop.build(cfg)
+  assert_same(member(result.state.agent, 1),
+              member(loop.init(cfg, trainer, cfg.members()).agent, 1))
+  with open(tmp_path / "log.csv") as f:
+    rows = list(csv.DictReader(f))
+  assert {r["diverged"] for r in rows if r["member"] == "1"} == {"1"}
+  assert {r["diverged"] for r in rows if r["member"] == "0"} == {"0"}
+  assert "| 2 | learning_rate=1e+30 |" in out and "| 1 of 1 |" in out  # ranked last, marked
+  assert "1 diverged" in out
+
+
+def test_pbt_replaces_a_diverged_member_resumes_exactly_and_extracts(tmp_path, capsys):
+  cfg = dataclasses.replace(ABSURD, pbt=sweep.PBT(every=1), out_dir=str(tmp_path / "straight"))
+  straight = loop.run(cfg, progress=False)
+  out = capsys.readouterr().out
+  assert "[pbt] 40 env steps: member 1 copies member 0, with learning_rate=0.001" in out
+  split = dataclasses.replace(cfg, out_dir=str(tmp_path / "split"))
+  loop.run(split, progress=False, print_fn=stop_after_first_chunk)
+  resumed = loop.run(split, progress=False)
+  assert_same(jax.device_get(straight.state), jax.device_get(resumed.state))
+  logs = {}
+  for name in ("straight", "split"):
+    with open(tmp_path / name / "log.csv") as f:
+      logs[name] = [(r["kind"], r["member"], r["env_steps"], r["learning_rate"], r["parent"],
+                     r["diverged"]) for r in csv.DictReader(f)]
+  assert logs["split"] == logs["straight"]
+  evals = [r for r in logs["straight"] if r[0] == "eval" and r[1] == "1"]
+  # Diverged at 40 (frozen, evaluated, then replaced by a copy of member 0), healthy after.
+  assert [(r[4], r[5]) for r in evals] == [("1", "1"), ("0", "0"), ("0", "0")]
+  assert all(1e-3 <= float(r[3]) <= 1.25e-3 for r in evals[1:])
+  assert (tmp_path / "straight" / "pbt.png").stat().st_size > 10_000
+  # The best member becomes a single run that eval and train take.
+  target = loop.extract(str(tmp_path / "straight" / "checkpoints"), "best",
+                        str(tmp_path / "best"))
+  best = int(np.argmax(straight.best_return))
+  one_cfg, agent, _ = loop.load_policy(target)
+  assert one_cfg.grid == {} and one_cfg.pbt is None
+  assert one_cfg.agent_overrides["learning_rate"] == float(logs["straight"][-1 - (1 - best)][3])
+  assert_same(agent, member(straight.best, best))

@@ -137,6 +137,21 @@ def test_run_logs_checkpoints_and_resumes(tmp_path, capsys):
   assert "resumed from" in out
   assert "nan" not in out  # no return is shown before it is known
   assert train.iterations(longer.state) == 2 * train.iterations(result.state)
+  # The agent of the best evaluation so far is kept beside the latest: it scores that
+  # evaluation again (the same program and key), and is what a policy loads by default.
+  evals = [r for r in longer.history if r["kind"] == "eval"]
+  best = max(evals, key=lambda r: float(r["eval_return"]))
+  assert best is not evals[-1]  # (so that best and latest differ)
+  assert longer.best_return[0] == pytest.approx(float(best["eval_return"]), rel=1e-6)
+  key = jax.random.fold_in(jax.random.PRNGKey(cfg.seed), int(best["env_steps"]))
+  again = jax.device_get(longer.trainer.evaluate(longer.best, key[None]))
+  assert np.mean(again["return"][0]) == pytest.approx(float(best["eval_return"]), rel=1e-5)
+  directory = str(tmp_path / "run" / "checkpoints")
+  for which, want in (("best", longer.best), ("latest", longer.state.agent)):
+    _, agent, _ = loop.load_policy(directory, which=which)
+    jax.tree.map(np.testing.assert_array_equal, agent, member(want))
+  assert f"return {longer.best_return[0]:.1f} at {int(best['env_steps']):,} env steps" in (
+      capsys.readouterr().out)
   # Another config is refused, naming what differs, and the checkpoint is left alone.
   with pytest.raises(ValueError, match="from another config .*agent_config"):
     loop.run(dataclasses.replace(cfg, agent_overrides={**cfg.agent_overrides, "n_step": 2}),
@@ -147,7 +162,8 @@ def test_run_logs_checkpoints_and_resumes(tmp_path, capsys):
   video = tmp_path / "policy.mp4"
   cli.main(["--cpu-devices", "2", "eval", "--checkpoint", str(tmp_path / "run" / "checkpoints"),
             "--episodes", "2", "--video", str(video)])
-  assert "over 2 episodes" in capsys.readouterr().out
+  out = capsys.readouterr().out
+  assert "over 2 episodes" in out and "the policy of its best evaluation" in out
   assert video.stat().st_size > 1000
 
 
