@@ -269,7 +269,7 @@ class _Session:
                          out_shardings=agent_sharding)
     self._select = jax.jit(_select_members, out_shardings=agent_sharding)
     self._copy_members = jax.jit(_copy_members, out_shardings=self.trainer.shardings,
-                                 donate_argnums=0)
+                                 donate_argnums=0, static_argnames="data")
 
   def _start_compiling(self):
     """Futures of (the compiled chunk, the compiled evaluation). Compiling is the user's first
@@ -439,8 +439,9 @@ class _Session:
                   "agent"))
 
   def _exploit_explore(self, state: train.TrainState, returns, env_steps: int):
-    """One PBT step: the worst members become a copy of a better member (all but its key), with
-    the grid's settings perturbed (`sweep.exploit_explore`); says who copied whom."""
+    """One PBT step: the worst members take a copy of a better member's agent (a diverged one,
+    its replay and envs too), with the grid's settings perturbed (`sweep.exploit_explore`);
+    says who copied whom."""
     cfg, report = self.cfg, self.report
     hparams = jax.device_get(state.agent.hparams)
     values = {name: np.asarray(jax.device_get(state.replay_ratio) if name == "replay_ratio"
@@ -452,10 +453,13 @@ class _Session:
     sources, new = sweep.exploit_explore(cfg.pbt, returns, report.diverged, values,
                                          cfg.pbt.ranges(cfg.grid), quanta, rng)
     moved = np.flatnonzero(sources != np.arange(len(sources)))
-    ratio = new.pop("replay_ratio", None)
-    state = self._copy_members(state, moved, sources[moved], new,
-                               state.replay_ratio if ratio is None else ratio)
-    if ratio is not None:
+    ratio = new.pop("replay_ratio", np.asarray(jax.device_get(state.replay_ratio)))
+    # A diverged member's replay and envs hold non-finite steps: it takes its source's too.
+    lost = moved[report.diverged[moved]]
+    if len(lost):
+      state = self._copy_members(state, lost, sources[lost], new, ratio, data=True)
+    state = self._copy_members(state, moved, sources[moved], new, ratio, data=False)
+    if "replay_ratio" in cfg.grid:
       new["replay_ratio"] = ratio
     for m in moved:
       report.parents[m] = self.indices[sources[m]]
@@ -502,14 +506,20 @@ def _finite_members(tree) -> jax.Array:
   return jnp.stack(checks).all(0)
 
 
-def _copy_members(state: train.TrainState, targets, sources, hparams: dict, replay_ratio):
-  """`state` with members `targets` each a copy of member `sources` (its agent, replay, envs and
-  episode returns; each keeps its own key), then the dynamic settings `hparams` ({name:
-  (members,) values}) and `replay_ratio` in place of every member's."""
-  keep = {"key": state.key, "replay_ratio": replay_ratio}
-  copied = jax.tree.map(lambda x: x.at[targets].set(x[sources]), state._replace(**keep))
-  agent = copied.agent._replace(hparams={**copied.agent.hparams, **hparams})
-  return copied._replace(agent=agent, **keep)
+def _copy_members(state: train.TrainState, targets, sources, hparams: dict, replay_ratio,
+                  data: bool):
+  """`state` with the agent of each member `targets` a copy of member `sources`' (and with
+  `data`, its replay, envs and episode returns too), then the dynamic settings `hparams`
+  ({name: (members,) values}) and `replay_ratio` in place of every member's."""
+  def copy(tree):
+    return jax.tree.map(lambda x: x.at[targets].set(x[sources]), tree)
+  agent = copy(state.agent)
+  agent = agent._replace(hparams={**agent.hparams, **hparams})
+  state = state._replace(agent=agent, replay_ratio=replay_ratio)
+  if data:
+    state = state._replace(replay=copy(state.replay), env=copy(state.env),
+                           episode_return=copy(state.episode_return))
+  return state
 
 
 def _plain(value):

@@ -17,8 +17,8 @@ batch_size, ...) shape the program: sweeping them is refused with an error that 
 sweep per value.
 
 Population-based training (`RunConfig(pbt=sweep.PBT())`, `mjx-hopper sweep --pbt`): every
-`PBT.every` evaluations, the worst members become a copy of a better member (its agent, replay
-and envs) and perturb the grid's settings within bounds (docs/pbt.md). A member whose learning goes non-finite is marked diverged: frozen at its
+`PBT.every` evaluations, the worst members take a copy of a better member's agent and perturb
+the grid's settings within bounds (docs/pbt.md). A member whose learning goes non-finite is marked diverged: frozen at its
 last finite agent, or under PBT, the first to be replaced.
 """
 
@@ -47,9 +47,10 @@ class PBT:
   """Population-based training's choices (docs/pbt.md says why each default).
 
   every: evaluations between two exploit-and-explore steps.
-  fraction: the worst `fraction` of the members (at least one) each become a copy of a member
-    drawn from the best `fraction`: its agent (parameters, optimizer state, target networks,
-    dynamic settings), replay, envs and episode returns; each member keeps its own key.
+  fraction: the worst `fraction` of the members (at least one) each take a copy of the agent of
+    a member drawn from the best `fraction` (parameters, optimizer state, target networks,
+    dynamic settings); each keeps its own replay, envs and key, but for a diverged member,
+    whose replay and envs hold non-finite steps: it takes its source's too.
   factors: each of the grid's settings of a copy is multiplied by one of these, drawn at random
     (an integer setting moves at least by 1), then clipped to its bounds.
   bounds: {setting: (low, high)}; a setting not given is bounded by the grid's smallest and

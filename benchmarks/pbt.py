@@ -1,0 +1,127 @@
+"""Population-based training against the grid it starts from, and what its step costs.
+
+    # quality, one GPU: per --seeds value, the grid and PBT side by side for --minutes each
+    python benchmarks/pbt.py quality --minutes 4 --seeds 0 1 --label h100
+    # overhead: the same sweep with and without PBT (a step at every evaluation), in turns
+    python benchmarks/pbt.py overhead --label cpu
+
+Each run is `mjx-hopper sweep` in a process of its own, writing OUT/<run>/log.csv. quality runs
+the grid and PBT at once (each with half the GPU's memory), the same 16 members (4 learning rates
+x 4 noise scales; the robot's gpu preset in the layout where members share a GPU well: 512 envs,
+batches of 1,024, a 1M replay each), for the same minutes: the figures are when the
+population's best evaluation first reached the target (seconds from the run's start, compile
+included), its best evaluation, and each run's median chunk's env steps/s (side by side, their
+ratio is PBT's overhead). overhead times chunks (steps/s of every train row but the
+first) of the same small sweep with and without PBT, alternating, --rounds times. Results go to
+benchmarks/results/pbt_<mode>_<label>.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import os
+import statistics
+import subprocess
+import sys
+
+import common
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+GRID = ["--set", "learning_rate=2.5e-4,5e-4,1e-3,2e-3", "--set", "sigma=0.2,0.4,0.6,0.8"]
+QUALITY = ["--preset", "gpu", "--num-envs", "512", "--batch-size", "1024", "--replay-size",
+           "1000000", *GRID, "--steps", str(10**10)]
+OVERHEAD = ["--env", "Hopper", "--preset", "cpu", "--seeds", "2", "--num-envs", "64",
+            "--batch-size", "64", "--min-replay", "1024", "--chunk", "5", "--eval-every", "1280",
+            "--eval-episodes", "2", "--episode-steps", "100", *GRID[:2]]
+PBT = ["--pbt", "--pbt-every", "1"]
+HEAD = ["seed", "run", "best to target (s)", "best return", "env steps",
+        "env steps/s (median chunk)"]
+
+
+def sweep(flags: list[str], out: str, env: dict | None = None) -> subprocess.Popen:
+  return subprocess.Popen([sys.executable, "-m", "mjx_hopper.cli", "sweep", *flags, "--out", out,
+                           "--no-progress", "--log-every", "30", "--checkpoint-minutes", "1e4"],
+                          env={**os.environ, **(env or {})})
+
+
+def population(log_csv: str, target: float) -> list:
+  """[when the population's best evaluation first reached `target` (s), its best evaluation,
+  env steps, the median chunk's env steps/s] of a sweep's log.csv."""
+  best = {}  # env steps -> (wall_s, the population's best return)
+  for curve in common.evaluations(log_csv).values():
+    for e in curve:
+      wall, top = best.get(e["env_steps"], (0.0, -float("inf")))
+      best[e["env_steps"]] = (max(wall, e["wall_s"]), max(top, e["eval_return"]))
+  hit = next((best[s] for s in sorted(best) if best[s][1] >= target), None)
+  with open(log_csv) as f:
+    rates = [float(r["steps_per_s"]) for r in csv.DictReader(f)
+             if r["kind"] == "train" and r["member"] == "0"]
+  return ["not reached" if hit is None else f"{hit[0]:.0f}",
+          f"{max(t for _, t in best.values()):,.0f}", f"{max(best):,}",
+          f"{statistics.median(rates[1:]):,.0f}"]
+
+
+def quality(args) -> list[list]:
+  rows = []
+  for seed in args.seeds:
+    runs = {arm: os.path.join(args.out, f"{arm}_{seed}") for arm in ("grid", "pbt")}
+    flags = [*QUALITY, "--env", args.env, "--seed", str(seed), "--max-minutes",
+             str(args.minutes)]
+    procs = [sweep(flags + (PBT[:1] if arm == "pbt" else []), out,
+                   {"XLA_PYTHON_CLIENT_MEM_FRACTION": "0.45"}) for arm, out in runs.items()]
+    if any(p.wait() for p in procs):
+      raise SystemExit("a run failed; see its output above")
+    rows += [[seed, arm, *population(os.path.join(out, "log.csv"), args.target)]
+             for arm, out in runs.items()]
+    print(common.table(HEAD, rows), flush=True)  # so far, should a later seed not finish
+  return rows
+
+
+def overhead(args) -> list[list]:
+  rates = {"sweep": [], "pbt": []}
+  for i in range(args.rounds):
+    for arm in ("sweep", "pbt") if i % 2 == 0 else ("pbt", "sweep"):
+      out = os.path.join(args.out, f"{arm}_{i}")
+      flags = [*OVERHEAD, "--steps", str(args.steps), *(PBT if arm == "pbt" else [])]
+      if sweep(flags, out).wait():
+        raise SystemExit("a run failed; see its output above")
+      with open(os.path.join(out, "log.csv")) as f:
+        chunks = [float(r["steps_per_s"]) for r in csv.DictReader(f)
+                  if r["kind"] == "train" and r["member"] == "0"]
+      rates[arm].append(statistics.median(chunks[1:]))
+  base, pbt = (statistics.median(rates[a]) for a in ("sweep", "pbt"))
+  return [["sweep", f"{base:,.0f}", "1.000"], ["sweep + PBT every evaluation", f"{pbt:,.0f}",
+                                                f"{base / pbt:.3f}"]]
+
+
+def main() -> None:
+  p = argparse.ArgumentParser(description=__doc__,
+                              formatter_class=argparse.RawDescriptionHelpFormatter)
+  p.add_argument("mode", choices=("quality", "overhead"))
+  p.add_argument("--minutes", type=float, default=6.0, help="quality: each run's budget")
+  p.add_argument("--seeds", type=int, nargs="+", default=[0, 1], help="quality: its seeds")
+  p.add_argument("--env", default="Hopper", help="quality: the robot")
+  p.add_argument("--target", type=float, default=2500.0, help="quality: its target")
+  p.add_argument("--rounds", type=int, default=3, help="overhead: runs of each")
+  p.add_argument("--steps", type=int, default=64_000, help="overhead: each run's env steps")
+  p.add_argument("--label", default="run")
+  p.add_argument("--out", default="runs/pbt")
+  args = p.parse_args()
+  if args.mode == "quality":
+    head = HEAD
+    rows = quality(args)
+  else:
+    head = ["run", "env steps/s", "time per chunk (x sweep)"]
+    rows = overhead(args)
+  text = common.table(head, rows)
+  print(text)
+  path = os.path.join(HERE, "results", f"pbt_{args.mode}_{args.label}.json")
+  with open(path, "w") as f:
+    json.dump({"command": sys.argv, "table": text, "rows": rows}, f, indent=1)
+  print(f"results: {path}")
+
+
+if __name__ == "__main__":
+  main()
