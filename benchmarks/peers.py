@@ -391,7 +391,7 @@ def main() -> None:
   p = argparse.ArgumentParser(description=__doc__,
                               formatter_class=argparse.RawDescriptionHelpFormatter)
   p.add_argument("--trainers", nargs="+", choices=["ours", "sac", "ppo"],
-                 default=["ours", "sac", "ppo"])
+                 default=["ours", "sac", "ppo"], help="the runs to start (default: all three)")
   p.add_argument("--minutes", type=float, default=8.0, help="wall-clock budget of each run")
   p.add_argument("--grid", action="append", default=[], metavar="TRAINER:NAME=V1,V2",
                  help="Brax settings to try (repeatable; every combination is a run)")
