@@ -8,7 +8,8 @@
 Each run is `mjx-hopper sweep` in a process of its own, writing OUT/<run>/log.csv. quality runs
 the grid and PBT at once (each with half the GPU's memory), the same 16 members (4 learning rates
 x 4 noise scales; the robot's gpu preset in the layout where members share a GPU well: 512 envs,
-batches of 1,024, a 1M replay each), for the same minutes: the figures are when the
+batches of 1,024, a 1M replay each; an evaluation every 100k env steps, so that PBT steps
+every 200k), for the same minutes: the figures are when the
 population's best evaluation first reached the target (seconds from the run's start, compile
 included), its best evaluation, and each run's median chunk's env steps/s (side by side, their
 ratio is PBT's overhead). overhead times chunks (steps/s of every train row but the
@@ -22,6 +23,7 @@ import argparse
 import csv
 import json
 import os
+import shutil
 import statistics
 import subprocess
 import sys
@@ -31,7 +33,7 @@ import common
 HERE = os.path.dirname(os.path.abspath(__file__))
 GRID = ["--set", "learning_rate=2.5e-4,5e-4,1e-3,2e-3", "--set", "sigma=0.2,0.4,0.6,0.8"]
 QUALITY = ["--preset", "gpu", "--num-envs", "512", "--batch-size", "1024", "--replay-size",
-           "1000000", *GRID, "--steps", str(10**10)]
+           "1000000", "--eval-every", "100000", *GRID, "--steps", str(10**10)]
 OVERHEAD = ["--env", "Hopper", "--preset", "cpu", "--seeds", "2", "--num-envs", "64",
             "--batch-size", "64", "--min-replay", "1024", "--chunk", "5", "--eval-every", "1280",
             "--eval-episodes", "2", "--episode-steps", "100", *GRID[:2]]
@@ -41,9 +43,12 @@ HEAD = ["seed", "run", "best to target (s)", "best return", "env steps",
 
 
 def sweep(flags: list[str], out: str, env: dict | None = None) -> subprocess.Popen:
-  return subprocess.Popen([sys.executable, "-m", "mjx_hopper.cli", "sweep", *flags, "--out", out,
-                           "--no-progress", "--log-every", "30", "--checkpoint-minutes", "1e4"],
-                          env={**os.environ, **(env or {})})
+  """`mjx-hopper sweep FLAGS` in a process of its own (-P: the installed package, not the
+  checkout's folder of the same name), in a fresh OUT (an old one would be resumed)."""
+  shutil.rmtree(out, ignore_errors=True)
+  return subprocess.Popen([sys.executable, "-P", "-m", "mjx_hopper.cli", "sweep", *flags,
+                           "--out", out, "--no-progress", "--log-every", "30",
+                           "--checkpoint-minutes", "1e4"], env={**os.environ, **(env or {})})
 
 
 def population(log_csv: str, target: float) -> list:

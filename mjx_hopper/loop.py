@@ -484,7 +484,8 @@ class _Session:
                + (f"the last finite checkpoint is step {kept} in {self.checkpoint_dir}, which "
                   "loop.resume continues (a lower learning rate may avoid it)" if kept is not None
                   else "no checkpoint was saved before it"))
-    why = ("stopped by a signal" if stop.requested else "diverged" if self.report.diverged.all() else
+    why = ("stopped by a signal" if stop.requested else
+           "diverged" if self.report.diverged.all() else
            f"every member reached {cfg.stop_at_return:g}" if self.reached.all() else "done")
     self.say(_summary(cfg, why, env_steps, time.perf_counter() - self.t_start,
                       evaluation if single else None, self.logger.csv_path, self.checkpoint_dir))
@@ -591,9 +592,12 @@ def load_policy(directory: str, member: int = 0, env: Any = None, which: str = "
     best = which == "best" and checkpoint.has_best(mngr, step)
     agent_state = checkpoint.restore_agent(mngr, step, like, "best" if best else "agent")
     record = checkpoint.read_config(mngr, step).get("record", {})
-    if best:
-      print_fn(f"the policy of its best evaluation: return {record['best_return'][member]:.1f} "
-               f"at {record['best_env_steps'][member]:,} env steps")
+    score = record.get("best_return", [None] * len(members))[member] if best else None
+    if score is not None:
+      print_fn(f"the policy of its best evaluation: return {score:.1f} at "
+               f"{record['best_env_steps'][member]:,} env steps")
+    elif best:
+      print_fn("the policy of its first evaluation (none of its evaluations was finite)")
     else:
       print_fn(f"the latest policy, at {step * trainer.config.steps_per_iteration:,} env steps"
                + ("" if which == "latest" else " (no evaluation was saved yet)"))
@@ -623,7 +627,7 @@ def extract(directory: str, member: int | str, out_dir: str, print_fn=print,
   and `run` take it as their own. `env` is the sweep's task, for a class that cannot be
   imported (see `resume`). Returns the checkpoint directory."""
   mngr = _existing_manager(directory)
-  cfg, state, trainer = restore(directory, print_fn, env=env)
+  cfg, state, _ = restore(directory, print_fn, env=env)
   step = train.iterations(state)
   saved = checkpoint.read_config(mngr, step)
   indices = list(saved.get("member_indices", range(len(cfg.members()))))

@@ -44,17 +44,17 @@ def tiny(cfg: loop.RunConfig) -> loop.RunConfig:
 
 
 def evaluate(result: loop.Result, num_episodes: int, seed: int = 0, which: str = "best",
-             print_fn=print) -> dict[str, np.ndarray]:
-  """Runs `num_episodes` episodes of the deterministic policy of a single run's `result`: the
-  policy of its best evaluation (which="latest": the latest), saying which, in one compiled
-  call, recording what the notebook shows. Returns host arrays: "return" and "length"
-  (num_episodes,), the mean of each reward term, "rewards" (num_episodes, episode_steps: each
-  step's reward, 0 after the episode's end) and "qpos" (episode 0's poses, (episode_steps + 1,
-  nq))."""
+             member: int = 0, print_fn=print) -> dict[str, np.ndarray]:
+  """Runs `num_episodes` episodes of the deterministic policy of a run's `result` (of a sweep's,
+  its `member`): the policy of its best evaluation (which="latest": the latest), saying which,
+  in one compiled call, recording what the notebook shows. Returns host arrays: "return" and
+  "length" (num_episodes,), the mean of each reward term, "rewards" (num_episodes,
+  episode_steps: each step's reward, 0 after the episode's end) and "qpos" (episode 0's poses,
+  (episode_steps + 1, nq))."""
   env, agent = result.trainer.env, result.trainer.agent
-  agent_state = result.policy(which)
+  agent_state = result.policy(which, member)
   if which == "best" and result.best is not None:
-    print_fn(f"the policy of the best evaluation (return {result.best_return[0]:,.1f})")
+    print_fn(f"the policy of the best evaluation (return {result.best_return[member]:,.1f})")
   else:
     print_fn(f"the latest policy{'' if which == 'latest' else ' (no evaluation yet)'}")
 

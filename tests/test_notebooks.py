@@ -27,6 +27,8 @@ print("FACTS " + json.dumps({
     "jump_settings": json.load(open(f"{jump_cfg.out_dir}/config.json"))["env_settings"],
     "jump_terms": sorted(k for k in jump_episodes if k not in ("return", "length", "rewards", "qpos")),
     "videos": sorted(p for p in os.listdir() if p.endswith(".mp4")),
+    "pbt": json.load(open(f"{pbt_cfg.out_dir}/config.json"))["pbt"],
+    "pbt_members": sorted(set(notebook.read_log(f"{pbt_cfg.out_dir}/log.csv")["eval"]["member"])),
 }))
 """
 
@@ -87,12 +89,20 @@ def test_trains_section_2s_classes_and_records_them(executed):
 def test_shows_frames_plots_videos_and_totals(executed):
   cells, facts = executed
   images = [o for o in outputs(cells) if "image/png" in o.get("data", {})]
-  assert len(images) >= 8  # a frame, two reward plots, five learning curves
+  assert len(images) >= 9  # a frame, two reward plots, five learning curves, PBT's lineage
   html = [o.get("data", {}).get("text/html", "") for o in outputs(cells)]
-  # Random actions; trained beside random, for the Hopper and the high jump; the Ant's long
-  # jump; Walker2D.
-  assert [h.count("<video") for h in html if "<video" in h] == [1, 2, 2, 1, 1]
-  assert facts["videos"] == ["ant_long_jump.mp4", "high_jump_d4pg.mp4", "high_jump_random.mp4",
-                             "hopper_d4pg.mp4", "hopper_random.mp4", "walker2d_d4pg.mp4"]
+  # Random actions; trained beside random, for the Hopper and the high jump; the PBT jump's
+  # best member; the Ant's long jump; Walker2D.
+  assert [h.count("<video") for h in html if "<video" in h] == [1, 2, 2, 1, 1, 1]
+  assert facts["videos"] == ["ant_long_jump.mp4", "high_jump_d4pg.mp4", "high_jump_pbt.mp4",
+                             "high_jump_random.mp4", "hopper_d4pg.mp4", "hopper_random.mp4",
+                             "walker2d_d4pg.mp4"]
   assert facts["rewards"] == [5, 30]
   assert text(cells).count("Total reward in episode") == 5
+
+
+def test_section_7_trains_a_population(executed):
+  cells, facts = executed
+  assert facts["pbt"] == {"every": 2, "fraction": 0.25, "factors": [0.8, 1.25], "bounds": {}}
+  assert facts["pbt_members"] == [0, 1, 2, 3]
+  assert "ranking by the best evaluation:" in text(cells) and "| copied from |" in text(cells)

@@ -319,3 +319,32 @@ def test_pbt_replaces_a_diverged_member_resumes_exactly_and_extracts(tmp_path, c
   assert one_cfg.grid == {} and one_cfg.pbt is None
   assert one_cfg.agent_overrides["learning_rate"] == float(logs["straight"][-1 - (1 - best)][3])
   assert_same(agent, member(straight.best, best))
+
+
+@pytest.mark.slow
+def test_pbt_over_two_processes_keeps_a_population_per_process(tmp_path):
+  # Members (sigma, learning_rate): 0 (0.1, 1e-3), 1 (0.1, 1e30), 2 (0.3, 1e-3), 3 (0.3, 1e30);
+  # process 0 trains 0 and 1, process 1 trains 2 and 3. Each replaces its own diverged member
+  # with a copy of its own sane one: no member crosses processes.
+  args = [*TINY_ARGS[2:], "--steps", "80", "--set", "num_atoms=11", "--set", "sigma=0.1,0.3",
+          "--set", "learning_rate=1e-3,1e30", "--pbt", "--pbt-every", "1"]
+  args[args.index("train")] = "sweep"
+  address = f"127.0.0.1:{free_port()}"
+  procs = [subprocess.Popen([sys.executable, "-m", "mjx_hopper.cli", "--cpu-devices", "1", *args,
+                             "--out", str(tmp_path), "--coordinator", address,
+                             "--num-processes", "2", "--process-id", str(i)],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+           for i in range(2)]
+  outs = []
+  for proc in procs:
+    out, _ = proc.communicate(timeout=600)
+    assert proc.returncode == 0, out
+    outs.append(out)
+  for i, (sane, absurd) in enumerate([(0, 1), (2, 3)]):
+    assert f"[pbt] 40 env steps: member {absurd} copies member {sane}, with" in outs[i]
+    with open(tmp_path / f"process{i}" / "log.csv") as f:
+      rows = [r for r in csv.DictReader(f) if r["kind"] == "eval"]
+    assert {int(r["member"]) for r in rows} == {sane, absurd}
+    assert [(r["parent"], r["diverged"]) for r in rows if int(r["member"]) == absurd] == [
+        (str(absurd), "1"), (str(sane), "0")]
+    assert (tmp_path / f"process{i}" / "pbt.png").exists()
