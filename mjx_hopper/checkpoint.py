@@ -15,6 +15,7 @@ import json
 import os
 import signal
 import zlib
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -215,9 +216,20 @@ def _first_line(error: Exception, limit: int = 300) -> str:
   return text[:limit]
 
 
+class Resumed(NamedTuple):
+  """What `resume` read: the state, its step (None for a fresh run), the agent at the best
+  evaluations (None when the step has none) and the members' record ({} when none)."""
+
+  state: train.TrainState
+  step: int | None
+  best: Any
+  record: dict
+
+
 def resume(mngr: ocp.CheckpointManager, fresh: train.TrainState, config: dict,
-           print_fn=print, defaults: dict | None = None) -> tuple[train.TrainState, int | None]:
-  """(the latest readable checkpoint's state, its step), or (`fresh`, None) when there is none.
+           print_fn=print, defaults: dict | None = None) -> Resumed:
+  """The latest readable checkpoint's state, best agents and record (`Resumed`), or `fresh`
+  when there is none.
 
   Falls back to older steps, with a warning naming the error, when the newest cannot be read.
   A checkpoint of another config is a ConfigMismatch (a ValueError) naming the settings that
@@ -229,7 +241,7 @@ def resume(mngr: ocp.CheckpointManager, fresh: train.TrainState, config: dict,
   defaults = json.loads(json.dumps(defaults or {}))
   if not mngr.all_steps():
     print_fn(f"no checkpoint in {mngr.directory}: starting a fresh run")
-    return fresh, None
+    return Resumed(fresh, None, None, {})
 
   def load(step):
     saved = read_config(mngr, step)
@@ -242,11 +254,12 @@ def resume(mngr: ocp.CheckpointManager, fresh: train.TrainState, config: dict,
       raise ConfigMismatch(f"the checkpoint in {mngr.directory} is from another config "
                            f"({details}); use another checkpoint directory, or the saved "
                            "settings")
-    return restore(mngr, step, fresh)
+    best = restore_agent(mngr, step, fresh.agent, "best") if has_best(mngr, step) else None
+    return restore(mngr, step, fresh), best, saved.get("record", {})
 
-  step, state = load_newest(mngr, load, print_fn)
+  step, (state, best, record) = load_newest(mngr, load, print_fn)
   print_fn(f"resumed from {mngr.directory}, step {step}")
-  return state, step
+  return Resumed(state, step, best, record)
 
 
 class StopRequest:

@@ -155,7 +155,8 @@ class Result:
 
   def policy(self, which: str = "best", member: int = 0):
     """The agent state of member `member` (a single run's: 0), without the member axis: at its
-    best evaluation (the latest when there was none), or with which="latest", the latest."""
+    best evaluation (before any: the latest; with no finite evaluation: its agent at the
+    first), or with which="latest", the latest."""
     if which not in ("best", "latest"):
       raise ValueError(f"which must be 'best' or 'latest', got {which!r}")
     agent = self.state.agent if which == "latest" or self.best is None else self.best
@@ -297,13 +298,10 @@ class _Session:
     cfg = self.cfg
     if (self.mngr.latest_step() or 0) * self.steps_per_iteration < cfg.total_env_steps:
       self.programs = self._start_compiling()
-    state, step = checkpoint.resume(
+    state, _, self.best, record = checkpoint.resume(
         self.mngr, init(cfg, self.trainer, self.members), self.saved_config, self.say,
         defaults={"agent_config": _field_defaults(cfg.agent_config()), "env_settings": {}})
-    if step is not None:  # the members' record and best agents, as saved with that state
-      self.report.restore(checkpoint.read_config(self.mngr, step).get("record", {}))
-      if checkpoint.has_best(self.mngr, step):
-        self.best = checkpoint.restore_agent(self.mngr, step, state.agent, "best")
+    self.report.restore(record)
     with open(os.path.join(self.out_dir, "config.json"), "w") as f:  # once resuming is agreed
       json.dump(self.saved_config, f, indent=1)
     env_steps = train.iterations(state) * self.steps_per_iteration
@@ -346,7 +344,7 @@ class _Session:
     report = self.report
     better = np.isfinite(returns) & (returns > report.best_return) & ~report.diverged
     if self.best is None:
-      self.best = self._copy(agent)  # members with no best yet hold their latest meanwhile
+      self.best = self._copy(agent)  # members with no best yet hold this one meanwhile
     elif better.any():
       self.best = self._select(better, agent, self.best)
     report.best_return = np.where(better, returns, report.best_return)
@@ -366,8 +364,8 @@ class _Session:
     diverged = self.report.diverged  # members whose learning went non-finite
     deadline = self.t_start + 60 * cfg.max_minutes if cfg.max_minutes else float("inf")
     while (env_steps < cfg.total_env_steps and not stop.requested
-           and time.perf_counter() < deadline and not self.reached.all()):
-      t0 = time.perf_counter()
+           and time.perf_counter() < deadline and not (self.reached | diverged).all()):
+      t0, steps_before = time.perf_counter(), env_steps
       # A sweep's member that diverges is frozen at its agent before the chunk.
       before = None if self.report.single else self._copy(state.agent)
       state, metrics = self._chunk(state)
@@ -385,12 +383,15 @@ class _Session:
       if diverged.all():
         break  # every member diverged: this state is not evaluated, and never saved
       self.report.trained(env_steps, rate, metrics["episode_return"], cfg.time_delta)
-      scheduled = env_steps >= next_eval
-      if scheduled or env_steps >= cfg.total_env_steps or time.perf_counter() >= deadline:
+      if (env_steps >= next_eval or env_steps >= cfg.total_env_steps
+          or time.perf_counter() >= deadline):
         evaluation = self.evaluate(state, env_steps, bar)
         returns = np.asarray(evaluation["return"]).mean(-1)
-        if (cfg.pbt is not None and scheduled and env_steps < cfg.total_env_steps
-            and (next_eval // cfg.eval_every) % cfg.pbt.every == 0):
+        # PBT steps where the chunk crossed a multiple of `every` evaluations' env steps (so
+        # that a resumed run steps where the straight one did), and not at the run's end.
+        period = cfg.eval_every * (cfg.pbt.every if cfg.pbt is not None else 0)
+        if period and env_steps // period > steps_before // period and (
+            env_steps < cfg.total_env_steps):
           state = self._exploit_explore(state, returns, env_steps)
         next_eval += cfg.eval_every
         if cfg.stop_at_return is not None:
@@ -435,8 +436,8 @@ class _Session:
       names = what[m] if isinstance(what[0], list) else what
       who = "" if self.report.single else f"member {self.indices[m]} "
       self.say(f"[diverged] {who}at {env_steps:,} env steps: {', '.join(names)} not finite"
-               + ("" if self.report.single or self.cfg.pbt else "; frozen at its last finite "
-                  "agent"))
+               + ("" if self.report.single else "; frozen at its last finite agent"
+                  + (" until PBT replaces it" if self.cfg.pbt else "")))
 
   def _exploit_explore(self, state: train.TrainState, returns, env_steps: int):
     """One PBT step: the worst members take a copy of a better member's agent (a diverged one,
@@ -474,19 +475,19 @@ class _Session:
     """The run's last lines (a sweep's ranking and curves first) and its Result."""
     cfg = self.cfg
     env_steps = train.iterations(state) * self.steps_per_iteration
-    single = self.report.single
+    single, diverged = self.report.single, self.report.diverged
     if single and evaluation is not None:
       evaluation = jax.tree.map(lambda x: x[0], evaluation)  # a single run is one member
     self.report.finish(self.logger.rows, self.out_dir)
-    if self.report.diverged.all():
+    if diverged.all():
       kept = self.mngr.latest_step()
       self.say("training diverged; nothing was saved after it: "
                + (f"the last finite checkpoint is step {kept} in {self.checkpoint_dir}, which "
                   "loop.resume continues (a lower learning rate may avoid it)" if kept is not None
                   else "no checkpoint was saved before it"))
-    why = ("stopped by a signal" if stop.requested else
-           "diverged" if self.report.diverged.all() else
-           f"every member reached {cfg.stop_at_return:g}" if self.reached.all() else "done")
+    why = ("stopped by a signal" if stop.requested else "diverged" if diverged.all() else
+           f"every member reached {cfg.stop_at_return:g}{' or diverged' * diverged.any()}"
+           if (self.reached | diverged).all() else "done")
     self.say(_summary(cfg, why, env_steps, time.perf_counter() - self.t_start,
                       evaluation if single else None, self.logger.csv_path, self.checkpoint_dir))
     return Result(state, self.trainer, self.logger.rows, evaluation, self.best,

@@ -112,15 +112,23 @@ def exploit_explore(pbt: PBT, returns, diverged, values: dict, ranges: dict, qua
   sources[m] is the member whose agent m takes (m itself when kept); the new values are the
   sources' perturbed (times one of `pbt.factors`, then clipped to `ranges`), the kept members'
   unchanged. A setting with a quantum ({setting: q}: 1 for an integer setting) takes multiples
-  of it, and a perturbation moves it by one quantum at least. Diverged members rank last, so
-  they are replaced first; ties go to the lower index."""
+  of it, and a perturbation moves it by one quantum at least.
+
+  The members rank by return, diverged ones (and those without a finite return) last, ties to
+  the lower index. Sources are drawn from the best `count` = max(1, S * fraction) that are
+  healthy; the worst `count` are replaced, and every diverged member too. With no healthy
+  member, nothing changes."""
   score = np.where(np.asarray(diverged) | ~np.isfinite(returns), -np.inf, returns)
   order = np.argsort(-score, kind="stable")
   count = max(1, int(len(order) * pbt.fraction))
+  pool = [m for m in order[:count] if np.isfinite(score[m])]
+  lost = int(np.sum(~np.isfinite(score)))
   sources = np.arange(len(order))
   new = {name: np.array(v, copy=True) for name, v in values.items()}
-  for member in order[-count:]:
-    source = int(order[rng.integers(count)])
+  for member in order[len(order) - max(count, lost) if pool else len(order):]:
+    if member in pool:
+      continue
+    source = int(pool[rng.integers(len(pool))])
     sources[member] = source
     for name, v in values.items():
       now = float(v[source])
@@ -246,16 +254,15 @@ def population_ranking(rows: list[dict], grid: dict, which: str = "best") -> str
 def plot(rows: list[dict], grid: dict, path: str) -> str:
   """Learning curves to a PNG: per value combination, the mean evaluation return over seeds
   against env steps, with its 95% interval as a band. Returns the path."""
-  import matplotlib
-  matplotlib.use("Agg")
-  import matplotlib.pyplot as plt
+  from matplotlib.figure import Figure  # not pyplot: a notebook's own plots stay inline
 
   curves: dict[str, dict[float, list[float]]] = {}
   for row in rows:
     if row.get("kind") == "eval":
       curve = curves.setdefault(_group_label(row, grid), {})
       curve.setdefault(float(row["env_steps"]), []).append(float(row["eval_return"]))
-  fig, ax = plt.subplots(figsize=(7, 4.5))
+  fig = Figure(figsize=(7, 4.5))
+  ax = fig.subplots()
   for name, curve in sorted(curves.items()):
     steps = sorted(curve)
     stats = np.array([_mean_interval(curve[s]) for s in steps])
@@ -268,7 +275,6 @@ def plot(rows: list[dict], grid: dict, path: str) -> str:
   fig.tight_layout()
   os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
   fig.savefig(path, dpi=100)
-  plt.close(fig)
   return path
 
 
@@ -288,14 +294,12 @@ def _mean_interval(values: list[float]) -> tuple[float, float]:
 def plot_population(rows: list[dict], grid: dict, path: str) -> str:
   """A PBT run's lineage to a PNG: the population's best, median and worst evaluation return
   against env steps, and below it each swept setting of every member. Returns the path."""
-  import matplotlib
-  matplotlib.use("Agg")
-  import matplotlib.pyplot as plt
+  from matplotlib.figure import Figure  # not pyplot: a notebook's own plots stay inline
 
   evals = [r for r in rows if r.get("kind") == "eval"]
   steps = sorted({float(r["env_steps"]) for r in evals})
-  fig, axes = plt.subplots(1 + len(grid), 1, figsize=(7, 3 + 2 * len(grid)), sharex=True,
-                           squeeze=False)
+  fig = Figure(figsize=(7, 3 + 2 * len(grid)))
+  axes = fig.subplots(1 + len(grid), 1, sharex=True, squeeze=False)
   returns = [[float(r["eval_return"]) for r in evals if float(r["env_steps"]) == s]
              for s in steps]
   for label, stat in (("best", np.max), ("median", np.median), ("worst", np.min)):
@@ -317,7 +321,6 @@ def plot_population(rows: list[dict], grid: dict, path: str) -> str:
   fig.tight_layout()
   os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
   fig.savefig(path, dpi=100)
-  plt.close(fig)
   return path
 
 
@@ -352,10 +355,13 @@ class Report:
             "best_env_steps": self.best_steps.tolist()}
 
   def restore(self, record: dict) -> None:
-    """Takes back a record that a checkpoint kept (an older checkpoint's has fewer parts)."""
+    """Takes back a record that a checkpoint kept (an older checkpoint's has fewer parts). A
+    single run's divergence mark is not: a run that diverges stops unsaved, so a checkpoint it
+    resumes from (or a sweep's frozen member, extracted) holds a finite agent to go on from."""
     self.values = record.get("values", self.values)
     self.parents = np.array(record.get("parents", self.parents))
-    self.diverged = np.array(record.get("diverged", self.diverged), bool)
+    if not self.single:
+      self.diverged = np.array(record.get("diverged", self.diverged), bool)
     self.best_return = np.array([-np.inf if v is None else v for v in
                                  record.get("best_return", self.best_return)], np.float64)
     self.best_steps = np.array(record.get("best_env_steps", self.best_steps))
@@ -433,7 +439,7 @@ def write_member(cfg, state, best, record: dict, indices: list[int], member: int
                      "another out_dir")
   mine = {k: v[position:position + 1] for k, v in record.items()}
   config = {**single.to_json(), "member_indices": [0]}
-  record = {**mine, "values": [{"seed": chosen["seed"]}], "parents": [0]}
+  record = {**mine, "values": [{"seed": chosen["seed"]}], "parents": [0], "diverged": [False]}
   checkpoint.save(mngr, one[0], {**config, "record": record}, best=one[1])
   checkpoint.finish(mngr)
   with open(os.path.join(out_dir, "config.json"), "w") as f:

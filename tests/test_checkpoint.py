@@ -51,12 +51,12 @@ def test_killed_mid_save_keeps_the_previous_checkpoint(tmp_path):
   assert leftovers, "the kill came after step 2 was finished: make it bigger"
   mngr = checkpoint.manager(str(directory))
   assert mngr.all_steps() == [1]
-  assert_same(checkpoint.resume(mngr, state(0), CONFIG), (state(1), 1))
+  assert_same(checkpoint.resume(mngr, state(0), CONFIG)[:2], (state(1), 1))
   # The next run resumes from step 1 and saves over the half-written step.
   checkpoint.save(mngr, state(2), CONFIG)
   checkpoint.finish(mngr)
   assert mngr.all_steps() == [1, 2]
-  assert_same(checkpoint.resume(checkpoint.manager(str(directory)), state(0), CONFIG),
+  assert_same(checkpoint.resume(checkpoint.manager(str(directory)), state(0), CONFIG)[:2],
               (state(2), 2))
 
 
@@ -78,9 +78,10 @@ def test_unreadable_newest_step_falls_back_and_names_the_file(tmp_path, fault):
   else:
     os.remove(victim)
   lines = []
-  restored, step = checkpoint.resume(checkpoint.manager(str(directory)), state(0), CONFIG,
-                                     print_fn=lines.append)
+  restored, step, best, record = checkpoint.resume(
+      checkpoint.manager(str(directory)), state(0), CONFIG, print_fn=lines.append)
   assert_same(restored, state(1))
+  assert best is None and record == {}  # saved without either
   assert step == 1
   warning = next(line for line in lines if line.startswith("WARNING"))
   assert "step 2" in warning and victim in warning
@@ -120,8 +121,8 @@ def test_missing_or_empty_directory_starts_fresh(tmp_path, make):
     directory.mkdir()
   lines = []
   fresh = state(0)
-  restored, step = checkpoint.resume(checkpoint.manager(str(directory)), fresh, CONFIG,
-                                     print_fn=lines.append)
+  restored, step, _, _ = checkpoint.resume(checkpoint.manager(str(directory)), fresh, CONFIG,
+                                           print_fn=lines.append)
   assert restored is fresh and step is None
   assert lines == [f"no checkpoint in {directory}: starting a fresh run"]
 

@@ -195,17 +195,24 @@ def test_two_processes_give_one_process_results(tmp_path):
 
 
 def reference_pbt_step(returns, diverged, values, ranges, quanta, pbt, rng):
-  """PBT's step written out plainly: rank (diverged last, ties by index), then each of the
-  worst `count` takes a random one of the best `count`, and each setting is moved by a random
-  factor, snapped to its quantum (one quantum at least), and clipped."""
+  """PBT's step written out plainly: the healthy members (not diverged, a finite return) by
+  return, best first, then the others; each of the worst `count` (and every unhealthy member)
+  that is not a source takes a random one of the best `count` healthy members, and each setting
+  is moved by a random factor, snapped to its quantum (one quantum at least), and clipped."""
   S = len(returns)
-  key = [(1 if diverged[m] or not np.isfinite(returns[m]) else 0,
-          0.0 if diverged[m] or not np.isfinite(returns[m]) else -returns[m], m) for m in range(S)]
-  ranked = [m for *_, m in sorted(key)]
+  healthy = [m for m in range(S) if not diverged[m] and np.isfinite(returns[m])]
+  ranked = sorted(healthy, key=lambda m: (-returns[m], m)) + [
+      m for m in range(S) if m not in healthy]
   count = max(1, int(S * pbt.fraction))
+  pool = [m for m in ranked[:count] if m in healthy]
   sources, new = list(range(S)), {k: list(v) for k, v in values.items()}
-  for member in ranked[S - count:]:
-    source = ranked[int(rng.integers(count))]
+  if not pool:
+    return sources, new
+  replaced = ranked[S - max(count, S - len(healthy)):]
+  for member in replaced:
+    if member in pool:
+      continue
+    source = pool[int(rng.integers(len(pool)))]
     sources[member] = source
     for name in values:
       now = float(values[name][source])
@@ -242,12 +249,27 @@ def test_exploit_explore_matches_a_plain_reference_on_random_populations():
       assert new[name].dtype == values[name].dtype
       np.testing.assert_allclose(new[name], np.asarray(want[name], values[name].dtype),
                                  rtol=1e-6)
-    count = max(1, int(S * 0.3))
-    assert (sources != np.arange(S)).sum() == count
-    # Diverged members (or with no finite return) go first: none is kept while a healthy
-    # member is replaced.
+    # Every unhealthy member is replaced (while there is a healthy one), and only healthy
+    # members are copied.
     lost, replaced = diverged | ~np.isfinite(returns), sources != np.arange(S)
-    assert not (lost & ~replaced).any() or (lost[replaced]).all()
+    assert replaced[lost].all() or lost.all()
+    assert not lost[sources].any() or lost.all()
+    assert replaced.sum() >= min(max(1, int(S * 0.3)), (~lost).sum())
+
+
+def test_exploit_explore_copies_only_healthy_members():
+  # Three of four diverged: the one healthy member is every copy's source, whatever the ranks.
+  pbt = sweep.PBT(fraction=0.5)
+  sources, new = sweep.exploit_explore(
+      pbt, np.array([100.0, 5.0, 3.0, 1.0]), np.array([False, True, True, True]),
+      {"sigma": np.array([0.3, 0.1, 0.2, 0.4], np.float32)}, {"sigma": (0.1, 0.4)}, {},
+      np.random.default_rng(0))
+  assert list(sources) == [0, 0, 0, 0]
+  assert set(np.round(new["sigma"][1:], 6)) <= {0.24, 0.375}
+  everyone_lost = sweep.exploit_explore(pbt, np.ones(4), np.ones(4, bool),
+                                        {"sigma": np.ones(4, np.float32)}, {"sigma": (0.1, 1.0)},
+                                        {}, np.random.default_rng(0))
+  assert list(everyone_lost[0]) == [0, 1, 2, 3]
 
 
 def test_bad_pbt_specs():
@@ -300,6 +322,8 @@ def test_pbt_replaces_a_diverged_member_resumes_exactly_and_extracts(tmp_path, c
   loop.run(split, progress=False, print_fn=stop_after_first_chunk)
   resumed = loop.run(split, progress=False)
   assert_same(jax.device_get(straight.state), jax.device_get(resumed.state))
+  assert_same(jax.device_get(straight.best), jax.device_get(resumed.best))
+  np.testing.assert_array_equal(straight.best_return, resumed.best_return)
   logs = {}
   for name in ("straight", "split"):
     with open(tmp_path / name / "log.csv") as f:
