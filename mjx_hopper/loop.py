@@ -486,7 +486,7 @@ class _Session:
                   "loop.resume continues (a lower learning rate may avoid it)" if kept is not None
                   else "no checkpoint was saved before it"))
     why = ("stopped by a signal" if stop.requested else "diverged" if diverged.all() else
-           f"every member reached {cfg.stop_at_return:g}{' or diverged' * diverged.any()}"
+           f"every member reached {cfg.stop_at_return:g}{' or diverged' if diverged.any() else ''}"
            if (self.reached | diverged).all() else "done")
     self.say(_summary(cfg, why, env_steps, time.perf_counter() - self.t_start,
                       evaluation if single else None, self.logger.csv_path, self.checkpoint_dir))
@@ -648,7 +648,8 @@ def extract(directory: str, member: int | str, out_dir: str, print_fn=print,
   chosen = (record["values"][indices.index(member)] if "values" in record
             else cfg.members()[member])
   print_fn(f"member {member} ({', '.join(f'{k}={v}' for k, v in chosen.items())}) of "
-           f"{directory} is now the single run in {target}")
+           f"{directory} is now the single run in {target}: its latest state, to train on"
+           + (", and its best evaluation's agent, which eval loads" if best is not None else ""))
   return target
 
 

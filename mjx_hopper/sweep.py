@@ -46,11 +46,12 @@ TRAINER_DYNAMIC = ("replay_ratio",)
 class PBT:
   """Population-based training's choices (docs/pbt.md says why each default).
 
-  every: evaluations between two exploit-and-explore steps.
-  fraction: the worst `fraction` of the members (at least one) each take a copy of the agent of
-    a member drawn from the best `fraction` (parameters, optimizer state, target networks,
-    dynamic settings); each keeps its own replay, envs and key, but for a diverged member,
-    whose replay and envs hold non-finite steps: it takes its source's too.
+  every: evaluations (their env steps) between two exploit-and-explore steps.
+  fraction: the worst `fraction` of the members (at least one), and every diverged member, each
+    take a copy of the agent of a healthy member drawn from the best `fraction` (parameters,
+    optimizer state, target networks, dynamic settings); each keeps its own replay, envs and
+    key, but for a diverged member, whose replay and envs hold non-finite steps: it takes its
+    source's too.
   factors: each of the grid's settings of a copy is multiplied by one of these, drawn at random
     (an integer setting moves at least by 1), then clipped to its bounds.
   bounds: {setting: (low, high)}; a setting not given is bounded by the grid's smallest and

@@ -76,7 +76,7 @@ def shared_builds():
 # (scripts/test.sh turns off xdist's own order, by number of tests). A file not listed goes last.
 # The notebook's and test_tasks.py's: estimates from the slowest tests' durations of a run with
 # the notebook's trained events.
-FILE_SECONDS = {"test_notebooks.py": 260, "test_sweep.py": 204, "test_brax.py": 177,
+FILE_SECONDS = {"test_notebooks.py": 306, "test_sweep.py": 340, "test_brax.py": 177,
                 "test_train.py": 145, "test_episodes.py": 142, "test_tasks.py": 100,
                 "test_checkpoint.py": 78,
                 "test_env_api.py": 76, "test_observation.py": 57, "test_dpg.py": 42,
