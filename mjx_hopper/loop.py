@@ -328,7 +328,8 @@ class _Session:
                       for m in self.members])
     result = jax.device_get(self.programs[1].result()(state.agent, keys))
     returns = result["return"].mean(-1)
-    self._mark_diverged(~np.isfinite(returns), env_steps, ["evaluation return"])
+    self._mark_diverged(env_steps, [[] if np.isfinite(r) else ["evaluation return"]
+                                    for r in returns])
     self._keep_best(state.agent, returns, env_steps)
     for m in range(len(self.members)):
       self.logger.write({"kind": "eval", **self.report.tags(m), "env_steps": env_steps,
@@ -424,16 +425,17 @@ class _Session:
     in this chunk."""
     learner = [k for k in metrics if k not in ("episode_return", "episodes", "learning")]
     finite = np.asarray(jax.device_get(_finite_members(state.agent)))
-    bad = [[k for k in learner if not np.isfinite(metrics[k][m])]
-           + ([] if finite[m] else ["parameters"]) for m in range(len(self.members))]
-    self._mark_diverged(np.array([bool(b) for b in bad]), env_steps, bad)
+    self._mark_diverged(env_steps, [[k for k in learner if not np.isfinite(metrics[k][m])]
+                                    + ([] if finite[m] else ["parameters"])
+                                    for m in range(len(self.members))])
 
-  def _mark_diverged(self, now, env_steps: int, what) -> None:
-    """Marks the members `now` (a bool per member) diverged, saying so once for each: `what`
-    went non-finite (names, per member or for all)."""
-    for m in np.flatnonzero(now & ~self.report.diverged):
+  def _mark_diverged(self, env_steps: int, bad: list[list[str]]) -> None:
+    """Marks diverged each member whose `bad` (the names of what went non-finite, a list per
+    member) is not empty, saying so once for each."""
+    for m, names in enumerate(bad):
+      if not names or self.report.diverged[m]:
+        continue
       self.report.diverged[m] = True
-      names = what[m] if isinstance(what[0], list) else what
       who = "" if self.report.single else f"member {self.indices[m]} "
       self.say(f"[diverged] {who}at {env_steps:,} env steps: {', '.join(names)} not finite"
                + ("" if self.report.single else "; frozen at its last finite agent"
