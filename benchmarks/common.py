@@ -64,6 +64,16 @@ def evaluations(log_csv: str) -> dict[int, list[dict]]:
   return out
 
 
+def write_results(name: str, results: dict) -> str:
+  """`results`, with the command line that made them, as benchmarks/results/NAME.json; prints
+  and returns its path."""
+  path = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results", f"{name}.json")
+  with open(path, "w") as f:
+    json.dump({"command": sys.argv, **results}, f, indent=1)
+  print(f"results: {path}")
+  return path
+
+
 def table(head: list[str], rows: list[list]) -> str:
   """A markdown table: the `head` line, then each row's cells."""
   lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import json
 import os
 import shutil
 import statistics
@@ -30,7 +29,6 @@ import sys
 
 import common
 
-HERE = os.path.dirname(os.path.abspath(__file__))
 GRID = ["--set", "learning_rate=2.5e-4,5e-4,1e-3,2e-3", "--set", "sigma=0.2,0.4,0.6,0.8"]
 QUALITY = ["--preset", "gpu", "--num-envs", "512", "--batch-size", "1024", "--replay-size",
            "1000000", "--eval-every", "100000", *GRID, "--steps", str(10**10)]
@@ -115,17 +113,12 @@ def main() -> None:
   p.add_argument("--out", default="runs/pbt")
   args = p.parse_args()
   if args.mode == "quality":
-    head = HEAD
-    rows = quality(args)
+    head, rows = HEAD, quality(args)
   else:
-    head = ["run", "env steps/s", "time per chunk (x sweep)"]
-    rows = overhead(args)
+    head, rows = ["run", "env steps/s", "time per chunk (x sweep)"], overhead(args)
   text = common.table(head, rows)
   print(text)
-  path = os.path.join(HERE, "results", f"pbt_{args.mode}_{args.label}.json")
-  with open(path, "w") as f:
-    json.dump({"command": sys.argv, "table": text, "rows": rows}, f, indent=1)
-  print(f"results: {path}")
+  common.write_results(f"pbt_{args.mode}_{args.label}", {"table": text, "rows": rows})
 
 
 if __name__ == "__main__":

@@ -27,7 +27,6 @@ import time
 
 import common
 
-HERE = os.path.dirname(os.path.abspath(__file__))
 THRESHOLDS = (1000, 2000, 2500)  # 1,000: standing through the episode (alive 1 a step)
 EPISODE_STEPS, EVAL_EPISODES, SEED = 1000, 16, 0
 # Brax's training notebook, `hopper` (SAC), and its locomotion PPO (`ant`); eval_every (env
@@ -422,10 +421,7 @@ def main() -> None:
       run.update(saved)
   rows = summarise(runs, args.out)
   report(rows)
-  path = os.path.join(HERE, "results", f"peers_{args.label}.json")
-  with open(path, "w") as f:
-    json.dump({"command": sys.argv, "thresholds": THRESHOLDS, "runs": rows}, f, indent=1)
-  print(f"results: {path}")
+  common.write_results(f"peers_{args.label}", {"thresholds": THRESHOLDS, "runs": rows})
 
 
 if __name__ == "__main__":

@@ -157,8 +157,7 @@ class Result:
     """The agent state of member `member` (a single run's: 0), without the member axis: at its
     best evaluation (before any: the latest; with no finite evaluation: its agent at the
     first), or with which="latest", the latest."""
-    if which not in ("best", "latest"):
-      raise ValueError(f"which must be 'best' or 'latest', got {which!r}")
+    sweep.check_which(which)
     agent = self.state.agent if which == "latest" or self.best is None else self.best
     return jax.tree.map(lambda x: x[member], agent)
 
@@ -555,7 +554,7 @@ def restore(directory: str, print_fn=print, env: Any = None):
   mngr = _existing_manager(directory)
 
   def load(step):
-    cfg, members = _saved_run(mngr, step, env)
+    cfg, members, _ = _saved_run(mngr, step, env)
     trainer = build(cfg, len(members))
     return cfg, checkpoint.restore(mngr, step, init(cfg, trainer, members)), trainer
 
@@ -581,12 +580,11 @@ def load_policy(directory: str, member: int = 0, env: Any = None, which: str = "
   saved before any evaluation holds only the latest); reads neither the replay nor the other
   agent. Says which one it loaded. `env` is the run's task, for one that cannot be imported
   (see `RunConfig.from_json`)."""
-  if which not in ("best", "latest"):
-    raise ValueError(f"which must be 'best' or 'latest', got {which!r}")
+  sweep.check_which(which)
   mngr = _existing_manager(directory)
 
   def load(step):
-    cfg, members = _saved_run(mngr, step, env)
+    cfg, members, saved = _saved_run(mngr, step, env)
     if not 0 <= member < len(members):
       raise checkpoint.ConfigMismatch(f"member {member} is not in {directory}: it holds "
                                       f"{len(members)} member(s), 0 to {len(members) - 1}")
@@ -594,7 +592,7 @@ def load_policy(directory: str, member: int = 0, env: Any = None, which: str = "
     like = jax.eval_shape(lambda k: init(cfg, trainer, members).agent, 0)
     best = which == "best" and checkpoint.has_best(mngr, step)
     agent_state = checkpoint.restore_agent(mngr, step, like, "best" if best else "agent")
-    record = checkpoint.read_config(mngr, step).get("record", {})
+    record = saved.get("record", {})
     score = record.get("best_return", [None] * len(members))[member] if best else None
     if score is not None:
       print_fn(f"the policy of its best evaluation: return {score:.1f} at "
@@ -609,16 +607,17 @@ def load_policy(directory: str, member: int = 0, env: Any = None, which: str = "
   return checkpoint.load_newest(mngr, load)[1]
 
 
-def _saved_run(mngr, step, env: Any = None) -> tuple[RunConfig, list[dict]]:
-  """The RunConfig saved at `step` and the members its checkpoint holds. A task that cannot be
-  found, or is not `env`, is a ConfigMismatch: no older step would do better."""
+def _saved_run(mngr, step, env: Any = None) -> tuple[RunConfig, list[dict], dict]:
+  """The RunConfig saved at `step`, the members its checkpoint holds and the saved config item
+  itself. A task that cannot be found, or is not `env`, is a ConfigMismatch: no older step
+  would do better."""
   saved = checkpoint.read_config(mngr, step)
   try:
     cfg = RunConfig.from_json(saved, env)
   except ValueError as error:
     raise checkpoint.ConfigMismatch(f"{mngr.directory}: {error}") from None
   everyone = cfg.members()
-  return cfg, [everyone[i] for i in saved.get("member_indices", range(len(everyone)))]
+  return cfg, [everyone[i] for i in saved.get("member_indices", range(len(everyone)))], saved
 
 
 def extract(directory: str, member: int | str, out_dir: str, print_fn=print,
@@ -644,11 +643,9 @@ def extract(directory: str, member: int | str, out_dir: str, print_fn=print,
   best = (checkpoint.restore_agent(mngr, step, state.agent, "best")
           if checkpoint.has_best(mngr, step) else None)
   try:
-    target = sweep.write_member(cfg, state, best, record, indices, member, out_dir)
+    target, chosen = sweep.write_member(cfg, state, best, record, indices, member, out_dir)
   except ValueError as error:
     raise ValueError(f"{directory}: {error}") from None
-  chosen = (record["values"][indices.index(member)] if "values" in record
-            else cfg.members()[member])
   print_fn(f"member {member} ({', '.join(f'{k}={v}' for k, v in chosen.items())}) of "
            f"{directory} is now the single run in {target}: its latest state, to train on"
            + (", and its best evaluation's agent, which eval loads" if best is not None else ""))

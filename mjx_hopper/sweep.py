@@ -191,11 +191,16 @@ def members(seeds: tuple[int, ...], grid: dict) -> list[dict[str, Any]]:
   return out
 
 
+def check_which(which: str) -> None:
+  """Raises ValueError unless `which` names the best evaluation's agent or the latest."""
+  if which not in ("best", "latest"):
+    raise ValueError(f"which must be 'best' or 'latest', got {which!r}")
+
+
 def member_evaluations(rows: list[dict], which: str = "best") -> dict[int, float]:
   """{member: its best (or, with which="latest", its last) evaluation's mean return} from a
   run's log rows. The best leaves out evaluations of a diverged member's frozen agent."""
-  if which not in ("best", "latest"):
-    raise ValueError(f"which must be 'best' or 'latest', got {which!r}")
+  check_which(which)
   out = {}
   for row in rows:
     if row.get("kind") == "eval":
@@ -416,12 +421,13 @@ class Report:
 
 
 def write_member(cfg, state, best, record: dict, indices: list[int], member: int,
-                 out_dir: str) -> str:
+                 out_dir: str) -> tuple[str, dict]:
   """Writes member `member` of a sweep's restored `state` (which holds the members `indices` of
   the RunConfig `cfg`; `best` is their agent at their best evaluations, or None; `record` their
   `Report.record()`) as the checkpoint of a single run, its seed and swept values now as plain
-  settings, in `out_dir`/checkpoints, with its config.json. Returns the checkpoint directory;
-  `loop.extract` is the call that reads the sweep's checkpoint first."""
+  settings, in `out_dir`/checkpoints, with its config.json. Returns (the checkpoint directory,
+  the member's seed and swept values); `loop.extract` is the call that reads the sweep's
+  checkpoint first."""
   if member not in indices:
     raise ValueError(f"member {member} is not in the sweep: it holds members {indices}")
   position = indices.index(member)
@@ -445,4 +451,4 @@ def write_member(cfg, state, best, record: dict, indices: list[int], member: int
   checkpoint.finish(mngr)
   with open(os.path.join(out_dir, "config.json"), "w") as f:
     json.dump(config, f, indent=1)
-  return target
+  return target, chosen
