@@ -2,17 +2,20 @@
 
     # quality, one GPU: per --seeds value, the grid and PBT side by side for --minutes each
     python benchmarks/pbt.py quality --minutes 4 --seeds 0 1 --label h100
+    # two GPUs, a seed on each at once; then --resume for as many more --minutes (cumulative)
+    python benchmarks/pbt.py quality --env HalfCheetah --target 3000 --gpus 2 --minutes 8
     # overhead: the same sweep with and without PBT (a step at every evaluation), in turns
     python benchmarks/pbt.py overhead --label cpu
 
 Each run is `mjx-hopper sweep` in a process of its own, writing OUT/<run>/log.csv. quality runs
 the grid and PBT at once (each with half the GPU's memory), the same 16 members (4 learning rates
 x 4 noise scales; the robot's gpu preset in the layout where members share a GPU well: 512 envs,
-batches of 1,024, a 1M replay each; an evaluation every 100k env steps, so that PBT steps
-every 200k), for the same minutes: the figures are when the
-population's best evaluation first reached the target (seconds from the run's start, compile
-included), its best evaluation, and each run's median chunk's env steps/s (side by side, their
-ratio is PBT's overhead). overhead times chunks (steps/s of every train row but the
+batches of 1,024, a 1M replay each; an evaluation every --eval-every env steps, PBT stepping
+every second one), for the same minutes: the figures are when the population's best evaluation
+first reached the target (seconds from the run's start, compile included; a run resumed with
+--resume adds its processes' times, each one's start and compile included), its best
+evaluation, the median over members of each one's best, and each run's median chunk's env
+steps/s (side by side, their ratio is PBT's overhead). overhead times chunks (steps/s of every train row but the
 first) of the same small sweep with and without PBT, alternating, --rounds times. Results go to
 benchmarks/results/pbt_<mode>_<label>.json.
 """
@@ -31,19 +34,24 @@ import common
 
 GRID = ["--set", "learning_rate=2.5e-4,5e-4,1e-3,2e-3", "--set", "sigma=0.2,0.4,0.6,0.8"]
 QUALITY = ["--preset", "gpu", "--num-envs", "512", "--batch-size", "1024", "--replay-size",
-           "1000000", "--eval-every", "100000", *GRID, "--steps", str(10**10)]
+           "1000000", *GRID, "--steps", str(10**10)]
 OVERHEAD = ["--env", "Hopper", "--preset", "cpu", "--seeds", "2", "--num-envs", "64",
             "--batch-size", "64", "--min-replay", "1024", "--chunk", "5", "--eval-every", "1280",
             "--eval-episodes", "2", "--episode-steps", "100", *GRID[:2]]
 PBT = ["--pbt", "--pbt-every", "1"]
-HEAD = ["seed", "run", "best to target (s)", "best return", "env steps",
-        "env steps/s (median chunk)"]
+HEAD = ["seed", "run", "best to target (s)", "best return", "members' median best",
+        "env steps", "env steps/s (median chunk)"]
 
 
-def sweep(flags: list[str], out: str, env: dict | None = None) -> subprocess.Popen:
+def sweep(flags: list[str], out: str, env: dict | None = None,
+          resume: bool = False) -> subprocess.Popen:
   """`mjx-hopper sweep FLAGS` in a process of its own (-P: the installed package, not the
-  checkout's folder of the same name), in a fresh OUT (an old one would be resumed)."""
-  shutil.rmtree(out, ignore_errors=True)
+  checkout's folder of the same name), in a fresh OUT (an old one would be resumed), or with
+  `resume` continuing the run in OUT, which must hold its checkpoint."""
+  if not resume:
+    shutil.rmtree(out, ignore_errors=True)
+  elif not os.path.isdir(os.path.join(out, "checkpoints")):
+    raise SystemExit(f"--resume: {out} holds no checkpoint to continue (a fresh machine?)")
   return subprocess.Popen([sys.executable, "-P", "-m", "mjx_hopper.cli", "sweep", *flags,
                            "--out", out, "--no-progress", "--log-every", "30",
                            "--checkpoint-minutes", "1e4"], env={**os.environ, **(env or {})})
@@ -51,33 +59,52 @@ def sweep(flags: list[str], out: str, env: dict | None = None) -> subprocess.Pop
 
 def population(log_csv: str, target: float) -> list:
   """[when the population's best evaluation first reached `target` (s), its best evaluation,
-  env steps, the median chunk's env steps/s] of a sweep's log.csv."""
-  best = {}  # env steps -> (wall_s, the population's best return)
-  for curve in common.evaluations(log_csv).values():
-    for e in curve:
-      wall, top = best.get(e["env_steps"], (0.0, -float("inf")))
-      best[e["env_steps"]] = (max(wall, e["wall_s"]), max(top, e["eval_return"]))
-  hit = next((best[s] for s in sorted(best) if best[s][1] >= target), None)
+  the median of the members' best, env steps, the median chunk's env steps/s] of a sweep's
+  log.csv. A resumed run's rows restart their wall_s: each process's is added to the last's."""
   with open(log_csv) as f:
-    rates = [float(r["steps_per_s"]) for r in csv.DictReader(f)
-             if r["kind"] == "train" and r["member"] == "0"]
+    rows = list(csv.DictReader(f))
+  offset = last = 0.0
+  for r in rows:
+    wall = float(r["wall_s"])
+    if wall < last:  # the first row of the next process
+      offset += last
+    last, r["wall_s"] = wall, wall + offset
+  best, members = {}, {}  # env steps -> (wall_s, the population's best); member -> its best
+  for r in rows:
+    if r["kind"] == "eval":
+      steps, ret = int(r["env_steps"]), float(r["eval_return"])
+      wall, top = best.get(steps, (0.0, -float("inf")))
+      best[steps] = (max(wall, r["wall_s"]), max(top, ret))
+      members[r["member"]] = max(members.get(r["member"], -float("inf")), ret)
+  hit = next((best[s] for s in sorted(best) if best[s][1] >= target), None)
+  rates = [float(r["steps_per_s"]) for r in rows if r["kind"] == "train" and r["member"] == "0"]
   return ["not reached" if hit is None else f"{hit[0]:.0f}",
-          f"{max(t for _, t in best.values()):,.0f}", f"{max(best):,}",
+          f"{max(t for _, t in best.values()):,.0f}",
+          f"{statistics.median(members.values()):,.0f}", f"{max(best):,}",
           f"{statistics.median(rates[1:]):,.0f}"]
 
 
 def quality(args) -> list[list]:
+  """Per seed the grid and PBT side by side on one GPU; with --gpus N, all seeds at once, seed i
+  on GPU i mod N."""
   rows = []
-  for seed in args.seeds:
-    runs = {arm: os.path.join(args.out, f"{arm}_{seed}") for arm in ("grid", "pbt")}
-    flags = [*QUALITY, "--env", args.env, "--seed", str(seed), "--max-minutes",
-             str(args.minutes)]
-    procs = [sweep(flags + (PBT[:1] if arm == "pbt" else []), out,
-                   {"XLA_PYTHON_CLIENT_MEM_FRACTION": "0.45"}) for arm, out in runs.items()]
+  groups = [args.seeds] if args.gpus else [[seed] for seed in args.seeds]
+  for group in groups:
+    procs, runs = [], []
+    for i, seed in enumerate(group):
+      flags = [*QUALITY, "--env", args.env, "--seed", str(seed), "--max-minutes",
+               str(args.minutes), "--eval-every", str(args.eval_every)]
+      env = {"XLA_PYTHON_CLIENT_MEM_FRACTION": "0.45"}
+      if args.gpus:
+        env["CUDA_VISIBLE_DEVICES"] = str(i % args.gpus)
+      for arm in ("grid", "pbt"):
+        out = os.path.join(args.out, f"{arm}_{seed}")
+        procs.append(sweep(flags + (PBT[:1] if arm == "pbt" else []), out, env, args.resume))
+        runs.append((seed, arm, out))
     if any(p.wait() for p in procs):
       raise SystemExit("a run failed; see its output above")
     rows += [[seed, arm, *population(os.path.join(out, "log.csv"), args.target)]
-             for arm, out in runs.items()]
+             for seed, arm, out in runs]
     print(common.table(HEAD, rows), flush=True)  # so far, should a later seed not finish
   return rows
 
@@ -107,6 +134,12 @@ def main() -> None:
   p.add_argument("--seeds", type=int, nargs="+", default=[0, 1], help="quality: its seeds")
   p.add_argument("--env", default="Hopper", help="quality: the robot")
   p.add_argument("--target", type=float, default=2500.0, help="quality: its target")
+  p.add_argument("--eval-every", type=int, default=100_000,
+                 help="quality: env steps between evaluations (PBT steps at every second)")
+  p.add_argument("--gpus", type=int, default=0,
+                 help="quality: run all seeds at once, seed i on GPU i mod GPUS")
+  p.add_argument("--resume", action="store_true",
+                 help="quality: continue the runs in --out for --minutes more")
   p.add_argument("--rounds", type=int, default=3, help="overhead: runs of each")
   p.add_argument("--steps", type=int, default=64_000, help="overhead: each run's env steps")
   p.add_argument("--label", default="run")
