@@ -105,6 +105,10 @@ def main() -> None:
                  help="the seeds as one sweep (one program) instead of one after another")
   p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                  help="an agent setting replacing the preset's")
+  p.add_argument("--train-set", action="append", default=[], metavar="NAME=VALUE",
+                 help="a TrainConfig field replacing the preset's (num_envs, batch_size, ...)")
+  p.add_argument("--eval-every", type=int, default=None,
+                 help="env steps between evaluations (default: the preset's)")
   p.add_argument("--no-compile-cache", action="store_true",
                  help="compile every seed afresh, as a first run on a new machine does (by "
                  "default the compile cache loads the programs of the seeds after the first)")
@@ -128,6 +132,11 @@ def main() -> None:
     preset = presets.get(args.robot, args.kind)
   except ValueError as error:
     raise SystemExit(f"time_to_score: {error}")
+  try:
+    layout = dataclasses.replace(preset.train, **cli._overrides(args.train_set, "--train-set"))
+  except TypeError as error:
+    raise SystemExit(f"time_to_score: --train-set: {error}; the fields are "
+                     f"{[f.name for f in dataclasses.fields(preset.train)]}")
   target = preset.target if args.target is None else args.target
   minutes = preset.minutes if args.minutes is None else args.minutes
   name = args.robot.split(":")[-1]
@@ -143,7 +152,8 @@ def main() -> None:
   for group, group_out in zip(groups, folders):
     cfg = presets.run_config(
         args.robot, args.kind, env_settings=cli._overrides(args.env_set, "--env-set"),
-        agent_overrides=cli._overrides(args.set), seed=group[0], eval_episodes=20,
+        agent_overrides=cli._overrides(args.set), train=layout,
+        eval_every=args.eval_every or preset.eval_every, seed=group[0], eval_episodes=20,
         seeds=tuple(group) if len(group) > 1 else (), total_env_steps=args.env_steps or 10**12,
         max_minutes=minutes, stop_at_return=None if args.run_on else target,
         out_dir=group_out, checkpoint_minutes=10**6)
