@@ -61,6 +61,9 @@ def population(log_csv: str, target: float) -> list:
   """[when the population's best evaluation first reached `target` (s), its best evaluation,
   the median of the members' best, env steps, the median chunk's env steps/s] of a sweep's
   log.csv. A resumed run's rows restart their wall_s: each process's is added to the last's."""
+  if not os.path.exists(log_csv):
+    raise SystemExit(f"{log_csv} does not exist: the run ended before its first chunk (its "
+                     "compile outlasted --minutes); give it more")
   with open(log_csv) as f:
     rows = list(csv.DictReader(f))
   offset = last = 0.0
