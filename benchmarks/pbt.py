@@ -11,12 +11,12 @@ Each run is `mjx-hopper sweep` in a process of its own, writing OUT/<run>/log.cs
 the grid and PBT at once (each with half the GPU's memory), the same 16 members (4 learning rates
 x 4 noise scales; the robot's gpu preset in the layout where members share a GPU well: 512 envs,
 batches of 1,024, a 1M replay each; an evaluation every --eval-every env steps, PBT stepping
-every second one), for the same minutes: the figures are when the population's best evaluation
-first reached the target (seconds from the run's start, compile included; a run resumed with
---resume adds its processes' times, each one's start and compile included), its best
-evaluation, the median over members of each one's best, and each run's median chunk's env
-steps/s (side by side, their ratio is PBT's overhead). overhead times chunks (steps/s of every train row but the
-first) of the same small sweep with and without PBT, alternating, --rounds times. Results go to
+every second one), for the same minutes. Its figures: when the population's best evaluation
+first reached the target (seconds from the run's start, compile included; with --resume, the
+processes' times added, each one's compile included), its best evaluation, the median over
+members of each one's best, and each run's median chunk's env steps/s (side by side, their
+ratio is PBT's overhead). overhead times chunks (steps/s of every train row but the first) of
+the same small sweep with and without PBT, alternating, --rounds times. Results go to
 benchmarks/results/pbt_<mode>_<label>.json.
 """
 

@@ -45,7 +45,8 @@ def one_run(cache: str, code: str | None, seconds: float) -> dict:
             for t, line in lines if line.startswith("[train]")]
   first_eval = next(t for t, line in lines if line.startswith("[eval]"))
   pace = statistics.median(rate for t, _, rate in trains if t > first_eval)
-  return {"first_chunk_done": trains[0][0], "first_chunk_starts": trains[0][0] - trains[0][1] / pace,
+  done, steps, _ = trains[0]
+  return {"first_chunk_done": done, "first_chunk_starts": done - steps / pace,
           "first_eval": first_eval}
 
 
