@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import warnings
 
 import mujoco
@@ -30,7 +31,8 @@ def render_frames(model: mujoco.MjModel, qpos, width: int = 320, height: int = 2
 
 
 def write_mp4(path: str, frames: np.ndarray, fps: float) -> str:
-  """Writes uint8 frames (T, H, W, 3) to an H.264 mp4 at `path` and returns the path."""
+  """Writes uint8 frames (T, H, W, 3) to an H.264 mp4 at `path` (its folder made if missing)
+  and returns the path."""
   import imageio_ffmpeg
 
   frames = np.asarray(frames)
@@ -38,6 +40,7 @@ def write_mp4(path: str, frames: np.ndarray, fps: float) -> str:
     raise ValueError(f"frames must be uint8 of shape (T, H, W, 3), got {frames.dtype} "
                      f"{frames.shape}")
   height, width = frames.shape[1:3]
+  os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
   writer = imageio_ffmpeg.write_frames(path, (width, height), fps=fps, macro_block_size=1,
                                        codec="libx264", pix_fmt_out="yuv420p",
                                        output_params=["-loglevel", "error"])

@@ -80,7 +80,8 @@ def test_random_episode_video(robot, tmp_path):
   frames = env.render(episode["qpos"][:length + 1], width=96, height=64)
   assert frames.shape == (length + 1, 64, 96, 3)
   assert np.abs(frames[0].astype(int) - frames[-1]).max() > 0  # the robot moved
-  path = render.write_mp4(str(tmp_path / "episode.mp4"), frames, fps=1 / env.dt)
+  # Into a folder that does not exist yet, as `mjx-hopper eval`'s default runs/eval/ on a clone.
+  path = render.write_mp4(str(tmp_path / "new" / "episode.mp4"), frames, fps=1 / env.dt)
   reader = imageio_ffmpeg.read_frames(path)
   meta = next(reader)
   assert tuple(meta["size"]) == (96, 64)
