@@ -176,6 +176,11 @@ def restore_agent(mngr: ocp.CheckpointManager, step: int, like_agent, item: str 
   return _rebuild(like_agent, saved)
 
 
+def restore_best(mngr: ocp.CheckpointManager, step: int, like_agent):
+  """The agent at the best evaluations saved at `step`, or None where the step holds none."""
+  return restore_agent(mngr, step, like_agent, "best") if has_best(mngr, step) else None
+
+
 # The settings a checkpoint's state depends on; the others (run length, logging, evaluation)
 # may change between a run and its resumption.
 MUST_MATCH = ("env", "env_settings", "agent", "agent_config", "train", "episode_steps", "seed",
@@ -254,8 +259,8 @@ def resume(mngr: ocp.CheckpointManager, fresh: train.TrainState, config: dict,
       raise ConfigMismatch(f"the checkpoint in {mngr.directory} is from another config "
                            f"({details}); use another checkpoint directory, or the saved "
                            "settings")
-    best = restore_agent(mngr, step, fresh.agent, "best") if has_best(mngr, step) else None
-    return restore(mngr, step, fresh), best, saved.get("record", {})
+    return (restore(mngr, step, fresh), restore_best(mngr, step, fresh.agent),
+            saved.get("record", {}))
 
   step, (state, best, record) = load_newest(mngr, load, print_fn)
   print_fn(f"resumed from {mngr.directory}, step {step}")

@@ -272,30 +272,31 @@ class _Session:
                                  donate_argnums=0, static_argnames="data")
 
   def _start_compiling(self):
-    """Futures of (the traced chunk, the compiled chunk, the compiled evaluation). Compiling is
-    the user's first wait, so the training chunk goes first: it is traced from the state's
-    shapes, then compiles in a thread while the state is made (or restored). The evaluation is
-    traced and compiled beside it where the host has cores to spare; with fewer than 8 it waits
-    for the chunk's compile and runs beside the first chunks, as it is needed only at the first
-    evaluation (on 2 cores the first chunk then started 5-6 s sooner)."""
+    """Futures of (the compiled chunk, the compiled evaluation). Compiling is the user's first
+    wait, so the training chunk goes first: it is traced here, from the state's shapes (tracing
+    holds Python's lock, so nothing else traces beside it), then compiles in a thread while the
+    state is made (or restored). The evaluation is traced and compiled beside it where the host
+    has cores to spare; with fewer than 8 it waits for the chunk's compile and runs beside the
+    first chunks, as it is needed only at the first evaluation (on 2 cores the first chunk then
+    started 5-6 s sooner)."""
     trainer = self.trainer
     shapes = jax.tree.map(
         lambda sharding, part: jax.tree.map(
             lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sharding), part),
         trainer.shardings, jax.eval_shape(lambda: init(self.cfg, trainer, self.members)))
     keys = jax.ShapeDtypeStruct((len(self.members), 2), jnp.uint32)
+    lowered = trainer.train_chunk.lower(shapes)
     pool = concurrent.futures.ThreadPoolExecutor(2)
-    lowered = pool.submit(trainer.train_chunk.lower, shapes)
-    chunk = pool.submit(lambda: lowered.result().compile())
-    after = chunk if (os.cpu_count() or 1) < 8 else lowered
+    chunk = pool.submit(lowered.compile)
 
     def compile_evaluation():
-      after.result()
+      if (os.cpu_count() or 1) < 8:
+        chunk.result()
       return trainer.evaluate.lower(shapes.agent, keys).compile()
 
     evaluator = pool.submit(compile_evaluation)
     pool.shutdown(wait=False)
-    return lowered, chunk, evaluator
+    return chunk, evaluator
 
   def start(self) -> train.TrainState:
     """The state to train from (fresh, or the newest readable checkpoint's), with the programs
@@ -303,8 +304,7 @@ class _Session:
     written and the logger open."""
     cfg = self.cfg
     if (self.mngr.latest_step() or 0) * self.steps_per_iteration < cfg.total_env_steps:
-      traced, *self.programs = self._start_compiling()
-      traced.result()  # tracing holds Python's lock: the chunk's first, so it compiles sooner
+      self.programs = self._start_compiling()
     state, _, self.best, record = checkpoint.resume(
         self.mngr, init(cfg, self.trainer, self.members), self.saved_config, self.say,
         defaults={"agent_config": _field_defaults(cfg.agent_config()), "env_settings": {}})
@@ -313,7 +313,7 @@ class _Session:
       json.dump(self.saved_config, f, indent=1)
     env_steps = train.iterations(state) * self.steps_per_iteration
     if self.programs is None and env_steps < cfg.total_env_steps:  # an older step was read
-      self.programs = self._start_compiling()[1:]
+      self.programs = self._start_compiling()
     self.logger = Logger(os.path.join(self.out_dir, "log.csv"), cfg.time_delta,
                          self.report.logger_print, LEARNER_FIELDS[cfg.agent],
                          cfg.tensorboard_dir, start_step=env_steps,
@@ -559,12 +559,20 @@ def restore(directory: str, print_fn=print, env: Any = None):
   restart this is the one call that gets a run back; `run(cfg, checkpoint_dir=directory)`
   continues it. `env` is the run's task, for one that cannot be imported (see
   `RunConfig.from_json`)."""
+  return _restore(directory, print_fn, env)[:3]
+
+
+def _restore(directory: str, print_fn, env: Any, with_best: bool = False):
+  """`restore`'s (RunConfig, TrainState, Trainer), then the config item saved with that step
+  and, `with_best`, the agent at the members' best evaluations (None where it holds none)."""
   mngr = _existing_manager(directory)
 
   def load(step):
-    cfg, members, _ = _saved_run(mngr, step, env)
+    cfg, members, saved = _saved_run(mngr, step, env)
     trainer = build(cfg, len(members))
-    return cfg, checkpoint.restore(mngr, step, init(cfg, trainer, members)), trainer
+    state = checkpoint.restore(mngr, step, init(cfg, trainer, members))
+    best = checkpoint.restore_best(mngr, step, state.agent) if with_best else None
+    return cfg, state, trainer, saved, best
 
   step, out = checkpoint.load_newest(mngr, load, print_fn)
   print_fn(f"restored {directory}, step {step}")
@@ -636,10 +644,7 @@ def extract(directory: str, member: int | str, out_dir: str, print_fn=print,
   `out_dir`/checkpoints, with its config.json, so that `mjx-hopper eval` and `train`, `restore`
   and `run` take it as their own. `env` is the sweep's task, for a class that cannot be
   imported (see `resume`). Returns the checkpoint directory."""
-  mngr = _existing_manager(directory)
-  cfg, state, _ = restore(directory, print_fn, env=env)
-  step = train.iterations(state)
-  saved = checkpoint.read_config(mngr, step)
+  cfg, state, _, saved, best = _restore(directory, print_fn, env, with_best=True)
   indices = list(saved.get("member_indices", range(len(cfg.members()))))
   record = saved.get("record", {})
   if member == "best":
@@ -648,8 +653,6 @@ def extract(directory: str, member: int | str, out_dir: str, print_fn=print,
       raise ValueError(f"{directory}: no evaluation was saved yet, so no member is the best; "
                        "give a member's index")
     member = indices[int(np.argmax(scores))]
-  best = (checkpoint.restore_agent(mngr, step, state.agent, "best")
-          if checkpoint.has_best(mngr, step) else None)
   try:
     target, chosen = sweep.write_member(cfg, state, best, record, indices, member, out_dir)
   except ValueError as error:
