@@ -65,9 +65,13 @@ def evaluations(log_csv: str) -> dict[int, list[dict]]:
 
 
 def write_results(name: str, results: dict) -> str:
-  """`results`, with the command line that made them, as benchmarks/results/NAME.json; prints
+  """`results`, with the command line that made them, as benchmarks/results/NAME.json (or in
+  the folder $MJX_HOPPER_RESULTS names: gpu.sh's, which comes back from the lent GPU); prints
   and returns its path."""
-  path = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results", f"{name}.json")
+  folder = os.environ.get("MJX_HOPPER_RESULTS") or os.path.join(
+      os.path.dirname(os.path.abspath(__file__)), "results")
+  os.makedirs(folder, exist_ok=True)
+  path = os.path.join(folder, f"{name}.json")
   with open(path, "w") as f:
     json.dump({"command": sys.argv, **results}, f, indent=1)
   print(f"results: {path}")

@@ -1,7 +1,11 @@
 #!/usr/bin/env bash
 # Runs benchmark commands on the lent GPU machine (the device tool), one after another, each
-# command's output to $OUT/<n>.txt, then packs runs/ into $OUT/runs.tgz (checkpoints left out):
+# command's output to $OUT/<n>.txt and the benchmarks' results files to $OUT/results/, then
+# packs runs/ into $OUT/runs.tgz (checkpoints left out):
 #   bash benchmarks/gpu.sh "python benchmarks/event_cost.py --kind gpu"
+# With --parallel first, the commands run at once, command n alone on GPU n-1 (a machine of
+# several GPUs: each its own GPU, sharing the host's CPUs):
+#   bash benchmarks/gpu.sh --parallel "COMMAND ON GPU 0" "COMMAND ON GPU 1"
 # The machine has JAX, flax, optax and orbax, but not MuJoCo, MJX or Brax: their wheels are carried
 # in .whl/, downloaded once here (Python 3.12, x86-64; add .whl to .git/info/exclude) with
 #   pip download --no-deps --only-binary=:all: --python-version 3.12 --platform
@@ -11,6 +15,8 @@
 # MuJoCo's import needs the GL loaders (mujoco.egl), which the machine lacks: carry their Debian
 # packages in .gl/ (the device tool's README says how) and they are unpacked here.
 set -uo pipefail
+parallel=false
+if [ "${1:-}" = --parallel ]; then parallel=true; shift; fi
 OUT=${OUT:-runs/gpu}
 mkdir -p "$OUT" runs
 for f in .gl/*.deb; do dpkg -x "$f" /; done; ldconfig
@@ -20,12 +26,19 @@ python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --tar
   .whl/*.whl || exit 1
 python3 -m pip install -q --no-index --no-deps --no-build-isolation --no-compile --upgrade \
   --target /tmp/site . || exit 1
-export PYTHONPATH=/tmp/site PYTHONUNBUFFERED=1
+export PYTHONPATH=/tmp/site PYTHONUNBUFFERED=1 MJX_HOPPER_RESULTS=$OUT/results
 nvidia-smi -L
 n=0
 for command in "$@"; do
   n=$((n + 1))
-  echo "== $n: $command"
-  bash -c "$command" 2>&1 | tee "$OUT/$n.txt"
+  if $parallel; then
+    echo "== $n, on GPU $((n - 1)): $command"
+    CUDA_VISIBLE_DEVICES=$((n - 1)) bash -c "$command" >"$OUT/$n.txt" 2>&1 &
+  else
+    echo "== $n: $command"
+    bash -c "$command" 2>&1 | tee "$OUT/$n.txt"
+  fi
 done
+wait
+$parallel && tail -n 15 "$OUT"/*.txt
 tar czf "$OUT/runs.tgz" --exclude checkpoints runs

@@ -1,7 +1,11 @@
 """Learner throughput: updates/s at a given batch size for each agent preset, with compile time
-and the achieved FLOP/s against this machine's measured fp32 matmul peak, in one run: K updates
+and the achieved FLOP/s against this machine's measured matmul peak in the networks' compute
+dtype (float32, or bfloat16 with --set compute_dtype=bfloat16), in one run: K updates
 in one compiled `lax.scan` over K random Hopper-sized batches, split over the devices as the
-trainer does (BENCHMARKS.md, "Learner throughput"); FLOPs are XLA's count for one update.
+trainer does (BENCHMARKS.md, "Learner throughput"). FLOPs are XLA's count for one update, taken
+from the program before XLA optimises it: on a GPU the compiled program hands its products to
+cuBLAS, whose FLOPs XLA's count of it leaves out. "kernels" counts the compiled update's
+launches (fusions, library calls and unfused ops), and "us/kernel" is an update's time over them.
 
     python benchmarks/learner_throughput.py                     # CPU: 1 and 2 XLA devices
     python benchmarks/learner_throughput.py --devices 1         # on a GPU
@@ -13,6 +17,7 @@ import argparse
 import json
 import os
 import platform
+import re
 import statistics
 import sys
 import time
@@ -22,15 +27,18 @@ import common
 OBS, ACT = 15, 3  # Hopper
 
 
-def matmul_peak(n: int = 2048, repeats: int = 10) -> float:
-  """Best fp32 FLOP/s of n x n matmuls, one per device, all devices at once."""
+def matmul_peak(dtype: str = "float32", repeats: int = 10) -> float:
+  """Best FLOP/s of n x n matmuls in `dtype`, one per device, all devices at once (n = 8,192 on
+  a GPU, 2,048 on a CPU)."""
   import jax
   import jax.numpy as jnp
   from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
 
   devices = jax.local_devices()
+  n = 8192 if devices[0].platform == "gpu" else 2048
   sharding = NamedSharding(Mesh(devices, ("d",)), P("d"))
-  a = jax.device_put(jax.random.normal(jax.random.PRNGKey(0), (len(devices), n, n)), sharding)
+  a = jax.device_put(jax.random.normal(jax.random.PRNGKey(0), (len(devices), n, n), dtype),
+                     sharding)
   f = jax.jit(lambda x: jnp.einsum("dij,djk->dik", x, x), out_shardings=sharding)
   f(a).block_until_ready()
   best = float("inf")
@@ -41,7 +49,30 @@ def matmul_peak(n: int = 2048, repeats: int = 10) -> float:
   return 2 * n**3 * len(devices) / best
 
 
-def learner_rows(agent_name: str, presets: list[str], batch: int, updates: int) -> list[dict]:
+OPCODE = re.compile(r" = .*?\s([a-z][\w-]*)\(")
+NOT_LAUNCHED = ("parameter", "constant", "tuple", "get-tuple-element", "bitcast", "while",
+                "conditional", "call")
+
+
+def count_kernels(hlo: str) -> int:
+  """The launches of a compiled HLO module: the instructions of its entry computation and of its
+  loops' bodies (fused bodies and reductions' operators are not launched), less those that
+  launch nothing."""
+  launching = {"ENTRY"} | set(re.findall(r"body=(%[\w.-]+)", hlo))
+  count, counting = 0, False
+  for line in hlo.splitlines():
+    if line and not line.startswith(" "):  # a computation's header, or the module's
+      words = line.split()
+      counting = bool(words) and (words[0] in launching or words[0] == "ENTRY")
+      continue
+    op = OPCODE.search(line)
+    if counting and op and op.group(1) not in NOT_LAUNCHED:
+      count += 1
+  return count
+
+
+def learner_rows(agent_name: str, presets: list[str], batch: int, updates: int,
+                 overrides: dict) -> list[dict]:
   import jax
   import numpy as np
   from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
@@ -62,12 +93,14 @@ def learner_rows(agent_name: str, presets: list[str], batch: int, updates: int) 
 
   rows = []
   for preset in presets:
-    agent = agents.make(agent_name, OBS, ACT, agents.config(agent_name, preset))
+    agent = agents.make(agent_name, OBS, ACT, agents.config(agent_name, preset, **overrides))
     state = agent.init(jax.random.PRNGKey(0))
     one = jax.tree.map(lambda x: x[0], batches(1))
-    cost = jax.jit(lambda s, b, k: agent.update(s, b, k)).lower(
-        state, one, jax.random.PRNGKey(0)).compile().cost_analysis()
+    lowered = jax.jit(lambda s, b, k: agent.update(s, b, k)).lower(
+        state, one, jax.random.PRNGKey(0))
+    cost = lowered.cost_analysis()
     flops = float((cost[0] if isinstance(cost, (list, tuple)) else cost).get("flops", np.nan))
+    kernels = count_kernels(lowered.compile().as_text())
 
     def run(state, data, key):
       def step(state, inputs):
@@ -89,10 +122,11 @@ def learner_rows(agent_name: str, presets: list[str], batch: int, updates: int) 
     losses = {k: float(v) for k, v in timed.out.items()}
     if not all(np.isfinite(v) for v in losses.values()):
       raise SystemExit(f"{agent_name}/{preset}: non-finite metrics {losses}")
-    rows.append({"agent": agent_name, "preset": preset, "platform": devices[0].platform,
+    rows.append({"agent": agent_name, "preset": preset, "overrides": overrides, "platform": devices[0].platform,
                  "devices": len(devices), "batch": batch, "compile_s": compile_s,
                  "updates_per_s": rate, "gflop_per_update": flops / 1e9,
-                 "gflops": rate * flops / 1e9})
+                 "gflops": rate * flops / 1e9, "kernels": kernels,
+                 "us_per_kernel": 1e6 / rate / kernels})
     print(f"  {agent_name}/{preset} x{len(devices)}: {rate:,.0f} updates/s, "
           f"{rate * flops / 1e9:.1f} GFLOP/s, compile {compile_s:.1f} s", file=sys.stderr,
           flush=True)
@@ -108,17 +142,22 @@ def main() -> None:
   parser.add_argument("--updates", type=int, default=100, help="updates per timed call")
   parser.add_argument("--devices", default="1,2",
                       help="XLA CPU device counts (on a GPU: GPUs used)")
+  parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                      help="an agent setting for every preset, e.g. compute_dtype=bfloat16")
   parser.add_argument("--json", help="also write the rows to this file")
   parser.add_argument("--worker", help=argparse.SUPPRESS)  # the arguments, as JSON
   args = parser.parse_args()
   if args.worker:  # one device count per process: XLA reads the flag at start-up
     args = argparse.Namespace(**json.loads(args.worker))
+    from mjx_hopper import cli
     rows = [r for a in args.agents.split(",")
-            for r in learner_rows(a, args.presets.split(","), args.batch, args.updates)]
-    print(json.dumps({"peak": matmul_peak(), "rows": rows}))
+            for r in learner_rows(a, args.presets.split(","), args.batch, args.updates,
+                                  cli._overrides(args.set))]
+    print(json.dumps({"peak": matmul_peak(), "peak_bf16": matmul_peak("bfloat16"),
+                      "rows": rows}))
     return
 
-  rows, peaks = [], {}
+  rows, peaks, peaks_bf16 = [], {}, {}
   for d in [int(x) for x in args.devices.split(",")]:
     if args.batch % d:
       raise SystemExit(f"--batch {args.batch} must divide over {d} devices")
@@ -126,20 +165,27 @@ def main() -> None:
     if result is None:
       raise SystemExit(1)
     peaks[d] = result["peak"] / 1e9
+    peaks_bf16[d] = result["peak_bf16"] / 1e9
     rows += result["rows"]
+  def peak(row):
+    bf16 = row["overrides"].get("compute_dtype") == "bfloat16"
+    return (peaks_bf16 if bf16 else peaks)[row["devices"]]
+
   print(f"# learner throughput, {time.strftime('%Y-%m-%d')}, {platform.node()}, "
         f"{os.cpu_count()} CPUs\n")
   print(common.table(
       ["agent", "preset", "platform", "devices", "batch", "compile (s)", "updates/s",
-       "GFLOP/update", "GFLOP/s", "% of matmul peak"],
+       "GFLOP/update", "GFLOP/s", "% of matmul peak", "kernels", "us/kernel"],
       [[r["agent"], r["preset"], r["platform"], r["devices"], r["batch"], f"{r['compile_s']:.1f}",
         f"{r['updates_per_s']:,.0f}", f"{r['gflop_per_update']:.3f}", f"{r['gflops']:.1f}",
-        f"{100 * r['gflops'] / peaks[r['devices']]:.0f}%"] for r in rows]))
-  print("\nmeasured fp32 matmul peak (GFLOP/s): "
-        + ", ".join(f"{d} device(s): {p:,.1f}" for d, p in peaks.items()))
+        f"{100 * r['gflops'] / peak(r):.1f}%", r["kernels"],
+        f"{r['us_per_kernel']:.1f}"] for r in rows]))
+  print("\nmeasured matmul peak (GFLOP/s), float32 / bfloat16: "
+        + ", ".join(f"{d} device(s): {p:,.1f} / {peaks_bf16[d]:,.1f}" for d, p in peaks.items()))
   if args.json:
     with open(args.json, "w") as f:
-      json.dump({"peaks_gflops": peaks, "rows": rows}, f, indent=1)
+      json.dump({"date": time.strftime("%Y-%m-%d"), "command": sys.argv, "peaks_gflops": peaks,
+                 "peaks_bf16_gflops": peaks_bf16, "rows": rows}, f, indent=1)
 
 
 if __name__ == "__main__":

@@ -1,9 +1,11 @@
-"""How long the main job makes a user wait: its command (`mjx-hopper train --env Hopper --agent
-d4pg --preset cpu`) from process start to its first `[train]` line (the first chunk done) and
-its first `[eval]` line, with an empty compile cache and then with the cache that run left.
+"""How long a training run makes a user wait: `mjx-hopper train --env ENV --agent d4pg --preset
+KIND` (by default the main job's, Hopper's cpu preset) from process start to its first `[train]`
+line (the first chunk done) and its first `[eval]` line, with an empty compile cache and then
+with the cache that run left.
 
     python benchmarks/start_time.py --rounds 2
     python benchmarks/start_time.py --rounds 2 --checkout /tmp/old   # beside another checkout
+    bash benchmarks/gpu.sh "python benchmarks/start_time.py --kind gpu --seconds 45 --label h100"
 
 "first chunk starts" is the first line's time less one chunk at the run's later pace (the median
 env steps/s of the rows after its first evaluation): when training began, compile done. With
@@ -23,19 +25,17 @@ import time
 
 import common
 
-COMMAND = ["-m", "mjx_hopper.cli", "train", "--env", "Hopper", "--agent", "d4pg", "--preset",
-           "cpu", "--steps", "5000000", "--no-progress", "--log-every", "1"]
 STEPS = re.compile(r"\[train\] ([\d,]+) env steps \| ([\d,]+) steps/s")
 
 
-def one_run(cache: str, code: str | None, seconds: float) -> dict:
+def one_run(command: list[str], cache: str, code: str | None, seconds: float) -> dict:
   """Times of the main job's first lines (s from process start), run for about `seconds`."""
   env = dict(os.environ, MJX_HOPPER_JAX_CACHE=cache)
   if code:
     env["PYTHONPATH"] = os.pathsep.join([code, env.get("PYTHONPATH", "")])
   with tempfile.TemporaryDirectory() as out:
     start = time.perf_counter()
-    proc = subprocess.Popen([sys.executable, "-P", *COMMAND, "--out", out,
+    proc = subprocess.Popen([sys.executable, "-P", *command, "--out", out,
                              "--max-minutes", str(seconds / 60)], env=env, text=True,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
     lines = [(time.perf_counter() - start, line) for line in proc.stdout]
@@ -56,15 +56,19 @@ def main() -> None:
   p.add_argument("--rounds", type=int, default=2)
   p.add_argument("--seconds", type=float, default=75.0, help="each run's length")
   p.add_argument("--checkout", default=None, help="another checkout's folder to time beside")
+  p.add_argument("--env", default="Hopper")
+  p.add_argument("--kind", default="cpu", help="the robot preset: cpu or gpu")
   p.add_argument("--label", default="cpu")
   args = p.parse_args()
+  command = ["-m", "mjx_hopper.cli", "train", "--env", args.env, "--agent", "d4pg", "--preset",
+             args.kind, "--steps", "1000000000", "--no-progress", "--log-every", "1"]
   codes = {"this checkout": None, **({args.checkout: args.checkout} if args.checkout else {})}
   times = {(name, cache): [] for name in codes for cache in ("empty cache", "warm cache")}
   for i in range(args.rounds):
     for name, code in (codes.items() if i % 2 == 0 else reversed(codes.items())):
       with tempfile.TemporaryDirectory() as cache:
         for state in ("empty cache", "warm cache"):  # the second run loads what the first kept
-          times[name, state].append(one_run(cache, code, args.seconds))
+          times[name, state].append(one_run(command, cache, code, args.seconds))
           print(name, state, times[name, state][-1], flush=True)
   fields = ("first_chunk_starts", "first_chunk_done", "first_eval")
   rows = [[name, state, *(" / ".join(f"{r[f]:.1f}" for r in runs) for f in fields)]
