@@ -92,6 +92,9 @@ def main() -> None:
   p.add_argument("--env-set", action="append", default=[], metavar="NAME=VALUE",
                  help="a constructor setting of the task")
   p.add_argument("--kind", default="gpu", help="the robot preset: gpu or cpu")
+  p.add_argument("--agent", default=None,
+                 help="another agent than the preset's: its own preset of --kind's name, with "
+                 "the trainer's default layout (as `mjx-hopper train --agent`)")
   p.add_argument("--seeds", default="0,1,2")
   p.add_argument("--minutes", type=float, default=None,
                  help="wall-clock budget (default: the preset's, its target's time)")
@@ -125,15 +128,17 @@ def main() -> None:
   t0 = time.perf_counter()
   import jax
 
-  from mjx_hopper import cli, loop, presets
+  from mjx_hopper import cli, loop, presets, train
   if not args.no_compile_cache:
     mjx_hopper.use_compile_cache()
   try:
     preset = presets.get(args.robot, args.kind)
   except ValueError as error:
     raise SystemExit(f"time_to_score: {error}")
-  try:
-    layout = dataclasses.replace(preset.train, **cli._overrides(args.train_set, "--train-set"))
+  agent = args.agent or preset.agent
+  try:  # another agent trains with its own preset and the trainer's defaults
+    layout = dataclasses.replace(preset.train if agent == preset.agent else train.TrainConfig(),
+                                 **cli._overrides(args.train_set, "--train-set"))
   except TypeError as error:
     raise SystemExit(f"time_to_score: --train-set: {error}; the fields are "
                      f"{[f.name for f in dataclasses.fields(preset.train)]}")
@@ -150,8 +155,8 @@ def main() -> None:
                        "or remove it")
   results, where = {}, {}
   for group, group_out in zip(groups, folders):
-    cfg = presets.run_config(
-        args.robot, args.kind, env_settings=cli._overrides(args.env_set, "--env-set"),
+    cfg = presets.agent_run_config(
+        args.robot, args.kind, agent, env_settings=cli._overrides(args.env_set, "--env-set"),
         agent_overrides=cli._overrides(args.set), train=layout,
         eval_every=args.eval_every or preset.eval_every, seed=group[0], eval_episodes=20,
         seeds=tuple(group) if len(group) > 1 else (), total_env_steps=args.env_steps or 10**12,
@@ -186,7 +191,8 @@ def main() -> None:
   except Exception as error:  # no renderer here: episode.npz keeps the episode for later
     rendered = [f"not rendered ({type(error).__name__}: {error}); run with --render-only {out}"]
   steps = f" or {args.env_steps:,} env steps" if args.env_steps else ""
-  print(f"\n{args.robot}, {args.kind} preset, target {target:g}, budget {minutes:g} min{steps}, "
+  print(f"\n{args.robot}, {cfg.agent}, {args.kind} preset, target {target:g}, budget "
+        f"{minutes:g} min{steps}, "
         f"{summary['device']}")
   print(common.table(
       ["seed", "time to target (s)", "env steps to target", "best", "final (20 episodes)"],
