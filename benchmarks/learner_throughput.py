@@ -3,8 +3,8 @@ and the achieved FLOP/s against this machine's measured matmul peak in the netwo
 dtype (float32, or bfloat16 with --set compute_dtype=bfloat16), in one run: K updates
 in one compiled `lax.scan` over K random Hopper-sized batches, split over the devices as the
 trainer does (BENCHMARKS.md, "Learner throughput"). FLOPs are XLA's count for one update, taken
-from the program lowered for a CPU before XLA optimises it: on a GPU the compiled program hands
-its products to cuBLAS, whose FLOPs XLA's count of it leaves out. "kernels" counts the compiled update's
+from the program compiled for the host's CPU: on a GPU the compiled program hands its products
+to cuBLAS, whose FLOPs XLA's count of it leaves out. "kernels" counts the compiled update's
 launches (fusions, library calls and unfused ops), and "us/kernel" is an update's time over them.
 
     python benchmarks/learner_throughput.py                     # CPU: 1 and 2 XLA devices
@@ -96,12 +96,12 @@ def learner_rows(agent_name: str, presets: list[str], batch: int, updates: int,
     agent = agents.make(agent_name, OBS, ACT, agents.config(agent_name, preset, **overrides))
     state = agent.init(jax.random.PRNGKey(0))
     one = jax.tree.map(lambda x: x[0], batches(1))
-    traced = jax.jit(lambda s, b, k: agent.update(s, b, k)).trace(
-        state, one, jax.random.PRNGKey(0))
-    # XLA:GPU gives no count before compiling; the same program lowered for a CPU has one.
-    cost = traced.lower(lowering_platforms=("cpu",)).cost_analysis()
+    update = jax.jit(lambda s, b, k: agent.update(s, b, k))
+    # Counted on the program compiled for the host's CPU, whose products stay XLA's own dots.
+    cost = update.lower(*jax.device_put((state, one, jax.random.PRNGKey(0)),
+                                        jax.devices("cpu")[0])).compile().cost_analysis()
     flops = float((cost[0] if isinstance(cost, (list, tuple)) else cost).get("flops", np.nan))
-    kernels = count_kernels(traced.lower().compile().as_text())
+    kernels = count_kernels(update.lower(state, one, jax.random.PRNGKey(0)).compile().as_text())
 
     def run(state, data, key):
       def step(state, inputs):
@@ -184,6 +184,7 @@ def main() -> None:
   print("\nmeasured matmul peak (GFLOP/s), float32 / bfloat16: "
         + ", ".join(f"{d} device(s): {p:,.1f} / {peaks_bf16[d]:,.1f}" for d, p in peaks.items()))
   if args.json:
+    os.makedirs(os.path.dirname(os.path.abspath(args.json)), exist_ok=True)
     with open(args.json, "w") as f:
       json.dump({"date": time.strftime("%Y-%m-%d"), "command": sys.argv, "peaks_gflops": peaks,
                  "peaks_bf16_gflops": peaks_bf16, "rows": rows}, f, indent=1)

@@ -9,7 +9,8 @@ with the cache that run left.
 
 "first chunk starts" is the first line's time less one chunk at the run's later pace (the median
 env steps/s of the rows after its first evaluation): when training began, compile done. With
---checkout DIR, DIR's mjx_hopper (put first on PYTHONPATH) runs in turns with this one's.
+--checkout DIR, DIR's mjx_hopper (laid out as installed, with its envs and agents inside, in a
+temporary folder put first on PYTHONPATH) runs in turns with this one's.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from __future__ import annotations
 import argparse
 import os
 import re
+import shutil
 import statistics
 import subprocess
 import sys
@@ -62,7 +64,14 @@ def main() -> None:
   args = p.parse_args()
   command = ["-m", "mjx_hopper.cli", "train", "--env", args.env, "--agent", "d4pg", "--preset",
              args.kind, "--steps", "1000000000", "--no-progress", "--log-every", "1"]
-  codes = {"this checkout": None, **({args.checkout: args.checkout} if args.checkout else {})}
+  codes = {"this checkout": None}
+  if args.checkout:
+    installed = tempfile.mkdtemp(prefix="start_time_")
+    shutil.copytree(os.path.join(args.checkout, "mjx_hopper"),
+                    os.path.join(installed, "mjx_hopper"))
+    for sub in ("envs", "agents"):  # packaged as mjx_hopper.envs and .agents (pyproject.toml)
+      shutil.copytree(os.path.join(args.checkout, sub), os.path.join(installed, "mjx_hopper", sub))
+    codes[args.checkout] = installed
   times = {(name, cache): [] for name in codes for cache in ("empty cache", "warm cache")}
   for i in range(args.rounds):
     for name, code in (codes.items() if i % 2 == 0 else reversed(codes.items())):

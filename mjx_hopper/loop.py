@@ -275,10 +275,9 @@ class _Session:
     """Futures of (the compiled chunk, the compiled evaluation). Compiling is the user's first
     wait, so the training chunk goes first: it is traced here, from the state's shapes (tracing
     holds Python's lock, so nothing else traces beside it), then compiles in a thread while the
-    state is made (or restored). The evaluation is traced and compiled beside it where the host
-    has cores to spare; with fewer than 8 it waits for the chunk's compile and runs beside the
-    first chunks, as it is needed only at the first evaluation (on 2 cores the first chunk then
-    started 5-6 s sooner)."""
+    state is made (or restored). The evaluation is traced and compiled after it, beside the first
+    chunks, as it is needed only at the first evaluation: the first chunk then started 5-6 s
+    sooner on 2 cores and 3 s sooner on an H100 (BENCHMARKS.md, "The main job's start")."""
     trainer = self.trainer
     shapes = jax.tree.map(
         lambda sharding, part: jax.tree.map(
@@ -286,15 +285,9 @@ class _Session:
         trainer.shardings, jax.eval_shape(lambda: init(self.cfg, trainer, self.members)))
     keys = jax.ShapeDtypeStruct((len(self.members), 2), jnp.uint32)
     lowered = trainer.train_chunk.lower(shapes)
-    pool = concurrent.futures.ThreadPoolExecutor(2)
+    pool = concurrent.futures.ThreadPoolExecutor(1)  # one after the other
     chunk = pool.submit(lowered.compile)
-
-    def compile_evaluation():
-      if (os.cpu_count() or 1) < 8:
-        chunk.result()
-      return trainer.evaluate.lower(shapes.agent, keys).compile()
-
-    evaluator = pool.submit(compile_evaluation)
+    evaluator = pool.submit(lambda: trainer.evaluate.lower(shapes.agent, keys).compile())
     pool.shutdown(wait=False)
     return chunk, evaluator
 

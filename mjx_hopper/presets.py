@@ -123,15 +123,30 @@ def get(env, kind: str) -> Preset:
   return PRESETS[robot, kind]
 
 
+# The other agents' settings on a robot where they were measured, over the agent's own preset of
+# that name and the trainer's defaults. DDPG on Hopper takes the Hopper's D4PG settings (the
+# action penalty, learning rate 2e-3, mixed noise): 2,000 in 1.02M to 3.02M env steps on seeds
+# 0-4 screened on an H200 in the cpu layout, and in 104 s on 2 cores (seed 0), where it took 9
+# to 17 minutes before (BENCHMARKS.md, "Learning, per agent"). DMPO at learning rate 1e-3 is
+# not here: faster on the H200 (5 seeds), slower on 2 cores (seed 0: 842 s against 688).
+AGENT_OVERRIDES: dict[tuple[str, str, str], dict] = {
+    ("Hopper", "cpu", "ddpg"): _HOPPER_CPU,
+}
+
+
 def agent_run_config(env, kind: str, agent: str, **changes):
   """The `loop.RunConfig` of `agent` on robot or task `env` with its `kind` settings: the
   robot's preset when it is one of this agent, else the agent's own preset of that name with
-  the trainer's defaults; fields replaced by `changes` as in `run_config`."""
-  preset = PRESETS.get((envs.robot_of(envs.task_class(env)), kind))
+  the trainer's defaults and the robot's settings for this agent (`AGENT_OVERRIDES`); fields
+  replaced by `changes` as in `run_config`."""
+  robot = envs.robot_of(envs.task_class(env))
+  preset = PRESETS.get((robot, kind))
   if preset is not None and preset.agent == agent:
     return run_config(env, kind, **changes)
   from mjx_hopper import loop
-  return loop.RunConfig(env=env, agent=agent, preset=kind, **changes)
+  overrides = {**AGENT_OVERRIDES.get((robot, kind, agent), {}),
+               **changes.pop("agent_overrides", {})}
+  return loop.RunConfig(env=env, agent=agent, preset=kind, agent_overrides=overrides, **changes)
 
 
 def run_config(env, kind: str, **changes):

@@ -22,6 +22,12 @@ def test_every_robot_has_a_valid_gpu_and_cpu_preset():
   assert presets.get("Hopper", "cpu").train == train.TrainConfig()
 
 
+def test_every_agents_robot_settings_are_valid():
+  for (robot, kind, agent), overrides in presets.AGENT_OVERRIDES.items():
+    assert presets.get(robot, kind).agent != agent  # the robot's preset would shadow them
+    agents.config(agent, kind, **overrides)
+
+
 def test_run_config_merges_agent_overrides():
   cfg = presets.run_config("Ant", "gpu", agent_overrides={"sigma": 0.2})
   assert cfg.agent_overrides == {**presets.get("Ant", "gpu").agent_overrides, "sigma": 0.2}
@@ -55,6 +61,11 @@ def test_cli_starts_from_the_robot_preset():
   cfg = run_config("--env", "Walker2D", "--preset", "gpu", "--agent", "ddpg")
   assert (cfg.agent, cfg.preset, cfg.train, cfg.agent_overrides) == (
       "ddpg", "gpu", train.TrainConfig(), {})
+  # ... and the robot's own settings for that agent where it has them; --set wins.
+  cfg = run_config("--env", "Hopper", "--agent", "ddpg", "--set", "sigma=0.3")
+  assert (cfg.agent, cfg.preset, cfg.train) == ("ddpg", "cpu", train.TrainConfig())
+  assert cfg.agent_overrides == {**presets.AGENT_OVERRIDES["Hopper", "cpu", "ddpg"], "sigma": 0.3}
+  assert run_config("--env", "Hopper", "--agent", "dmpo").agent_overrides == {}
   # With no flags: D4PG's cpu preset and the trainer's defaults (the README's main job).
   cfg = run_config()
   assert (cfg.agent, cfg.preset, cfg.train, cfg.eval_every) == (
