@@ -123,9 +123,9 @@ def learner_rows(agent_name: str, presets: list[str], batch: int, updates: int,
     losses = {k: float(v) for k, v in timed.out.items()}
     if not all(np.isfinite(v) for v in losses.values()):
       raise SystemExit(f"{agent_name}/{preset}: non-finite metrics {losses}")
-    rows.append({"agent": agent_name, "preset": preset, "overrides": overrides, "platform": devices[0].platform,
-                 "devices": len(devices), "batch": batch, "compile_s": compile_s,
-                 "updates_per_s": rate, "gflop_per_update": flops / 1e9,
+    rows.append({"agent": agent_name, "preset": preset, "overrides": overrides,
+                 "platform": devices[0].platform, "devices": len(devices), "batch": batch,
+                 "compile_s": compile_s, "updates_per_s": rate, "gflop_per_update": flops / 1e9,
                  "gflops": rate * flops / 1e9, "kernels": kernels,
                  "us_per_kernel": 1e6 / rate / kernels})
     print(f"  {agent_name}/{preset} x{len(devices)}: {rate:,.0f} updates/s, "
@@ -168,6 +168,7 @@ def main() -> None:
     peaks[d] = result["peak"] / 1e9
     peaks_bf16[d] = result["peak_bf16"] / 1e9
     rows += result["rows"]
+
   def peak(row):
     bf16 = row["overrides"].get("compute_dtype") == "bfloat16"
     return (peaks_bf16 if bf16 else peaks)[row["devices"]]

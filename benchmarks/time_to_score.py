@@ -192,8 +192,7 @@ def main() -> None:
     rendered = [f"not rendered ({type(error).__name__}: {error}); run with --render-only {out}"]
   steps = f" or {args.env_steps:,} env steps" if args.env_steps else ""
   print(f"\n{args.robot}, {cfg.agent}, {args.kind} preset, target {target:g}, budget "
-        f"{minutes:g} min{steps}, "
-        f"{summary['device']}")
+        f"{minutes:g} min{steps}, {summary['device']}")
   print(common.table(
       ["seed", "time to target (s)", "env steps to target", "best", "final (20 episodes)"],
       [[seed, "not reached" if s["target_wall_s"] is None else f"{s['target_wall_s']:.0f}",
