@@ -46,7 +46,9 @@ def test_bad_preset_names(env, kind, message):
 
 
 def run_config(*flags):
-  return cli._run_config(cli.build_parser().parse_args(["train", *flags]), {})
+  """The RunConfig that `mjx-hopper train FLAGS` trains."""
+  args = cli.build_parser().parse_args(["train", *flags])
+  return cli._run_config(args, cli._overrides(args.set))
 
 
 def test_cli_starts_from_the_robot_preset():
