@@ -126,9 +126,10 @@ def get(env, kind: str) -> Preset:
 # The other agents' settings on a robot where they were measured, over the agent's own preset of
 # that name and the trainer's defaults. DDPG on Hopper takes the Hopper's D4PG settings (the
 # action penalty, learning rate 2e-3, mixed noise): 2,000 in 1.02M to 3.02M env steps on seeds
-# 0-4 screened on an H200 in the cpu layout, and in 104-183 s on 2 cores (seeds 0-2), where it
-# took 9 to 17 minutes before (BENCHMARKS.md, "Learning, per agent"). DMPO at learning rate 1e-3 is
-# not here: faster on the H200 (5 seeds), slower on 2 cores (seed 0: 842 s against 688).
+# 0-4 screened on an H200 in the cpu layout, and in 104-263 s on 2 cores (seeds 0-4, median
+# 176), where it took 9 to 17 minutes before (BENCHMARKS.md, "Learning, per agent"). DMPO at
+# learning rate 1e-3 is not here: faster on the H200 (5 seeds), slower on 2 cores (seed 0: 842 s
+# against 688).
 AGENT_OVERRIDES: dict[tuple[str, str, str], dict] = {
     ("Hopper", "cpu", "ddpg"): _HOPPER_CPU,
 }
