@@ -63,7 +63,7 @@ def count_kernels(hlo: str) -> int:
   for line in hlo.splitlines():
     if line and not line.startswith(" "):  # a computation's header, or the module's
       words = line.split()
-      counting = bool(words) and (words[0] in launching or words[0] == "ENTRY")
+      counting = bool(words) and words[0] in launching
       continue
     op = OPCODE.search(line)
     if counting and op and op.group(1) not in NOT_LAUNCHED:

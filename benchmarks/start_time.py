@@ -45,8 +45,12 @@ def one_run(command: list[str], cache: str, code: str | None, seconds: float) ->
       raise SystemExit("the main job failed:\n" + "".join(line for _, line in lines[-20:]))
   trains = [(t, *map(lambda v: int(v.replace(",", "")), STEPS.search(line).groups()))
             for t, line in lines if line.startswith("[train]")]
-  first_eval = next(t for t, line in lines if line.startswith("[eval]"))
-  pace = statistics.median(rate for t, _, rate in trains if t > first_eval)
+  first_eval = next((t for t, line in lines if line.startswith("[eval]")), None)
+  later = [rate for t, _, rate in trains if first_eval is not None and t > first_eval]
+  if not later:
+    raise SystemExit(f"a run of {seconds:g} s logged no chunk after its first evaluation, "
+                     "whose pace the first chunk is timed by; give it more --seconds")
+  pace = statistics.median(later)
   done, steps, _ = trains[0]
   return {"first_chunk_done": done, "first_chunk_starts": done - steps / pace,
           "first_eval": first_eval}
@@ -65,20 +69,21 @@ def main() -> None:
   command = ["-m", "mjx_hopper.cli", "train", "--env", args.env, "--agent", "d4pg", "--preset",
              args.kind, "--steps", "1000000000", "--no-progress", "--log-every", "1"]
   codes = {"this checkout": None}
-  if args.checkout:
-    installed = tempfile.mkdtemp(prefix="start_time_")
-    shutil.copytree(os.path.join(args.checkout, "mjx_hopper"),
-                    os.path.join(installed, "mjx_hopper"))
-    for sub in ("envs", "agents"):  # packaged as mjx_hopper.envs and .agents (pyproject.toml)
-      shutil.copytree(os.path.join(args.checkout, sub), os.path.join(installed, "mjx_hopper", sub))
-    codes[args.checkout] = installed
-  times = {(name, cache): [] for name in codes for cache in ("empty cache", "warm cache")}
-  for i in range(args.rounds):
-    for name, code in (codes.items() if i % 2 == 0 else reversed(codes.items())):
-      with tempfile.TemporaryDirectory() as cache:
-        for state in ("empty cache", "warm cache"):  # the second run loads what the first kept
-          times[name, state].append(one_run(command, cache, code, args.seconds))
-          print(name, state, times[name, state][-1], flush=True)
+  with tempfile.TemporaryDirectory(prefix="start_time_") as installed:
+    if args.checkout:
+      shutil.copytree(os.path.join(args.checkout, "mjx_hopper"),
+                      os.path.join(installed, "mjx_hopper"))
+      for sub in ("envs", "agents"):  # packaged as mjx_hopper.envs and .agents (pyproject.toml)
+        shutil.copytree(os.path.join(args.checkout, sub),
+                        os.path.join(installed, "mjx_hopper", sub))
+      codes[args.checkout] = installed
+    times = {(name, cache): [] for name in codes for cache in ("empty cache", "warm cache")}
+    for i in range(args.rounds):
+      for name, code in (codes.items() if i % 2 == 0 else reversed(codes.items())):
+        with tempfile.TemporaryDirectory() as cache:
+          for state in ("empty cache", "warm cache"):  # the second run loads what the first kept
+            times[name, state].append(one_run(command, cache, code, args.seconds))
+            print(name, state, times[name, state][-1], flush=True)
   fields = ("first_chunk_starts", "first_chunk_done", "first_eval")
   rows = [[name, state, *(" / ".join(f"{r[f]:.1f}" for r in runs) for f in fields)]
           for (name, state), runs in times.items()]

@@ -128,7 +128,7 @@ def main() -> None:
   t0 = time.perf_counter()
   import jax
 
-  from mjx_hopper import cli, loop, presets, train
+  from mjx_hopper import cli, loop, presets
   if not args.no_compile_cache:
     mjx_hopper.use_compile_cache()
   try:
@@ -136,12 +136,12 @@ def main() -> None:
   except ValueError as error:
     raise SystemExit(f"time_to_score: {error}")
   agent = args.agent or preset.agent
-  try:  # another agent trains with its own preset and the trainer's defaults
-    layout = dataclasses.replace(preset.train if agent == preset.agent else train.TrainConfig(),
-                                 **cli._overrides(args.train_set, "--train-set"))
+  base = presets.agent_run_config(args.robot, args.kind, agent)  # as `mjx-hopper train` starts
+  try:
+    layout = dataclasses.replace(base.train, **cli._overrides(args.train_set, "--train-set"))
   except TypeError as error:
     raise SystemExit(f"time_to_score: --train-set: {error}; the fields are "
-                     f"{[f.name for f in dataclasses.fields(preset.train)]}")
+                     f"{[f.name for f in dataclasses.fields(base.train)]}")
   target = preset.target if args.target is None else args.target
   minutes = preset.minutes if args.minutes is None else args.minutes
   name = args.robot.split(":")[-1]
@@ -158,7 +158,7 @@ def main() -> None:
     cfg = presets.agent_run_config(
         args.robot, args.kind, agent, env_settings=cli._overrides(args.env_set, "--env-set"),
         agent_overrides=cli._overrides(args.set), train=layout,
-        eval_every=args.eval_every or preset.eval_every, seed=group[0], eval_episodes=20,
+        eval_every=args.eval_every or base.eval_every, seed=group[0], eval_episodes=20,
         seeds=tuple(group) if len(group) > 1 else (), total_env_steps=args.env_steps or 10**12,
         max_minutes=minutes, stop_at_return=None if args.run_on else target,
         out_dir=group_out, checkpoint_minutes=10**6)
