@@ -277,7 +277,7 @@ class _Session:
     holds Python's lock, so nothing else traces beside it), then compiles in a thread while the
     state is made (or restored). The evaluation is traced and compiled after it, beside the first
     chunks, as it is needed only at the first evaluation: the first chunk then started 5-6 s
-    sooner on 2 cores and 3 s sooner on an H100 (BENCHMARKS.md, "The main job's start")."""
+    sooner on 2 cores and 3 s sooner on an H100 (BENCHMARKS.md, "On the 2-core CPU")."""
     trainer = self.trainer
     shapes = jax.tree.map(
         lambda sharding, part: jax.tree.map(
