@@ -75,12 +75,12 @@ def learner_rows(agent_name: str, presets: list[str], batch: int, updates: int,
                  overrides: dict) -> list[dict]:
   import jax
   import numpy as np
-  from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
+  from jax.sharding import NamedSharding, PartitionSpec as P
 
-  from mjx_hopper import agents, replay
+  from mjx_hopper import agents, parallel, replay
 
   devices = jax.local_devices()
-  mesh = Mesh(devices, ("devices",))
+  mesh = parallel.mesh(devices, ("devices",))
   rng = np.random.default_rng(0)
 
   def batches(k):

@@ -3,8 +3,11 @@
     python benchmarks/sweep_throughput.py                                  # 2-core CPU
 
 Each S in a fresh process: S seeds of D4PG on Hopper learning from the first iteration, timed
-over --chunks chunks after a warm-up chunk; "x sequential" is their env steps/s over S = 1's.
-Compile is the chunk's, trace excluded; memory the GPU's peak in use or the process's peak RSS.
+over --chunks chunks after a warm-up chunk; "x sequential" is their env steps/s over the first
+row's (S = 1). With --gpus 1,2 each S runs on the first 1, then the first 2 GPUs, so that the
+2-GPU rows are over one member on one GPU.
+Compile is the chunk's, trace excluded; memory the busiest GPU's peak in use or the process's
+peak RSS.
 BENCHMARKS.md, "Sweeps", has the GPU's command.
 """
 
@@ -48,8 +51,8 @@ def measure(args) -> dict:
   updates = (0 if args.collect_only else
              args.members * cfg.train.updates_per_iteration * args.chunk * args.chunks)
   device = jax.local_devices()[0]
-  stats = device.memory_stats() if device.platform == "gpu" else None
-  memory = (stats["peak_bytes_in_use"] if stats
+  memory = (max(d.memory_stats()["peak_bytes_in_use"] for d in jax.local_devices())
+            if device.platform == "gpu"
             else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024)
   return {"members": args.members, "compile_s": timed.compile_s, "memory_gb": memory / 1e9,
           "env_steps_per_s": per_chunk / seconds, "updates_per_s": updates / seconds,
@@ -74,6 +77,8 @@ def main() -> None:
   p.add_argument("--collect-only", action="store_true",
                  help="learning off: time the env steps, actions and replay inserts alone")
   p.add_argument("--cpu-devices", type=int, default=os.cpu_count() or 1)
+  p.add_argument("--gpus", help="comma-separated GPU counts: every sweep size on the first N "
+                 "GPUs, for each N (default: on every visible GPU)")
   p.add_argument("--out", default="benchmarks/results/sweep_throughput_cpu.json")
   p.add_argument("--worker", help=argparse.SUPPRESS)  # one sweep size's arguments, as JSON
   args = p.parse_args()
@@ -83,21 +88,24 @@ def main() -> None:
     print(json.dumps(measure(argparse.Namespace(**json.loads(args.worker)))))
     return
   rows = []
-  for members in [int(m) for m in args.members.split(",")]:
-    row = common.worker(__file__, dict(vars(args), members=members), args.cpu_devices, False)
-    if row is None:  # the sizes before it still make a table
-      break
-    rows.append(row)
-    print(f"  S = {members}: {rows[-1]['env_steps_per_s']:,.0f} env steps/s", file=sys.stderr,
-          flush=True)
+  gpu_counts = [int(n) for n in args.gpus.split(",")] if args.gpus else [None]
+  for gpus in gpu_counts:
+    for members in [int(m) for m in args.members.split(",")]:
+      row = common.worker(__file__, dict(vars(args), members=members),
+                          gpus or args.cpu_devices, gpus is not None)
+      if row is None:  # the sizes before it still make a table
+        break
+      rows.append(row)
+      print(f"  S = {members} on {row['devices']} device(s): {row['env_steps_per_s']:,.0f} env "
+            "steps/s", file=sys.stderr, flush=True)
   base = rows[0]["env_steps_per_s"] if rows and rows[0]["members"] == 1 else None
   lines = common.table(
-      ["members", "compile (s)", "env steps/s", "updates/s", "memory (GB)", "x sequential"],
-      [[r["members"], f"{r['compile_s']:.1f}", f"{r['env_steps_per_s']:,.0f}",
+      ["devices", "members", "compile (s)", "env steps/s", "updates/s", "memory (GB)",
+       "x sequential"],
+      [[r["devices"], r["members"], f"{r['compile_s']:.1f}", f"{r['env_steps_per_s']:,.0f}",
         f"{r['updates_per_s']:,.0f}", f"{r['memory_gb']:.2f}",
         f"{r['env_steps_per_s'] / base:.2f}" if base else "-"] for r in rows])
-  print(f"{platform.node()}, {rows[0]['devices'] if rows else '?'} "
-        f"{rows[0]['platform'] if rows else ''} device(s), {args.env} {args.agent} "
+  print(f"{platform.node()}, {rows[0]['platform'] if rows else ''} devices, {args.env} {args.agent} "
         f"({args.preset}{', ' + ', '.join(args.set) if args.set else ''}), {args.num_envs} envs "
         f"and batch {args.batch_size} per member"
         f"{', collect only (learning off)' if args.collect_only else ''}\n{lines}")

@@ -22,7 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 import orbax.checkpoint as ocp
 
-from mjx_hopper import train
+from mjx_hopper import parallel, train
 
 PACKAGES = ("mjx_hopper", "jax", "jaxlib", "mujoco", "mujoco-mjx", "flax", "optax",
             "orbax-checkpoint", "brax")
@@ -139,7 +139,7 @@ def save(mngr: ocp.CheckpointManager, state: train.TrainState, config: dict,
 
 def _abstract(tree):
   """Shapes, dtypes and placements to restore into (replicated where none is set)."""
-  replicated = jax.sharding.NamedSharding(jax.sharding.Mesh(jax.local_devices(), ("d",)),
+  replicated = jax.sharding.NamedSharding(parallel.mesh(jax.local_devices(), ("d",)),
                                           jax.sharding.PartitionSpec())
 
   def one(x):

@@ -4,19 +4,37 @@ The batch's leading axis is split evenly over the devices, and each device steps
 with `per_device`: the physics then runs with no traffic between devices. (Leaving the split to
 XLA's automatic partitioner instead puts collectives inside MJX's solver loops, which hung on two
 CPU devices for a batch of 128 Humanoids.)
+
+Every mesh of mjx_hopper comes from `mesh`, which keeps programs over several devices off the
+Shardy partitioner where it crashes: on jax 0.11.2 (the newest jax for Python 3.12, so Colab's),
+XLA segfaults compiling any of our shard_map programs over 2 devices, a CPU's or GPUs (the env
+stepper, the training chunk; in Shardy's ManualComputationUnusedInputsPattern, 2026-11-26).
+XLA's older GSPMD partitioner compiles and runs them. jax 0.9.2 compiles them with Shardy.
 """
 
 import jax
+import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 BATCH = PartitionSpec("batch")
+SHARDY_CRASHES = (0, 11)  # the first jax whose Shardy crashes on our programs over several devices
+
+
+def mesh(devices, axis_names: tuple[str, ...]) -> Mesh:
+  """`Mesh(devices, axis_names)`; with several devices on a jax whose Shardy partitioner crashes
+  on our shard_map programs, it also switches this process's partitioner to GSPMD (module
+  docstring)."""
+  devices = np.asarray(devices)
+  if devices.size > 1 and jax.__version_info__ >= SHARDY_CRASHES:
+    jax.config.update("jax_use_shardy_partitioner", False)
+  return Mesh(devices, axis_names)
 
 
 def _mesh(batch_size: int) -> Mesh | None:
   devices = jax.local_devices()
   if len(devices) == 1 or batch_size % len(devices):
     return None
-  return Mesh(devices, ("batch",))
+  return mesh(devices, ("batch",))
 
 
 def batch_sharding(batch_size: int) -> NamedSharding | None:

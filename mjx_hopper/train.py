@@ -31,7 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
 
-from mjx_hopper import replay, rollout
+from mjx_hopper import parallel, replay, rollout
 from mjx_hopper.fields import check_types
 from mjx_hopper.agents.base import Agent
 from mjx_hopper.envs import AutoReset, LocomotionEnv
@@ -173,7 +173,7 @@ class Layout(NamedTuple):
 def layout(num_members: int, devices: list) -> Layout:
   """The mesh, and where each part of a TrainState lives on it."""
   groups, group_size = mesh_shape(num_members, len(devices))
-  mesh = Mesh(np.array(devices).reshape(groups, group_size), (MEMBERS, AXIS))
+  mesh = parallel.mesh(np.array(devices).reshape(groups, group_size), (MEMBERS, AXIS))
 
   def member_spec(*axes):
     return P(MEMBERS, *axes)

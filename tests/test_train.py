@@ -9,7 +9,7 @@ import jax
 import numpy as np
 import pytest
 
-from mjx_hopper import checkpoint, cli, logger, loop, notebook, train
+from mjx_hopper import checkpoint, cli, logger, loop, notebook, parallel, train
 
 # The notebook's short mode (notebook.tiny): the run of the notebook's own cells and of
 # test_notebook_helpers, so that they share its compiled programs (and, in one test worker,
@@ -84,6 +84,23 @@ def test_state_is_sharded_and_params_replicated(trainer):
   kernel = jax.tree.leaves(state.agent.policy)[0]
   a, b = (np.asarray(s.data) for s in kernel.addressable_shards)
   np.testing.assert_array_equal(a, b)  # data-parallel learner: identical copies
+
+
+@pytest.mark.parametrize("version, devices, shardy", [
+    ((0, 9, 2), 2, True), ((0, 11, 2), 1, True), ((0, 11, 2), 2, False)])
+def test_meshes_of_several_devices_avoid_shardy_where_it_crashes(monkeypatch, version, devices,
+                                                                  shardy):
+  """jax 0.11.2's Shardy segfaults on our programs over 2 devices (parallel's docstring): a mesh
+  of several devices switches such a jax to GSPMD, and leaves a single device or jax 0.9 alone."""
+  before = jax.config.jax_use_shardy_partitioner
+  monkeypatch.setattr(jax, "__version_info__", version)
+  try:
+    jax.config.update("jax_use_shardy_partitioner", True)
+    mesh = parallel.mesh(jax.devices()[:devices], ("d",))
+    assert mesh.devices.size == devices
+    assert jax.config.jax_use_shardy_partitioner is shardy
+  finally:
+    jax.config.update("jax_use_shardy_partitioner", before)
 
 
 def test_same_seed_same_run(trainer, two_chunks):
