@@ -5,11 +5,12 @@ with `per_device`: the physics then runs with no traffic between devices. (Leavi
 XLA's automatic partitioner instead puts collectives inside MJX's solver loops, which hung on two
 CPU devices for a batch of 128 Humanoids.)
 
-Every mesh of mjx_hopper comes from `mesh`, which keeps programs over several devices off the
-Shardy partitioner where it crashes: on jax 0.11.2 (the newest jax for Python 3.12, so Colab's),
-XLA segfaults compiling any of our shard_map programs over 2 devices, a CPU's or GPUs (the env
-stepper, the training chunk; in Shardy's ManualComputationUnusedInputsPattern, 2026-11-26).
-XLA's older GSPMD partitioner compiles and runs them. jax 0.9.2 compiles them with Shardy.
+On jax 0.11.2 (the newest jax for Python 3.12, so Colab's), XLA segfaults compiling any of our
+programs that run shard_map over 2 devices, a CPU's or GPUs: the env stepper, the training
+chunk, and Brax's pmap over our envs (in Shardy's ManualComputationUnusedInputsPattern; seen
+2026-11-26). XLA's older GSPMD partitioner compiles and runs them, and jax 0.9.2 compiles them
+with Shardy. So `avoid_shardy_crash` switches such a jax to GSPMD in a process that has several
+devices; every env (envs/base.py) and every mesh of mjx_hopper (`mesh`) calls it.
 """
 
 import jax
@@ -20,13 +21,17 @@ BATCH = PartitionSpec("batch")
 SHARDY_CRASHES = (0, 11)  # the first jax whose Shardy crashes on our programs over several devices
 
 
-def mesh(devices, axis_names: tuple[str, ...]) -> Mesh:
-  """`Mesh(devices, axis_names)`; with several devices on a jax whose Shardy partitioner crashes
-  on our shard_map programs, it also switches this process's partitioner to GSPMD (module
-  docstring)."""
-  devices = np.asarray(devices)
-  if devices.size > 1 and jax.__version_info__ >= SHARDY_CRASHES:
+def avoid_shardy_crash(num_devices: int) -> None:
+  """With several devices, on a jax whose Shardy partitioner crashes on our programs, switches
+  this process to the GSPMD partitioner (module docstring); otherwise changes nothing."""
+  if num_devices > 1 and jax.__version_info__ >= SHARDY_CRASHES:
     jax.config.update("jax_use_shardy_partitioner", False)
+
+
+def mesh(devices, axis_names: tuple[str, ...]) -> Mesh:
+  """`Mesh(devices, axis_names)`, after `avoid_shardy_crash`."""
+  devices = np.asarray(devices)
+  avoid_shardy_crash(devices.size)
   return Mesh(devices, axis_names)
 
 

@@ -3,6 +3,7 @@ one trainer per config for each test worker."""
 
 import dataclasses
 import os
+from importlib.metadata import version
 
 # Two devices; and XLA:CPU's loop emitters instead of its fusion emitters, which compile MJX's
 # physics a quarter to a third faster (docs/benchmark-history.md, "XLA:CPU's fusion emitters"),
@@ -14,7 +15,10 @@ import os
 # compiles in 0.83x the CPU time and runs at 0.85x the speed, and the suite took 1,136 CPU-s
 # against 1,371-1,420 (BENCHMARKS.md, "Test-suite time"). Level 0 compiles in half the time but
 # runs 5.5x slower, which costs the tests' 1,000-step episodes more than it saves.
-TEST_XLA_FLAGS = ("--xla_force_host_platform_device_count=2 --xla_cpu_use_fusion_emitters=false "
+# jaxlib 0.11 dropped the loop emitters and refuses to start with their flag.
+LOOP_EMITTERS = ("--xla_cpu_use_fusion_emitters=false"
+                 if tuple(map(int, version("jaxlib").split(".")[:2])) < (0, 11) else "")
+TEST_XLA_FLAGS = (f"--xla_force_host_platform_device_count=2 {LOOP_EMITTERS} "
                   "--xla_cpu_multi_thread_eigen=false --xla_backend_optimization_level=1")
 os.environ["XLA_FLAGS"] = os.environ.get("XLA_FLAGS", "") + " " + TEST_XLA_FLAGS
 
