@@ -3,11 +3,11 @@
     python benchmarks/sweep_throughput.py                                  # 2-core CPU
 
 Each S in a fresh process: S seeds of D4PG on Hopper learning from the first iteration, timed
-over --chunks chunks after a warm-up chunk; "x sequential" is their env steps/s over the first
-row's (S = 1). With --gpus 1,2 each S runs on the first 1, then the first 2 GPUs, so that the
-2-GPU rows are over one member on one GPU.
-Compile is the chunk's, trace excluded; memory the busiest GPU's peak in use or the process's
-peak RSS.
+over --chunks chunks after a warm-up chunk; "x sequential" is their env steps/s over that of
+S = 1 on the fewest devices. With --gpus 1,2 each S runs on the first GPU, then on the first
+two, so the 2-GPU rows' "x sequential" is over one member on one GPU.
+Compile is the chunk's, trace excluded; memory the busiest GPU's peak in use, or the process's
+peak RSS where the devices do not report it.
 BENCHMARKS.md, "Sweeps", has the GPU's command.
 """
 
@@ -51,8 +51,8 @@ def measure(args) -> dict:
   updates = (0 if args.collect_only else
              args.members * cfg.train.updates_per_iteration * args.chunk * args.chunks)
   device = jax.local_devices()[0]
-  memory = (max(d.memory_stats()["peak_bytes_in_use"] for d in jax.local_devices())
-            if device.platform == "gpu"
+  stats = [d.memory_stats() for d in jax.local_devices()] if device.platform == "gpu" else []
+  memory = (max(s["peak_bytes_in_use"] for s in stats) if stats and all(stats)
             else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024)
   return {"members": args.members, "compile_s": timed.compile_s, "memory_gb": memory / 1e9,
           "env_steps_per_s": per_chunk / seconds, "updates_per_s": updates / seconds,
@@ -98,7 +98,8 @@ def main() -> None:
       rows.append(row)
       print(f"  S = {members} on {row['devices']} device(s): {row['env_steps_per_s']:,.0f} env "
             "steps/s", file=sys.stderr, flush=True)
-  base = rows[0]["env_steps_per_s"] if rows and rows[0]["members"] == 1 else None
+  singles = [r for r in rows if r["members"] == 1]
+  base = min(singles, key=lambda r: r["devices"])["env_steps_per_s"] if singles else None
   lines = common.table(
       ["devices", "members", "compile (s)", "env steps/s", "updates/s", "memory (GB)",
        "x sequential"],

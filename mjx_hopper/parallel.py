@@ -6,12 +6,17 @@ XLA's automatic partitioner instead puts collectives inside MJX's solver loops, 
 CPU devices for a batch of 128 Humanoids.)
 
 On jax 0.11.2 (the newest jax for Python 3.12, so Colab's), XLA segfaults compiling any of our
-programs that run shard_map over 2 devices, a CPU's or GPUs: the env stepper, the training
-chunk, and Brax's pmap over our envs (in Shardy's ManualComputationUnusedInputsPattern; seen
-2026-11-26). XLA's older GSPMD partitioner compiles and runs them, and jax 0.9.2 compiles them
-with Shardy. So `avoid_shardy_crash` switches such a jax to GSPMD in a process that has several
-devices; every env (envs/base.py) and every mesh of mjx_hopper (`mesh`) calls it.
+programs that run shard_map over 2 devices, be they XLA:CPU devices or GPUs: the env stepper,
+the training chunk, and Brax's pmap over our envs (in Shardy's
+ManualComputationUnusedInputsPattern; seen 2026-11-26). XLA's older GSPMD partitioner compiles
+and runs them (printing, at each compile, a warning that GSPMD will be deprecated), and jax 0.9.2
+compiles them with Shardy. So `avoid_shardy_crash` switches such a jax to GSPMD in a process
+that has several devices, unless the user chose a partitioner with JAX_USE_SHARDY_PARTITIONER;
+every env (envs/base.py) and every mesh of mjx_hopper (`mesh`) calls it.
 """
+
+import logging
+import os
 
 import jax
 import numpy as np
@@ -23,8 +28,15 @@ SHARDY_CRASHES = (0, 11)  # the first jax whose Shardy crashes on our programs o
 
 def avoid_shardy_crash(num_devices: int) -> None:
   """With several devices, on a jax whose Shardy partitioner crashes on our programs, switches
-  this process to the GSPMD partitioner (module docstring); otherwise changes nothing."""
-  if num_devices > 1 and jax.__version_info__ >= SHARDY_CRASHES:
+  this process to the GSPMD partitioner and says so once (module docstring); otherwise, or where
+  JAX_USE_SHARDY_PARTITIONER is set, changes nothing."""
+  if (num_devices > 1 and jax.__version_info__ >= SHARDY_CRASHES
+      and "JAX_USE_SHARDY_PARTITIONER" not in os.environ
+      and jax.config.jax_use_shardy_partitioner):
+    logging.getLogger(__name__).warning(
+        "mjx_hopper: jax %s's Shardy partitioner crashes compiling programs over %d devices; "
+        "this process now uses XLA's GSPMD partitioner (set JAX_USE_SHARDY_PARTITIONER to "
+        "choose)", jax.__version__, num_devices)
     jax.config.update("jax_use_shardy_partitioner", False)
 
 

@@ -9,7 +9,7 @@ import jax
 import numpy as np
 import pytest
 
-from mjx_hopper import checkpoint, cli, logger, loop, notebook, parallel, train
+from mjx_hopper import checkpoint, cli, envs, logger, loop, notebook, parallel, train
 
 # The notebook's short mode (notebook.tiny): the run of the notebook's own cells and of
 # test_notebook_helpers, so that they share its compiled programs (and, in one test worker,
@@ -86,19 +86,29 @@ def test_state_is_sharded_and_params_replicated(trainer):
   np.testing.assert_array_equal(a, b)  # data-parallel learner: identical copies
 
 
-@pytest.mark.parametrize("version, devices, shardy", [
-    ((0, 9, 2), 2, True), ((0, 11, 2), 1, True), ((0, 11, 2), 2, False)])
-def test_meshes_of_several_devices_avoid_shardy_where_it_crashes(monkeypatch, version, devices,
-                                                                  shardy):
+@pytest.mark.parametrize("version, devices, chosen, shardy", [
+    ((0, 9, 2), 2, None, True), ((0, 11, 2), 1, None, True), ((0, 11, 2), 2, None, False),
+    ((0, 11, 2), 2, "true", True)])
+def test_meshes_and_envs_avoid_shardy_where_it_crashes(monkeypatch, version, devices, chosen,
+                                                       shardy):
   """jax 0.11.2's Shardy segfaults on our programs over 2 devices (parallel's docstring): a mesh
-  of several devices switches such a jax to GSPMD, and leaves a single device or jax 0.9 alone."""
+  of several devices, or an env in a process that has them, switches such a jax to GSPMD; a
+  single device, jax 0.9 and a partitioner the user chose are left alone."""
   before = jax.config.jax_use_shardy_partitioner
   monkeypatch.setattr(jax, "__version_info__", version)
+  if chosen is None:
+    monkeypatch.delenv("JAX_USE_SHARDY_PARTITIONER", raising=False)
+  else:
+    monkeypatch.setenv("JAX_USE_SHARDY_PARTITIONER", chosen)
   try:
     jax.config.update("jax_use_shardy_partitioner", True)
     mesh = parallel.mesh(jax.devices()[:devices], ("d",))
     assert mesh.devices.size == devices
     assert jax.config.jax_use_shardy_partitioner is shardy
+    if devices == 2:  # this process has 2 devices: building an env decides the same way
+      jax.config.update("jax_use_shardy_partitioner", True)
+      envs.make("Hopper")
+      assert jax.config.jax_use_shardy_partitioner is shardy
   finally:
     jax.config.update("jax_use_shardy_partitioner", before)
 
