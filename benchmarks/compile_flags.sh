@@ -16,18 +16,21 @@ chunk() {  # NAME: one run; its output in $OUT/NAME.txt, its row in $OUT/NAME.js
     --out "$OUT/$1.json" >"$OUT/$1.txt" 2>&1
   rm -rf "$cache"
 }
+compile_s() {  # NAME: that run's compile seconds, or where its output is
+  python -c "import json, sys; print(round(json.load(open(sys.argv[1]))['rows'][0]['compile_s'], 1))" \
+    "$OUT/$1.json" 2>/dev/null || echo "failed: $OUT/$1.txt"
+}
 echo "| round | XLA_FLAGS | chunk's compile (s) |"
 echo "|---|---|---|"
 for round in 1 2; do
   for flags in "" "--xla_gpu_force_compilation_parallelism=16"; do
     name="r${round}${flags:+_parallel}"
     XLA_FLAGS="$flags" chunk "$name"
-    seconds=$(python -c "import json, sys; print(round(json.load(open(sys.argv[1]))['rows'][0]['compile_s'], 1))" "$OUT/$name.json" 2>/dev/null || echo "failed: $OUT/$name.txt")
-    echo "| $round | ${flags:-(default)} | $seconds |"
+    echo "| $round | ${flags:-(default)} | $(compile_s "$name") |"
   done
 done
 TF_CPP_MIN_LOG_LEVEL=0 TF_CPP_VMODULE=gpu_compiler=1,compile_module_to_llvm_ir=1 chunk timers
-echo "XLA's phases for jit_chunk (with the timers on, compile $(python -c "import json, sys; print(round(json.load(open(sys.argv[1]))['rows'][0]['compile_s'], 1))" "$OUT/timers.json" 2>/dev/null) s):"
+echo "XLA's phases for jit_chunk (with the timers on, compile $(compile_s timers) s):"
 grep -E "(RunHloPasses|RunBackend|IR emission) for jit_chunk time" "$OUT/timers.txt" \
   | sed -E 's/.*\] //; s/ \(cumulative.*//'
 echo "autotuning's extracted fusions compiled: $(grep -c 'IR emission for extracted' "$OUT/timers.txt")"

@@ -106,9 +106,9 @@ def main() -> None:
       [[r["devices"], r["members"], f"{r['compile_s']:.1f}", f"{r['env_steps_per_s']:,.0f}",
         f"{r['updates_per_s']:,.0f}", f"{r['memory_gb']:.2f}",
         f"{r['env_steps_per_s'] / base:.2f}" if base else "-"] for r in rows])
-  print(f"{platform.node()}, {rows[0]['platform'] if rows else ''} devices, {args.env} {args.agent} "
-        f"({args.preset}{', ' + ', '.join(args.set) if args.set else ''}), {args.num_envs} envs "
-        f"and batch {args.batch_size} per member"
+  print(f"{platform.node()}, {rows[0]['platform'] if rows else ''} devices, {args.env} "
+        f"{args.agent} ({args.preset}{', ' + ', '.join(args.set) if args.set else ''}), "
+        f"{args.num_envs} envs and batch {args.batch_size} per member"
         f"{', collect only (learning off)' if args.collect_only else ''}\n{lines}")
   os.makedirs(os.path.dirname(args.out) or ".", exist_ok=True)
   with open(args.out, "w") as f:
