@@ -67,7 +67,9 @@ def test_cli_starts_from_the_robot_preset():
   cfg = run_config("--env", "Hopper", "--agent", "ddpg", "--set", "sigma=0.3")
   assert (cfg.agent, cfg.preset, cfg.train) == ("ddpg", "cpu", train.TrainConfig())
   assert cfg.agent_overrides == {**presets.AGENT_OVERRIDES["Hopper", "cpu", "ddpg"], "sigma": 0.3}
-  assert run_config("--env", "Hopper", "--agent", "dmpo").agent_overrides == {}
+  assert run_config("--env", "Hopper", "--agent", "dmpo").agent_overrides == {
+      "learning_rate": 1e-3}
+  assert run_config("--env", "Hopper", "--agent", "mpo").agent_overrides == {}
   # With no flags: D4PG's cpu preset and the trainer's defaults (the README's main job).
   cfg = run_config()
   assert (cfg.agent, cfg.preset, cfg.train, cfg.eval_every) == (
