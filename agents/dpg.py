@@ -40,6 +40,12 @@ class Config(CommonConfig):
   # the tanh's flat tails, where an early overestimating critic can pin it: there the policy
   # gradient vanishes while Adam still remembers the large first gradients. 0: acme's loss.
   action_penalty: float = 0.0
+  # Updates per policy update (TD3's delayed policy updates): the critic learns at every update,
+  # the policy at every `policy_every`-th, which saves that many policy gradients. 1: acme's
+  # learner. The policy's metrics are then `policy_every` times its update's figures, and 0 at
+  # the other updates, so that the trainer's mean over an iteration's updates is the mean over
+  # those that learned the policy (exactly where policy_every divides the updates per iteration).
+  policy_every: int = 1
 
   def __post_init__(self):
     super().__post_init__()
@@ -50,6 +56,8 @@ class Config(CommonConfig):
                        f"{self.sigma_min}")
     if not self.action_penalty >= 0:
       raise ValueError(f"action_penalty must be >= 0, got {self.action_penalty}")
+    if not isinstance(self.policy_every, int) or self.policy_every < 1:
+      raise ValueError(f"policy_every must be an integer >= 1, got {self.policy_every!r}")
     if not isinstance(self.num_critics, int) or self.num_critics < 1:
       raise ValueError(f"num_critics must be an integer >= 1, got {self.num_critics!r}")
 
@@ -141,23 +149,37 @@ def make(obs_size: int, action_size: int, cfg: Config,
     opt = optimizer(hp["learning_rate"], hp["max_grad_norm"])
     (c_loss, q), c_grads = jax.value_and_grad(critic_loss, has_aux=True)(state.critic, state,
                                                                         batch, head)
-    (p_loss, saturated), p_grads = jax.value_and_grad(policy_loss, has_aux=True)(
-        state.policy, state, batch, head)
-    c_grads, p_grads = pmean((c_grads, p_grads), axis_name)
+    c_grads = pmean(c_grads, axis_name)
     c_updates, critic_opt = opt.update(c_grads, state.critic_opt)
-    p_updates, policy_opt = opt.update(p_grads, state.policy_opt)
     critic = optax.apply_updates(state.critic, c_updates)
-    policy_params = optax.apply_updates(state.policy, p_updates)
+
+    def learn_policy():
+      (p_loss, saturated), p_grads = jax.value_and_grad(policy_loss, has_aux=True)(
+          state.policy, state, batch, head)
+      p_grads = pmean(p_grads, axis_name)
+      p_updates, policy_opt = opt.update(p_grads, state.policy_opt)
+      metrics = {"policy_loss": p_loss, "policy_grad_norm": optax.tree.norm(p_grads),
+                 "policy_saturated": saturated}
+      return (optax.apply_updates(state.policy, p_updates), policy_opt,
+              jax.tree.map(lambda m: m * cfg.policy_every, metrics))
+
+    def keep_policy():
+      return state.policy, state.policy_opt, dict.fromkeys(
+          ("policy_loss", "policy_grad_norm", "policy_saturated"), jnp.zeros((), jnp.float32))
+
+    if cfg.policy_every == 1:
+      policy_params, policy_opt, p_metrics = learn_policy()
+    else:
+      policy_params, policy_opt, p_metrics = jax.lax.cond(
+          state.steps % cfg.policy_every == 0, learn_policy, keep_policy)
     steps = state.steps + 1
     target_policy, target_critic = update_targets(
         steps, hp["target_update_period"], (policy_params, critic),
         (state.target_policy, state.target_critic))
     new = State(policy_params, critic, target_policy, target_critic, policy_opt, critic_opt,
                 steps, hp)
-    metrics = {"critic_loss": c_loss, "policy_loss": p_loss, "q_mean": q.mean(),
-               "q_min": q.min(), "q_max": q.max(),
-               "critic_grad_norm": optax.tree.norm(c_grads),
-               "policy_grad_norm": optax.tree.norm(p_grads), "policy_saturated": saturated}
+    metrics = {"critic_loss": c_loss, "q_mean": q.mean(), "q_min": q.min(), "q_max": q.max(),
+               "critic_grad_norm": optax.tree.norm(c_grads), **p_metrics}
     return new, pmean(metrics, axis_name)
 
   return Agent(init=init, act=act, policy=policy, update=update, n_step=cfg.n_step,

@@ -277,7 +277,9 @@ class _Session:
     holds Python's lock, so nothing else traces beside it), then compiles in a thread while the
     state is made (or restored). The evaluation is traced and compiled after it, beside the first
     chunks, as it is needed only at the first evaluation: the first chunk then started 5-6 s
-    sooner on 2 cores and 3 s sooner on an H100 (BENCHMARKS.md, "On the 2-core CPU")."""
+    sooner on 2 cores and 3 s sooner on an H100 (BENCHMARKS.md, "On the 2-core CPU").
+    Evaluations due before it is compiled wait for it without holding up training
+    (`run_chunks`)."""
     trainer = self.trainer
     shapes = jax.tree.map(
         lambda sharding, part: jax.tree.map(
@@ -321,16 +323,17 @@ class _Session:
              f"{' per member' if many else ''}")
     return state
 
-  def evaluate(self, state: train.TrainState, env_steps: int, bar) -> dict:
-    """Evaluates every member's policy; its rows to the log, a sweep's line to the terminal."""
+  def evaluate(self, agent, env_steps: int, bar) -> dict:
+    """Evaluates every member's policy (`agent`, the agents at `env_steps`); its rows to the
+    log, a sweep's line to the terminal, and the members at `stop_at_return` marked."""
     _status(bar, "evaluating")
     keys = jnp.stack([jax.random.fold_in(jax.random.PRNGKey(m["seed"]), env_steps)
                       for m in self.members])
-    result = jax.device_get(self.programs[1].result()(state.agent, keys))
+    result = jax.device_get(self.programs[1].result()(agent, keys))
     returns = result["return"].mean(-1)
     self._mark_diverged(env_steps, [[] if np.isfinite(r) else ["evaluation return"]
                                     for r in returns])
-    self._keep_best(state.agent, returns, env_steps)
+    self._keep_best(agent, returns, env_steps)
     for m in range(len(self.members)):
       self.logger.write({"kind": "eval", **self.report.tags(m), "env_steps": env_steps,
                          "wall_s": time.perf_counter() - self.t_start,
@@ -338,6 +341,17 @@ class _Session:
                          "eval_return_std": float(np.std(result["return"][m])),
                          "eval_length": float(np.mean(result["length"][m]))}, force=True)
     self.report.evaluated(env_steps, returns)
+    if self.cfg.stop_at_return is not None:
+      self.reached |= returns >= self.cfg.stop_at_return
+    return result
+
+  def evaluate_deferred(self, bar) -> dict | None:
+    """Evaluates the agents kept while the evaluation was compiling, oldest first: the last
+    one's result, or None when none were kept."""
+    result = None
+    for env_steps, agent in self.deferred:
+      result = self.evaluate(agent, env_steps, bar)
+    self.deferred = []
     return result
 
   def _keep_best(self, agent, returns, env_steps: int) -> None:
@@ -362,6 +376,7 @@ class _Session:
     next_eval = (env_steps // cfg.eval_every + 1) * cfg.eval_every
     evaluation, last_save = None, time.monotonic()
     self.reached = np.zeros(len(self.members), bool)  # members at stop_at_return
+    self.deferred = []  # (env steps, agents) whose evaluation waits for its compile
     diverged = self.report.diverged  # members whose learning went non-finite
     deadline = self.t_start + 60 * cfg.max_minutes if cfg.max_minutes else float("inf")
     while (env_steps < cfg.total_env_steps and not stop.requested
@@ -384,25 +399,35 @@ class _Session:
       if diverged.all():
         break  # every member diverged: this state is not evaluated, and never saved
       self.report.trained(env_steps, rate, metrics["episode_return"], cfg.time_delta)
-      if (env_steps >= next_eval or env_steps >= cfg.total_env_steps
-          or time.perf_counter() >= deadline):
-        evaluation = self.evaluate(state, env_steps, bar)
-        returns = np.asarray(evaluation["return"]).mean(-1)
+      compiled = self.programs[1].done()
+      if self.deferred and compiled:
+        evaluation = self.evaluate_deferred(bar)
+      last = env_steps >= cfg.total_env_steps or time.perf_counter() >= deadline
+      if env_steps >= next_eval or last:
+        next_eval += cfg.eval_every
+        if compiled or last or cfg.pbt is not None:
+          self.evaluate_deferred(bar)  # (waits for the compile where it is still going)
+          evaluation = self.evaluate(state.agent, env_steps, bar)
+        else:
+          # The evaluation is still compiling (on a GPU it is ready some 10 s after the chunk,
+          # often after the first evaluation is due): its agents are kept, evaluated once it is
+          # compiled, and training goes on meanwhile. PBT needs its returns at once.
+          self.deferred.append((env_steps, self._copy(state.agent)))
         # PBT steps where the chunk crossed a multiple of `every` evaluations' env steps (so
         # that a resumed run steps where the straight one did), and not at the run's end.
         period = cfg.eval_every * (cfg.pbt.every if cfg.pbt is not None else 0)
         if period and env_steps // period > steps_before // period and (
             env_steps < cfg.total_env_steps):
-          state = self._exploit_explore(state, returns, env_steps)
-        next_eval += cfg.eval_every
-        if cfg.stop_at_return is not None:
-          self.reached |= returns >= cfg.stop_at_return
+          state = self._exploit_explore(state, np.asarray(evaluation["return"]).mean(-1),
+                                        env_steps)
       if time.monotonic() - last_save >= 60 * cfg.checkpoint_minutes:
         self._save(state)
         last_save = time.monotonic()
       if bar is not None:
         bar.update(min(env_steps, cfg.total_env_steps) - bar.n)
         _status(bar, self.report.status(rate, self.logger))
+    if self.deferred and self.programs[1].done():  # stopped while they waited
+      evaluation = self.evaluate_deferred(bar)
     if bar is not None:
       bar.close()
     if not diverged.all():

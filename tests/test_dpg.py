@@ -171,6 +171,34 @@ def test_action_penalty_pulls_a_saturated_policy_back(name, agent, update):
   assert saturated[1.0] < 0.1
 
 
+def test_delayed_policy_updates(name, agent, update):
+  """With policy_every=3 the critic learns at every update, as with 1, and the policy only at
+  updates 0, 3, 6, ...: there as with 1, its metrics 3 times its own; elsewhere 0, and the
+  policy and its optimizer state are left as they were."""
+  delayed = jax.jit(agents.make(name, OBS, ACT,
+                                dataclasses.replace(SMALL[name], policy_every=3)).update)
+  state = agent.init(jax.random.PRNGKey(11))
+  policy_metrics = ("policy_loss", "policy_grad_norm", "policy_saturated")
+  for step in range(4):
+    batch = random_batch(jax.random.PRNGKey(20 + step))
+    every, every_metrics = update(state, batch, jax.random.PRNGKey(0))
+    new, metrics = delayed(state, batch, jax.random.PRNGKey(0))
+    jax.tree.map(np.testing.assert_array_equal, (new.critic, new.critic_opt, new.steps),
+                 (every.critic, every.critic_opt, every.steps))
+    assert float(metrics["critic_loss"]) == float(every_metrics["critic_loss"])
+    if step % 3 == 0:
+      jax.tree.map(np.testing.assert_array_equal, (new.policy, new.policy_opt),
+                   (every.policy, every.policy_opt))
+      for key in policy_metrics:
+        assert float(metrics[key]) == pytest.approx(3 * float(every_metrics[key]), rel=1e-6)
+      assert float(every_metrics["policy_grad_norm"]) > 0
+    else:
+      jax.tree.map(np.testing.assert_array_equal, (new.policy, new.policy_opt),
+                   (state.policy, state.policy_opt))
+      assert all(float(metrics[key]) == 0 for key in policy_metrics)
+    state = new
+
+
 def test_mixed_noise_spreads_sigma_over_envs(name):
   """With sigma_min, env i of n explores at sigma_min + (sigma - sigma_min) * i / (n - 1)."""
   cfg = dataclasses.replace(SMALL[name], sigma=0.4, sigma_min=0.05)
@@ -300,6 +328,7 @@ def test_bad_common_config(name, bad, message):
     ("d4pg", {"sigma_min": 0.5}, r"sigma_min must be None or in \[0, sigma=0.3\], got 0.5"),
     ("ddpg", {"num_critics": 0}, "num_critics must be an integer >= 1, got 0"),
     ("d4pg", {"action_penalty": -0.1}, "action_penalty must be >= 0, got -0.1"),
+    ("ddpg", {"policy_every": 0}, "policy_every must be an integer >= 1, got 0"),
 ])
 def test_bad_agent_config(name, bad, message):
   with pytest.raises(ValueError, match=message):

@@ -246,3 +246,40 @@ def test_a_run_that_diverges_stops_and_keeps_its_last_finite_checkpoint(tmp_path
   monkeypatch.setattr(loop._Session, "_chunk", chunk)
   resumed = loop.resume(str(tmp_path / "checkpoints"), progress=False, total_env_steps=160)
   assert train.iterations(resumed.state) == 20
+
+
+def test_evaluations_due_while_the_evaluation_compiles_are_kept_and_done_later(tmp_path,
+                                                                              monkeypatch):
+  """An evaluation due before its program is compiled does not hold up training: the agents of
+  that moment are kept and evaluated once it is, with the same results as evaluated on time."""
+  cfg = dataclasses.replace(TINY, total_env_steps=160)  # an evaluation due after every chunk
+  start_compiling = loop._Session._start_compiling
+
+  class Compiling:
+    """The evaluation's future, reported unfinished for the first `late` chunks, and finished
+    (waiting for it) after them."""
+
+    def __init__(self, future, late):
+      self.future, self.late = future, late
+
+    def done(self):
+      self.late -= 1
+      return self.late < 0 and self.future.result() is not None
+
+    def result(self):
+      return self.future.result()
+
+  def run(late):
+    monkeypatch.setattr(loop._Session, "_start_compiling", lambda self: (
+        lambda chunk, evaluation: (chunk, Compiling(evaluation, late)))(*start_compiling(self)))
+    return loop.run(dataclasses.replace(cfg, out_dir=str(tmp_path / str(late))), progress=False)
+  on_time, late = run(0), run(2)
+  order = [(r["kind"], int(r["env_steps"])) for r in late.history]
+  assert order[:5] == [("train", 40), ("train", 80), ("train", 120), ("eval", 40), ("eval", 80)]
+  evals = {which: [(int(r["env_steps"]), float(r["eval_return"]))
+                   for r in result.history if r["kind"] == "eval"]
+           for which, result in (("on time", on_time), ("late", late))}
+  assert [s for s, _ in evals["late"]] == [s for s, _ in evals["on time"]] == [40, 80, 120, 160]
+  np.testing.assert_allclose([r for _, r in evals["late"]], [r for _, r in evals["on time"]],
+                             rtol=1e-5)
+  assert late.best_return[0] == pytest.approx(on_time.best_return[0], rel=1e-5)
