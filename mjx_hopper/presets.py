@@ -73,18 +73,17 @@ PRESETS: dict[tuple[str, str], Preset] = {
     # 0-9 needed 1.94M env steps on average, all ten reaching 2,500, against 3.03M for seeds 0-4
     # at 3e-4; at 2e-3 two of five fell short of it in 6M. The networks compute in bfloat16:
     # 1.29x the env steps/s alone on an H100 (the updates fill the learner), and seeds 0-4
-    # needed 2.14M env steps to 2,500 on average against float32's 1.94M. The policy learns at
-    # every second update (TD3's delay): 1.13x the env steps/s alone on an H200, and seeds 0-4
-    # reached 2,500 in a median of 2.05M env steps, twice over, against 2.51M for every update.
+    # needed 2.14M env steps to 2,500 on average against float32's 1.94M. The policy learning
+    # at every second update (policy_every=2) ran 1.13-1.16x the env steps/s but needed 1.13x
+    # the env steps on average over 19 runs (BENCHMARKS.md, "Learning, per agent"): not taken.
     ("Hopper", "gpu"): Preset(**{**_GPU, "agent_overrides": {**_GPU["agent_overrides"],
                                                              "action_penalty": 0.1,
                                                              "learning_rate": 1e-3,
-                                                             "compute_dtype": "bfloat16",
-                                                             "policy_every": 2}},
+                                                             "compute_dtype": "bfloat16"}},
                               target=2500.0, minutes=1.5, why=(
-        _GPU_WHY + "; for Hopper with an action penalty of 0.1, learning rate 1e-3, bfloat16 "
-        "hidden layers and the policy learning at every second update: 0.64x the env steps to "
-        "2,500 of the penalty alone, at 1.29x the env steps/s, then 1.13x the env steps/s")),
+        _GPU_WHY + "; for Hopper with an action penalty of 0.1, learning rate 1e-3 and "
+        "bfloat16 hidden layers: 0.64x the env steps to 2,500 of the penalty alone, at 1.29x "
+        "the env steps/s")),
     ("Walker2D", "cpu"): Preset(**_CPU, target=2500.0, minutes=60.0, why=(
         _CPU_UNTUNED + "; on 2 cores it passed 2,500 in 15.2 minutes (one seed)")),
     ("Walker2D", "gpu"): Preset(**_GPU, target=2500.0, minutes=4.0, why=_GPU_WHY),
