@@ -5,7 +5,6 @@ import pytest
 
 from conftest import ROBOTS, make_env
 from mjx_hopper import cli
-from mjx_hopper.envs import render
 
 
 @pytest.mark.parametrize("robot", ROBOTS)
