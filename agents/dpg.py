@@ -41,8 +41,9 @@ class Config(CommonConfig):
   # gradient vanishes while Adam still remembers the large first gradients. 0: acme's loss.
   action_penalty: float = 0.0
   # Updates per policy update (TD3's delayed policy updates): the critic learns at every update,
-  # the policy at every `policy_every`-th, which saves that many policy gradients. 1: acme's
-  # learner. The policy's metrics are then `policy_every` times its update's figures, and 0 at
+  # the policy at one update in `policy_every`. 1: acme's learner. A single run skips the other
+  # updates' policy gradients; in a sweep (members under vmap) both branches run, so it saves
+  # nothing there. The policy's metrics are `policy_every` times its update's figures, and 0 at
   # the other updates, so that the trainer's mean over an iteration's updates is the mean over
   # those that learned the policy (exactly where policy_every divides the updates per iteration).
   policy_every: int = 1

@@ -278,8 +278,8 @@ class _Session:
     state is made (or restored). The evaluation is traced and compiled after it, beside the first
     chunks, as it is needed only at the first evaluation: the first chunk then started 5-6 s
     sooner on 2 cores and 3 s sooner on an H100 (BENCHMARKS.md, "On the 2-core CPU").
-    Evaluations due before it is compiled wait for it without holding up training
-    (`run_chunks`)."""
+    Evaluations due before it is compiled (but a run's last one, and PBT's) do not hold up
+    training: `run_chunks` keeps their agents until it is."""
     trainer = self.trainer
     shapes = jax.tree.map(
         lambda sharding, part: jax.tree.map(
@@ -426,7 +426,7 @@ class _Session:
       if bar is not None:
         bar.update(min(env_steps, cfg.total_env_steps) - bar.n)
         _status(bar, self.report.status(rate, self.logger))
-    if self.deferred and self.programs[1].done():  # stopped while they waited
+    if self.deferred:  # stopped (or diverged) while they waited: now they wait for the compile
       evaluation = self.evaluate_deferred(bar)
     if bar is not None:
       bar.close()

@@ -75,7 +75,8 @@ PRESETS: dict[tuple[str, str], Preset] = {
     # 1.29x the env steps/s alone on an H100 (the updates fill the learner), and seeds 0-4
     # needed 2.14M env steps to 2,500 on average against float32's 1.94M. The policy learning
     # at every second update (policy_every=2) ran 1.13-1.16x the env steps/s but needed 1.13x
-    # the env steps on average over 19 runs (BENCHMARKS.md, "Learning, per agent"): not taken.
+    # the env steps on average over 19 runs, so no sooner to 2,500 (BENCHMARKS.md, "Learning,
+    # per agent"): not taken.
     ("Hopper", "gpu"): Preset(**{**_GPU, "agent_overrides": {**_GPU["agent_overrides"],
                                                              "action_penalty": 0.1,
                                                              "learning_rate": 1e-3,

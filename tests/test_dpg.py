@@ -4,6 +4,7 @@ gradient's sign, exploration (one std, and mixed over envs), determinism, the se
 and config errors."""
 
 import dataclasses
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -183,12 +184,14 @@ def test_delayed_policy_updates(name, agent, update):
     batch = random_batch(jax.random.PRNGKey(20 + step))
     every, every_metrics = update(state, batch, jax.random.PRNGKey(0))
     new, metrics = delayed(state, batch, jax.random.PRNGKey(0))
-    jax.tree.map(np.testing.assert_array_equal, (new.critic, new.critic_opt, new.steps),
+    # (Two programs compiled apart: equal to a tolerance, not bit for bit.)
+    close = functools.partial(np.testing.assert_allclose, rtol=1e-5, atol=1e-7)
+    jax.tree.map(close, (new.critic, new.critic_opt, new.steps),
                  (every.critic, every.critic_opt, every.steps))
-    assert float(metrics["critic_loss"]) == float(every_metrics["critic_loss"])
+    assert float(metrics["critic_loss"]) == pytest.approx(float(every_metrics["critic_loss"]),
+                                                          rel=1e-5)
     if step % 3 == 0:
-      jax.tree.map(np.testing.assert_array_equal, (new.policy, new.policy_opt),
-                   (every.policy, every.policy_opt))
+      jax.tree.map(close, (new.policy, new.policy_opt), (every.policy, every.policy_opt))
       for key in policy_metrics:
         assert float(metrics[key]) == pytest.approx(3 * float(every_metrics[key]), rel=1e-6)
       assert float(every_metrics["policy_grad_norm"]) > 0
