@@ -409,9 +409,9 @@ class _Session:
           self.evaluate_deferred(bar)  # (waits for the compile where it is still going)
           evaluation = self.evaluate(state.agent, env_steps, bar)
         else:
-          # The evaluation is still compiling (on a GPU it is ready some 10 s after the chunk,
-          # often after the first evaluation is due): its agents are kept, evaluated once it is
-          # compiled, and training goes on meanwhile. PBT needs its returns at once.
+          # The evaluation is still compiling (on a GPU it was ready 11-19 s after the first
+          # chunk, after the first evaluation was due): the agents are kept, evaluated once it
+          # is compiled, and training goes on meanwhile. PBT needs its returns at once.
           self.deferred.append((env_steps, self._copy(state.agent)))
         # PBT steps where the chunk crossed a multiple of `every` evaluations' env steps (so
         # that a resumed run steps where the straight one did), and not at the run's end.
