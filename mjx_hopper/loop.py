@@ -399,14 +399,15 @@ class _Session:
       if diverged.all():
         break  # every member diverged: this state is not evaluated, and never saved
       self.report.trained(env_steps, rate, metrics["episode_return"], cfg.time_delta)
-      compiled = self.programs[1].done()
-      if self.deferred and compiled:
-        evaluation = self.evaluate_deferred(bar)
       last = env_steps >= cfg.total_env_steps or time.perf_counter() >= deadline
-      if env_steps >= next_eval or last:
+      due = env_steps >= next_eval or last
+      # A run's last evaluation and PBT's wait for the compile; the others need it done.
+      ready = self.programs[1].done() or (due and (last or cfg.pbt is not None))
+      if self.deferred and ready:
+        evaluation = self.evaluate_deferred(bar)
+      if due:
         next_eval += cfg.eval_every
-        if compiled or last or cfg.pbt is not None:
-          self.evaluate_deferred(bar)  # (waits for the compile where it is still going)
+        if ready:
           evaluation = self.evaluate(state.agent, env_steps, bar)
         else:
           # The evaluation is still compiling (on a GPU it was ready 11-19 s after the first
