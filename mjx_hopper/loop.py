@@ -23,6 +23,9 @@ from mjx_hopper import agents, checkpoint, envs, sweep, train
 from mjx_hopper.logger import LEARNER_FIELDS, Logger
 
 
+EVAL_ON = ("auto", "host", "train")
+
+
 @dataclasses.dataclass(frozen=True)
 class RunConfig:
   """A whole training run: what to train, how, for how long, and where its files go.
@@ -53,6 +56,10 @@ class RunConfig:
   episode_steps: int | None = None  # the task's time limit; None: its default (the robots' 1000)
   eval_every: int = 200_000      # env steps between evaluations
   eval_episodes: int = 16
+  # Where the evaluations run: "host", on the host's CPU, beside training; "train", on the
+  # training's devices, which wait for them; "auto", "host" for a single run (not PBT) that
+  # trains on an accelerator, else "train".
+  eval_on: str = "auto"
   seed: int = 0
   seeds: tuple = ()              # a sweep's seeds (default: (seed,))
   grid: dict = dataclasses.field(default_factory=dict)  # a sweep's {setting: values}
@@ -76,6 +83,8 @@ class RunConfig:
     for name in ("total_env_steps", "eval_every", "eval_episodes"):
       if getattr(self, name) < 1:
         raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+    if self.eval_on not in EVAL_ON:
+      raise ValueError(f"eval_on must be one of {', '.join(EVAL_ON)}, got {self.eval_on!r}")
     if len(set(self.seeds)) != len(self.seeds) or not all(
         isinstance(s, int) for s in self.seeds):
       raise ValueError(f"seeds must be distinct integers, got {list(self.seeds)}")
@@ -88,6 +97,13 @@ class RunConfig:
         raise ValueError(f"pbt takes a sweep.PBT or None, got {self.pbt!r}")
       self.pbt.check(self.grid, len(self.members()), lambda name, value: sweep.check_value(
           self.agent, self.preset, name, value, self.train, self.agent_overrides))
+
+  def evaluates_on_host(self) -> bool:
+    """Whether the evaluations run on the host's CPU, beside training (`eval_on`)."""
+    if self.eval_on == "auto":
+      return (len(self.members()) == 1 and self.pbt is None
+              and jax.default_backend() != "cpu")
+    return self.eval_on == "host"
 
   def make_env(self) -> envs.LocomotionEnv:
     """The task's env, built with its settings."""
@@ -167,15 +183,18 @@ def _settings_text(settings: dict) -> str:
   return "(" + ", ".join(f"{k}={v!r}" for k, v in sorted(settings.items())) + ")"
 
 
-def build(cfg: RunConfig, num_members: int | None = None) -> train.Trainer:
-  """The compiled trainer of `cfg`'s members (or of `num_members` of them), after checking its
-  task's reward (`envs.check_task`)."""
+def build(cfg: RunConfig, num_members: int | None = None,
+          eval_devices: list | None = None) -> train.Trainer:
+  """The compiled trainer of `cfg`'s members (or of `num_members` of them), evaluating on
+  `eval_devices` (default: the training's), after checking its task's reward
+  (`envs.check_task`)."""
   env = cfg.make_env()
   envs.check_task(env)
   agent = agents.make(cfg.agent, env.observation_size, env.action_size, cfg.agent_config())
   return train.make_trainer(env, agent, cfg.train_config(), eval_episodes=cfg.eval_episodes,
                             num_members=num_members or len(cfg.members()),
-                            dynamic_updates="replay_ratio" in cfg.grid)
+                            dynamic_updates="replay_ratio" in cfg.grid,
+                            eval_devices=eval_devices)
 
 
 def init(cfg: RunConfig, trainer: train.Trainer, members: list[dict]) -> train.TrainState:
@@ -253,7 +272,10 @@ class _Session:
                     if process and process[1] > 1 else cfg.out_dir)
     os.makedirs(self.out_dir, exist_ok=True)
     self.checkpoint_dir = checkpoint_dir or os.path.join(self.out_dir, "checkpoints")
-    self.trainer = build(cfg, len(self.members))
+    # On an accelerator, an evaluation (1,000 steps of a few envs, one after another) kept
+    # Hopper's training waiting 1.4-1.9 s on an H100; the host's CPU runs it beside training.
+    self.host = jax.devices("cpu")[0] if cfg.evaluates_on_host() else None
+    self.trainer = build(cfg, len(self.members), None if self.host is None else [self.host])
     self.mngr = checkpoint.manager(self.checkpoint_dir, cfg.keep_checkpoints)
     self.saved_config = {**cfg.to_json(), "member_indices": self.indices}
     self.report = sweep.Report(cfg.grid, self.members, self.indices, self.say,
@@ -279,17 +301,23 @@ class _Session:
     chunks, as it is needed only at the first evaluation: the first chunk then started 5-6 s
     sooner on 2 cores and 3 s sooner on an H100 (BENCHMARKS.md, "On the 2-core CPU").
     Evaluations due before it is compiled (but a run's last one, and PBT's) do not hold up
-    training: `run_chunks` keeps their agents until it is."""
+    training: `run_chunks` keeps their agents until it is. Evaluating on the host, it is
+    compiled for the host's CPU."""
     trainer = self.trainer
     shapes = jax.tree.map(
         lambda sharding, part: jax.tree.map(
             lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sharding), part),
         trainer.shardings, jax.eval_shape(lambda: init(self.cfg, trainer, self.members)))
     keys = jax.ShapeDtypeStruct((len(self.members), 2), jnp.uint32)
+    agent = shapes.agent
+    if self.host is not None:
+      on_host = jax.sharding.SingleDeviceSharding(self.host)
+      agent, keys = jax.tree.map(
+          lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=on_host), (agent, keys))
     lowered = trainer.train_chunk.lower(shapes)
     pool = concurrent.futures.ThreadPoolExecutor(1)  # one after the other
     chunk = pool.submit(lowered.compile)
-    evaluator = pool.submit(lambda: trainer.evaluate.lower(shapes.agent, keys).compile())
+    evaluator = pool.submit(lambda: trainer.evaluate.lower(agent, keys).compile())
     pool.shutdown(wait=False)
     return chunk, evaluator
 
@@ -323,13 +351,21 @@ class _Session:
              f"{' per member' if many else ''}")
     return state
 
-  def evaluate(self, agent, env_steps: int, bar) -> dict:
-    """Evaluates every member's policy (`agent`, the agents at `env_steps`); its rows to the
-    log, a sweep's line to the terminal, and the members at `stop_at_return` marked."""
-    _status(bar, "evaluating")
+  def _start(self, agent, env_steps: int):
+    """Starts evaluating every member's policy (`agent`, the agents at `env_steps`), on the
+    host's CPU when evaluating there: its result's arrays, which JAX computes asynchronously."""
     keys = jnp.stack([jax.random.fold_in(jax.random.PRNGKey(m["seed"]), env_steps)
                       for m in self.members])
-    result = jax.device_get(self.programs[1].result()(agent, keys))
+    if self.host is not None:
+      agent, keys = jax.device_put((agent, keys), self.host)
+    return self.programs[1].result()(agent, keys)
+
+  def evaluate(self, agent, env_steps: int, bar, started=None) -> dict:
+    """Evaluates every member's policy (`agent`, the agents at `env_steps`; `started`, its
+    result's arrays when `_start` started it already); its rows to the log, a sweep's line to
+    the terminal, and the members at `stop_at_return` marked."""
+    _status(bar, "evaluating")
+    result = jax.device_get(self._start(agent, env_steps) if started is None else started)
     returns = result["return"].mean(-1)
     self._mark_diverged(env_steps, [[] if np.isfinite(r) else ["evaluation return"]
                                     for r in returns])
@@ -345,14 +381,24 @@ class _Session:
       self.reached |= returns >= self.cfg.stop_at_return
     return result
 
-  def evaluate_deferred(self, bar) -> dict | None:
-    """Evaluates the agents kept while the evaluation was compiling, oldest first: the last
-    one's result, or None when none were kept."""
-    result = None
-    for env_steps, agent in self.deferred:
-      result = self.evaluate(agent, env_steps, bar)
-    self.deferred = []
+  def evaluate_pending(self, bar, wait: bool) -> dict | None:
+    """Starts every pending evaluation (`self.pending`, [env steps, agents, None until
+    started]), then logs the started ones, oldest first, while they are finished; with `wait`,
+    or evaluating on the training's devices, all of them, waiting for each. Returns the last
+    one logged's result, or None."""
+    for entry in self.pending:
+      if entry[2] is None:
+        entry[2] = self._start(entry[1], entry[0])
+    result, wait = None, wait or self.host is None
+    while self.pending and (wait or self._finished(self.pending[0][2])):
+      env_steps, agent, started = self.pending.pop(0)
+      result = self.evaluate(agent, env_steps, bar, started)
     return result
+
+  @staticmethod
+  def _finished(started) -> bool:
+    """Whether a started evaluation's arrays are computed."""
+    return all(x.is_ready() for x in jax.tree.leaves(started))
 
   def _keep_best(self, agent, returns, env_steps: int) -> None:
     """Keeps the agent of each member whose evaluation beat its best so far."""
@@ -376,7 +422,10 @@ class _Session:
     next_eval = (env_steps // cfg.eval_every + 1) * cfg.eval_every
     evaluation, last_save = None, time.monotonic()
     self.reached = np.zeros(len(self.members), bool)  # members at stop_at_return
-    self.deferred = []  # (env steps, agents) whose evaluation waits for its compile
+    # [env steps, agents, their evaluation once started] of the evaluations not yet logged:
+    # kept while the evaluation compiles (on a GPU it was ready 11-19 s after the first chunk,
+    # after the first evaluation was due), and while the host evaluates them beside training.
+    self.pending = []
     diverged = self.report.diverged  # members whose learning went non-finite
     deadline = self.t_start + 60 * cfg.max_minutes if cfg.max_minutes else float("inf")
     while (env_steps < cfg.total_env_steps and not stop.requested
@@ -401,34 +450,29 @@ class _Session:
       self.report.trained(env_steps, rate, metrics["episode_return"], cfg.time_delta)
       last = env_steps >= cfg.total_env_steps or time.perf_counter() >= deadline
       due = env_steps >= next_eval or last
-      # A run's last evaluation and PBT's wait for the compile; the others need it done.
-      ready = self.programs[1].done() or (due and (last or cfg.pbt is not None))
-      if self.deferred and ready:
-        evaluation = self.evaluate_deferred(bar)
       if due:
         next_eval += cfg.eval_every
-        if ready:
-          evaluation = self.evaluate(state.agent, env_steps, bar)
-        else:
-          # The evaluation is still compiling (on a GPU it was ready 11-19 s after the first
-          # chunk, after the first evaluation was due): the agents are kept, evaluated once it
-          # is compiled, and training goes on meanwhile. PBT needs its returns at once.
-          self.deferred.append((env_steps, self._copy(state.agent)))
-        # PBT steps where the chunk crossed a multiple of `every` evaluations' env steps (so
-        # that a resumed run steps where the straight one did), and not at the run's end.
-        period = cfg.eval_every * (cfg.pbt.every if cfg.pbt is not None else 0)
-        if period and env_steps // period > steps_before // period and (
-            env_steps < cfg.total_env_steps):
-          state = self._exploit_explore(state, np.asarray(evaluation["return"]).mean(-1),
-                                        env_steps)
+        self.pending.append([env_steps, self._copy(state.agent), None])  # a chunk donates it
+      # A run's last evaluation and PBT's (which needs the returns) wait for the compile and
+      # for the evaluations before them; the others need it compiled, and training goes on.
+      wait = due and (last or cfg.pbt is not None)
+      if self.pending and (wait or self.programs[1].done()):
+        evaluation = self.evaluate_pending(bar, wait) or evaluation
+      # PBT steps where the chunk crossed a multiple of `every` evaluations' env steps (so that
+      # a resumed run steps where the straight one did), and not at the run's end.
+      period = cfg.eval_every * (cfg.pbt.every if cfg.pbt is not None else 0)
+      if due and period and env_steps // period > steps_before // period and (
+          env_steps < cfg.total_env_steps):
+        state = self._exploit_explore(state, np.asarray(evaluation["return"]).mean(-1),
+                                      env_steps)
       if time.monotonic() - last_save >= 60 * cfg.checkpoint_minutes:
         self._save(state)
         last_save = time.monotonic()
       if bar is not None:
         bar.update(min(env_steps, cfg.total_env_steps) - bar.n)
         _status(bar, self.report.status(rate, self.logger))
-    if self.deferred:  # stopped (or diverged) while they waited: now they wait for the compile
-      evaluation = self.evaluate_deferred(bar)
+    if self.pending:  # stopped (or diverged) while they waited: now they wait for the rest
+      evaluation = self.evaluate_pending(bar, wait=True) or evaluation
     if bar is not None:
       bar.close()
     if not diverged.all():

@@ -47,8 +47,8 @@ def mesh(devices, axis_names: tuple[str, ...]) -> Mesh:
   return Mesh(devices, axis_names)
 
 
-def _mesh(batch_size: int) -> Mesh | None:
-  devices = jax.local_devices()
+def _mesh(batch_size: int, devices=None) -> Mesh | None:
+  devices = jax.local_devices() if devices is None else devices
   if len(devices) == 1 or batch_size % len(devices):
     return None
   return mesh(devices, ("batch",))
@@ -74,14 +74,15 @@ def shard(tree):
   return jax.device_put(tree, sharding)
 
 
-def per_device(fn, batch_size: int):
-  """Runs `fn` on each device's share of a batch of `batch_size`.
+def per_device(fn, batch_size: int, devices=None):
+  """Runs `fn` on each device's share of a batch of `batch_size`, over `devices` (default:
+  every local one).
 
   Every argument and output of `fn` is a pytree whose leaves have the batch as leading axis;
   inside, `fn` sees 1/num_devices of it. With one device, or a batch that does not divide
   evenly, `fn` runs on the whole batch.
   """
-  mesh = _mesh(batch_size)
+  mesh = _mesh(batch_size, devices)
   if mesh is None:
     return fn
 

@@ -23,12 +23,13 @@ def zero_policy(action_size: int) -> Policy:
 
 
 def episodes(env: LocomotionEnv, policy: Policy, key: jax.Array, num_episodes: int,
-             record_qpos: bool = False, record_rewards: bool = False) -> dict[str, jax.Array]:
+             record_qpos: bool = False, record_rewards: bool = False,
+             devices=None) -> dict[str, jax.Array]:
   """Runs `num_episodes` episodes in parallel, each to its end (at most env.episode_steps).
   Jit it with `env`, `policy` and `num_episodes` static.
 
-  The episodes are spread over the local devices, and each device stops once all of its own
-  episodes have ended. Episode i's randomness depends only on `key` and i, so the results do not
+  The episodes are spread over `devices` (default: the local devices), and each device stops
+  once all of its own episodes have ended. Episode i's randomness depends only on `key` and i, so the results do not
   depend on the number of devices.
 
   Returns per-episode arrays of shape (num_episodes,): "length", "return", and the mean per
@@ -41,7 +42,7 @@ def episodes(env: LocomotionEnv, policy: Policy, key: jax.Array, num_episodes: i
   keys = (jax.random.split(reset_key, num_episodes), jax.random.split(policy_key, num_episodes))
   result = parallel.per_device(
       lambda keys: _local_episodes(env, policy, keys, record_qpos, record_rewards),
-      num_episodes)(keys)
+      num_episodes, devices)(keys)
   if record_qpos:
     result["qpos"] = result["qpos"][0]
   return result

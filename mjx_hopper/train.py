@@ -120,7 +120,9 @@ class Trainer(NamedTuple):
     (S,), are the agent's, averaged over the chunk's updates, plus "episodes" (count ended in
     the chunk), "episode_return" (their mean return; NaN if none ended) and "learning" (1
     once updating).
-  evaluate(agent_states, keys) -> per-member, per-episode "return", "length" (S, episodes).
+  evaluate(agent_states, keys) -> per-member, per-episode "return", "length" (S, episodes),
+    on the devices where its inputs are (their episodes spread over `make_trainer`'s
+    `eval_devices`).
   shardings: where a TrainState's parts live (a NamedSharding per part), for compiling from
     shapes.
   """
@@ -191,18 +193,21 @@ def layout(num_members: int, devices: list) -> Layout:
 
 def make_trainer(env: LocomotionEnv, agent: Agent, cfg: TrainConfig, eval_episodes: int = 16,
                  num_members: int = 1, dynamic_updates: bool = False,
-                 devices: list | None = None) -> Trainer:
-  """The compiled trainer of `num_members` members on `devices` (default: every local one).
+                 devices: list | None = None, eval_devices: list | None = None) -> Trainer:
+  """The compiled trainer of `num_members` members on `devices` (default: every local one),
+  evaluating on `eval_devices` (default: `devices`).
 
   With `dynamic_updates`, each member runs round(its replay_ratio * num_envs * unroll_length /
   batch_size) updates per iteration, at most `cfg`'s (the rest are skipped); without, every
   member runs `cfg`'s count, whatever its replay_ratio.
   """
-  where = layout(num_members, list(jax.local_devices() if devices is None else devices))
+  devices = list(jax.local_devices() if devices is None else devices)
+  where = layout(num_members, devices)
   cfg.check(where.group_size)
   # One member's evaluation as plain code (vmap of one traces much slower), several under vmap.
-  evaluate_members = per_member(lambda s, k: evaluate(env, agent, s, k, eval_episodes),
-                                num_members)
+  evaluate_members = per_member(
+      lambda s, k: evaluate(env, agent, s, k, eval_episodes, devices=eval_devices or devices),
+      num_members)
   return Trainer(_make_init(env, agent, cfg, where, num_members),
                  _make_chunk(env, agent, cfg, where, dynamic_updates),
                  jax.jit(evaluate_members), cfg, env, agent, num_members, where.shardings)
@@ -374,10 +379,11 @@ def per_member(fn, local_members: int):
 
 
 def evaluate(env: LocomotionEnv, agent: Agent, agent_state, key: jax.Array,
-             num_episodes: int, record_qpos: bool = False) -> dict[str, jax.Array]:
-  """Runs `num_episodes` episodes in parallel with the deterministic policy of one member's
-  `agent_state` (jit it with env, agent and num_episodes static). Returns per-episode "return"
-  and "length" (num_episodes,), the mean of each reward term, and with `record_qpos` the
-  "qpos" of episode 0."""
+             num_episodes: int, record_qpos: bool = False,
+             devices: list | None = None) -> dict[str, jax.Array]:
+  """Runs `num_episodes` episodes in parallel, spread over `devices` (default: the local ones),
+  with the deterministic policy of one member's `agent_state` (jit it with env, agent and
+  num_episodes static). Returns per-episode "return" and "length" (num_episodes,), the mean of
+  each reward term, and with `record_qpos` the "qpos" of episode 0."""
   return rollout.episodes(env, lambda obs, _: agent.policy(agent_state, obs), key, num_episodes,
-                          record_qpos=record_qpos)
+                          record_qpos=record_qpos, devices=devices)

@@ -144,6 +144,20 @@ def test_bad_run_config():
     loop.RunConfig(agent="sac")
   with pytest.raises(ValueError, match="n_step must be an integer >= 1, got 0"):
     loop.RunConfig(agent_overrides={"n_step": 0})
+  with pytest.raises(ValueError, match="eval_on must be one of auto, host, train, got 'cpu'"):
+    loop.RunConfig(eval_on="cpu")
+
+
+def test_where_evaluations_run(monkeypatch):
+  """"auto" evaluates on the host's CPU a single run (not PBT) that trains on an accelerator."""
+  pbt = dict(seeds=(0, 1), grid={"learning_rate": (1e-4, 1e-3)}, pbt=loop.sweep.PBT())
+  assert not TINY.evaluates_on_host()  # it trains on the CPU
+  assert dataclasses.replace(TINY, eval_on="host").evaluates_on_host()
+  monkeypatch.setattr(loop.jax, "default_backend", lambda: "gpu")
+  assert TINY.evaluates_on_host()
+  assert not dataclasses.replace(TINY, seeds=(0, 1)).evaluates_on_host()
+  assert not dataclasses.replace(TINY, **pbt).evaluates_on_host()
+  assert not dataclasses.replace(TINY, eval_on="train").evaluates_on_host()
 
 
 def test_run_logs_checkpoints_and_resumes(tmp_path, capsys):
@@ -286,3 +300,38 @@ def test_evaluations_due_while_the_evaluation_compiles_are_kept_and_done_later(t
   np.testing.assert_allclose([r for _, r in evals["late"]], [r for _, r in evals["on time"]],
                              rtol=1e-5)
   assert deferred.best_return[0] == pytest.approx(on_time.best_return[0], rel=1e-5)
+
+
+def test_evaluations_on_the_host_run_beside_training(tmp_path, monkeypatch):
+  """With eval_on="host", training goes on while the host evaluates: each evaluation is logged
+  once it is finished, oldest first, and the last waits for the rest. The returns are those of
+  the run that evaluates on its training's devices (the two CPU devices here), to the tolerance
+  of another program (one device against two; 30 steps of contacts amplify rounding), and the
+  best agent is the same."""
+  cfg = dataclasses.replace(TINY, total_env_steps=160)  # an evaluation due after every chunk
+  start_compiling = loop._Session._start_compiling
+  # Compiled before training starts, and the first two polls find the first evaluation
+  # unfinished; the later ones wait for it.
+  monkeypatch.setattr(loop._Session, "_start_compiling", lambda self: (
+      lambda chunk, evaluation: (chunk, evaluation.result() and evaluation))(
+          *start_compiling(self)))
+  polls = iter(range(-2, 10**6))
+  monkeypatch.setattr(loop._Session, "_finished", staticmethod(
+      lambda started: next(polls) >= 0 and jax.block_until_ready(started) is not None))
+
+  def run(eval_on):
+    return loop.run(dataclasses.replace(cfg, eval_on=eval_on, out_dir=str(tmp_path / eval_on)),
+                    progress=False)
+  on_devices, on_host = run("train"), run("host")
+  order = [(r["kind"], int(r["env_steps"])) for r in on_host.history]
+  assert order == [("train", 40), ("train", 80), ("train", 120), ("eval", 40), ("eval", 80),
+                   ("eval", 120), ("train", 160), ("eval", 160)]
+  evals = {which: [(int(r["env_steps"]), float(r["eval_return"]))
+                   for r in result.history if r["kind"] == "eval"]
+           for which, result in (("devices", on_devices), ("host", on_host))}
+  assert [s for s, _ in evals["host"]] == [s for s, _ in evals["devices"]] == [40, 80, 120, 160]
+  np.testing.assert_allclose([r for _, r in evals["host"]], [r for _, r in evals["devices"]],
+                             rtol=1e-3)
+  assert on_host.best_return[0] == pytest.approx(on_devices.best_return[0], rel=1e-3)
+  for a, b in zip(jax.tree.leaves(on_host.best), jax.tree.leaves(on_devices.best)):
+    np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6)
