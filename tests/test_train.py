@@ -305,9 +305,9 @@ def test_evaluations_due_while_the_evaluation_compiles_are_kept_and_done_later(t
 def test_evaluations_on_the_host_run_beside_training(tmp_path, monkeypatch):
   """With eval_on="host", training goes on while the host evaluates: each evaluation is logged
   once it is finished, oldest first, and the last waits for the rest. The returns are those of
-  the run that evaluates on its training's devices (the two CPU devices here), to the tolerance
-  of another program (one device against two; 30 steps of contacts amplify rounding), and the
-  best agent is the same."""
+  the run that evaluates on its training's devices (both on the two CPU devices here), to the
+  tolerance of another program (30 steps of contacts amplify rounding), and the best agent is
+  the same."""
   cfg = dataclasses.replace(TINY, total_env_steps=160)  # an evaluation due after every chunk
   start_compiling = loop._Session._start_compiling
   # Compiled before training starts, and the first two polls find the first evaluation
