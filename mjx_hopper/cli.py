@@ -120,7 +120,8 @@ def _run_config(args: argparse.Namespace, agent_overrides: dict, **sweep):
       agent_overrides={**base.agent_overrides, **agent_overrides}, train=trainer,
       total_env_steps=args.steps, max_minutes=args.max_minutes,
       stop_at_return=args.stop_at_return, eval_every=args.eval_every or base.eval_every,
-      eval_episodes=args.eval_episodes, episode_steps=args.episode_steps, seed=args.seed,
+      eval_episodes=args.eval_episodes, eval_on=args.eval_on, episode_steps=args.episode_steps,
+      seed=args.seed,
       out_dir=args.out, tensorboard_dir=args.tensorboard, time_delta=args.log_every,
       checkpoint_minutes=args.checkpoint_minutes, **sweep)
 
@@ -302,6 +303,10 @@ def _add_run_flags(t: argparse.ArgumentParser, sweep: bool = False) -> None:
   t.add_argument("--eval-every", type=int, default=None,
                  help="env steps between evaluations (cpu: 200,000)")
   t.add_argument("--eval-episodes", type=int, default=16)
+  t.add_argument("--eval-on", choices=("auto", "host", "train"), default="auto",
+                 help="where evaluations run: host, on the CPU beside training; train, on the "
+                      "training's devices, which wait for them; auto (default): host for a "
+                      "single run on a GPU, else train")
   t.add_argument("--episode-steps", type=int, default=None,
                  help="steps before an episode is truncated (default: the task's; PyBullet's "
                       "1000 for the robots)")

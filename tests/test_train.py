@@ -211,7 +211,7 @@ def test_run_logs_checkpoints_and_resumes(tmp_path, capsys):
 # D4PG's CLI run is test_checkpoint.py's bit-exact test (the same settings, in fresh processes).
 @pytest.mark.parametrize("agent, extra", [
     ("ddpg", ["--set", "policy_every=2"]),  # (the policy's update in a branch, on 2 devices)
-    ("mpo", ["--set", "num_samples=4"]),
+    ("mpo", ["--set", "num_samples=4", "--eval-on", "host"]),  # (evaluated beside training)
     ("dmpo", ["--set", "num_samples=4", "--set", "num_atoms=11"]),
 ])
 def test_every_agent_trains_from_the_same_cli(tmp_path, capsys, agent, extra):
@@ -232,7 +232,9 @@ def test_every_agent_trains_from_the_same_cli(tmp_path, capsys, agent, extra):
               "policy_std"}
   for name in names:
     assert np.isfinite(float(train_rows[-1][name])), name
-  assert json.load(open(tmp_path / "config.json"))["agent"] == agent
+  saved = json.load(open(tmp_path / "config.json"))
+  assert saved["agent"] == agent
+  assert saved["eval_on"] == ("host" if "--eval-on" in extra else "auto")
 
 
 def test_a_run_that_diverges_stops_and_keeps_its_last_finite_checkpoint(tmp_path, monkeypatch,
