@@ -384,7 +384,10 @@ class _Session:
                          "eval_length": float(np.mean(result["length"][m]))}, force=True)
     self.report.evaluated(env_steps, returns)
     if self.cfg.stop_at_return is not None:
-      self.reached |= returns >= self.cfg.stop_at_return
+      newly = ~self.reached & (returns >= self.cfg.stop_at_return)
+      self.reached |= newly
+      if newly.any():  # training may have gone on meanwhile: the summary names these env steps
+        self.reached_at = env_steps
     return result
 
   def evaluate_pending(self, bar, wait: bool) -> dict | None:
@@ -428,6 +431,7 @@ class _Session:
     next_eval = (env_steps // cfg.eval_every + 1) * cfg.eval_every
     evaluation, last_save = None, time.monotonic()
     self.reached = np.zeros(len(self.members), bool)  # members at stop_at_return
+    self.reached_at = None  # the env steps of the evaluation where the last of them got there
     # [env steps, agents, their evaluation once started] of the evaluations not yet logged:
     # kept while the evaluation compiles (on a GPU it was ready 11-19 s after the first chunk,
     # after the first evaluation was due), and while the host evaluates them beside training.
@@ -565,6 +569,7 @@ class _Session:
                   else "no checkpoint was saved before it"))
     why = ("stopped by a signal" if stop.requested else "diverged" if diverged.all() else
            f"every member reached {cfg.stop_at_return:g}{' or diverged' if diverged.any() else ''}"
+           f" by the evaluation at {self.reached_at:,} env steps"
            if (self.reached | diverged).all() else "done")
     self.say(_summary(cfg, why, env_steps, time.perf_counter() - self.t_start,
                       evaluation if single else None, self.logger.csv_path, self.checkpoint_dir))

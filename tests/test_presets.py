@@ -85,4 +85,5 @@ def test_run_stops_once_every_member_reaches_the_target(tmp_path, capsys):
   first = kinds.index("eval")
   assert int(result.history[first]["env_steps"]) == 40 and set(kinds[first:]) == {"eval"}
   env_steps = train.iterations(result.state) * cfg.train.steps_per_iteration
-  assert f"every member reached -1e+09: {env_steps:,} env steps" in capsys.readouterr().out
+  assert (f"every member reached -1e+09 by the evaluation at 40 env steps: {env_steps:,} env "
+          "steps") in capsys.readouterr().out
