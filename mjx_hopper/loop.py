@@ -12,12 +12,12 @@ import json
 import os
 import sys
 import time
-from typing import Any, Callable
+from typing import Any, Callable, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.sharding import NamedSharding, PartitionSpec as P
+from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
 from tqdm.auto import tqdm
 
 from mjx_hopper import agents, checkpoint, envs, parallel, sweep, train
@@ -25,6 +25,15 @@ from mjx_hopper.logger import LEARNER_FIELDS, Logger
 
 
 EVAL_ON = ("auto", "host", "train")
+MAX_PENDING = 3  # evaluations started on the host beyond which training waits for the oldest
+
+
+class _Pending(NamedTuple):
+  """An evaluation due and not yet logged."""
+  env_steps: int
+  agent: Any            # a copy of the members' agents then (a chunk consumes the state's)
+  diverged: np.ndarray  # the members diverged then, whose evaluation is not their best
+  started: Any = None   # its result's arrays, once started (computed asynchronously)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -58,8 +67,8 @@ class RunConfig:
   eval_every: int = 200_000      # env steps between evaluations
   eval_episodes: int = 16
   # Where the evaluations run: "host", on the host's CPU, beside training; "train", on the
-  # training's devices, which wait for them; "auto", "host" for a single run (not PBT) that
-  # trains on an accelerator, else "train".
+  # training's devices, which wait for them; "auto", "host" for a single run that trains on an
+  # accelerator, else "train" (a sweep's members evaluate at once on the accelerator).
   eval_on: str = "auto"
   seed: int = 0
   seeds: tuple = ()              # a sweep's seeds (default: (seed,))
@@ -102,8 +111,7 @@ class RunConfig:
   def evaluates_on_host(self) -> bool:
     """Whether the evaluations run on the host's CPU, beside training (`eval_on`)."""
     if self.eval_on == "auto":
-      return (len(self.members()) == 1 and self.pbt is None
-              and jax.default_backend() != "cpu")
+      return len(self.members()) == 1 and jax.default_backend() != "cpu"
     return self.eval_on == "host"
 
   def make_env(self) -> envs.LocomotionEnv:
@@ -184,18 +192,15 @@ def _settings_text(settings: dict) -> str:
   return "(" + ", ".join(f"{k}={v!r}" for k, v in sorted(settings.items())) + ")"
 
 
-def build(cfg: RunConfig, num_members: int | None = None,
-          eval_devices: list | None = None) -> train.Trainer:
-  """The compiled trainer of `cfg`'s members (or of `num_members` of them), evaluating on
-  `eval_devices` (default: the training's), after checking its task's reward
-  (`envs.check_task`)."""
+def build(cfg: RunConfig, num_members: int | None = None) -> train.Trainer:
+  """The compiled trainer of `cfg`'s members (or of `num_members` of them), after checking its
+  task's reward (`envs.check_task`)."""
   env = cfg.make_env()
   envs.check_task(env)
   agent = agents.make(cfg.agent, env.observation_size, env.action_size, cfg.agent_config())
   return train.make_trainer(env, agent, cfg.train_config(), eval_episodes=cfg.eval_episodes,
                             num_members=num_members or len(cfg.members()),
-                            dynamic_updates="replay_ratio" in cfg.grid,
-                            eval_devices=eval_devices)
+                            dynamic_updates="replay_ratio" in cfg.grid)
 
 
 def init(cfg: RunConfig, trainer: train.Trainer, members: list[dict]) -> train.TrainState:
@@ -273,16 +278,16 @@ class _Session:
                     if process and process[1] > 1 else cfg.out_dir)
     os.makedirs(self.out_dir, exist_ok=True)
     self.checkpoint_dir = checkpoint_dir or os.path.join(self.out_dir, "checkpoints")
+    self.trainer = build(cfg, len(self.members))
     # On an accelerator, an evaluation (1,000 steps of a few envs, one after another) kept
     # Hopper's training waiting 0.6-1.9 s on an H100; the host's CPU runs it beside training,
-    # its episodes spread evenly over as many of the CPU's XLA devices as they allow.
+    # its episodes spread evenly over as many of the CPU's XLA devices as they allow. `host`:
+    # where its inputs go, replicated over those devices.
     self.host = None
     if cfg.evaluates_on_host():
       cpus = jax.devices("cpu")
       count = max(k for k in range(1, len(cpus) + 1) if cfg.eval_episodes % k == 0)
-      self.host = NamedSharding(parallel.mesh(cpus[:count], ("host",)), P())  # replicated
-    self.trainer = build(cfg, len(self.members),
-                         None if self.host is None else list(self.host.mesh.devices))
+      self.host = NamedSharding(Mesh(np.array(cpus[:count]), ("host",)), P())
     self.mngr = checkpoint.manager(self.checkpoint_dir, cfg.keep_checkpoints)
     self.saved_config = {**cfg.to_json(), "member_indices": self.indices}
     self.report = sweep.Report(cfg.grid, self.members, self.indices, self.say,
@@ -316,16 +321,28 @@ class _Session:
             lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sharding), part),
         trainer.shardings, jax.eval_shape(lambda: init(self.cfg, trainer, self.members)))
     keys = jax.ShapeDtypeStruct((len(self.members), 2), jnp.uint32)
-    agent = shapes.agent
-    if self.host is not None:
-      agent, keys = jax.tree.map(
-          lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=self.host), (agent, keys))
     lowered = trainer.train_chunk.lower(shapes)
     pool = concurrent.futures.ThreadPoolExecutor(1)  # one after the other
     chunk = pool.submit(lowered.compile)
-    evaluator = pool.submit(lambda: trainer.evaluate.lower(agent, keys).compile())
+    if self.host is None:
+      evaluator = pool.submit(lambda: trainer.evaluate.lower(shapes.agent, keys).compile())
+    else:
+      evaluator = pool.submit(self._compile_on_host, shapes.agent, keys)
     pool.shutdown(wait=False)
     return chunk, evaluator
+
+  def _compile_on_host(self, agent, keys):
+    """The members' evaluation compiled for the host's CPU devices, from their agents' and keys'
+    shapes: `Trainer.evaluate`'s program, its episodes spread over those devices. The training
+    keeps its partitioner (`parallel.gspmd_in_this_thread`)."""
+    trainer, cfg, devices = self.trainer, self.cfg, list(self.host.mesh.devices.flat)
+    evaluate = jax.jit(train.per_member(
+        lambda s, k: train.evaluate(trainer.env, trainer.agent, s, k, cfg.eval_episodes,
+                                    devices=devices), len(self.members)))
+    agent, keys = jax.tree.map(
+        lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=self.host), (agent, keys))
+    with parallel.gspmd_in_this_thread(len(devices)):
+      return evaluate.lower(agent, keys).compile()
 
   def start(self) -> train.TrainState:
     """The state to train from (fresh, or the newest readable checkpoint's), with the programs
@@ -366,16 +383,16 @@ class _Session:
       agent, keys = jax.device_put((agent, keys), self.host)
     return self.programs[1].result()(agent, keys)
 
-  def evaluate(self, agent, env_steps: int, bar, started=None) -> dict:
-    """Evaluates every member's policy (`agent`, the agents at `env_steps`; `started`, its
-    result's arrays when `_start` started it already); its rows to the log, a sweep's line to
-    the terminal, and the members at `stop_at_return` marked."""
+  def evaluate(self, pending: "_Pending", bar) -> dict:
+    """Waits for a started evaluation (`pending`); its rows to the log, a sweep's line to the
+    terminal, each member's best agent kept, and the members at `stop_at_return` marked."""
     _status(bar, "evaluating")
-    result = jax.device_get(self._start(agent, env_steps) if started is None else started)
+    env_steps = pending.env_steps
+    result = jax.device_get(pending.started)
     returns = result["return"].mean(-1)
     self._mark_diverged(env_steps, [[] if np.isfinite(r) else ["evaluation return"]
                                     for r in returns])
-    self._keep_best(agent, returns, env_steps)
+    self._keep_best(pending.agent, returns, env_steps, pending.diverged)
     for m in range(len(self.members)):
       self.logger.write({"kind": "eval", **self.report.tags(m), "env_steps": env_steps,
                          "wall_s": time.perf_counter() - self.t_start,
@@ -391,17 +408,16 @@ class _Session:
     return result
 
   def evaluate_pending(self, bar, wait: bool) -> dict | None:
-    """Starts every pending evaluation (`self.pending`, [env steps, agents, None until
-    started]), then logs the started ones, oldest first, while they are finished; with `wait`,
-    or evaluating on the training's devices, all of them, waiting for each. Returns the last
-    one logged's result, or None."""
-    for entry in self.pending:
-      if entry[2] is None:
-        entry[2] = self._start(entry[1], entry[0])
+    """Starts every pending evaluation (`self.pending`), then logs the started ones, oldest
+    first, while they are finished or more than MAX_PENDING wait (so that training cannot
+    outrun a slow host); with `wait`, or evaluating on the training's devices, all of them,
+    waiting for each. Returns the last one logged's result, or None."""
+    self.pending = [p if p.started is not None else
+                    p._replace(started=self._start(p.agent, p.env_steps)) for p in self.pending]
     result, wait = None, wait or self.host is None
-    while self.pending and (wait or self._finished(self.pending[0][2])):
-      env_steps, agent, started = self.pending.pop(0)
-      result = self.evaluate(agent, env_steps, bar, started)
+    while self.pending and (wait or len(self.pending) > MAX_PENDING
+                            or self._finished(self.pending[0].started)):
+      result = self.evaluate(self.pending.pop(0), bar)
     return result
 
   @staticmethod
@@ -409,10 +425,11 @@ class _Session:
     """Whether a started evaluation's arrays are computed."""
     return all(x.is_ready() for x in jax.tree.leaves(started))
 
-  def _keep_best(self, agent, returns, env_steps: int) -> None:
-    """Keeps the agent of each member whose evaluation beat its best so far."""
+  def _keep_best(self, agent, returns, env_steps: int, diverged) -> None:
+    """Keeps the agent of each member whose evaluation beat its best so far, but of those that
+    had diverged (`diverged`) when the agents were taken."""
     report = self.report
-    better = np.isfinite(returns) & (returns > report.best_return) & ~report.diverged
+    better = np.isfinite(returns) & (returns > report.best_return) & ~diverged
     if self.best is None:
       self.best = self._copy(agent)  # members with no best yet hold this one meanwhile
     elif better.any():
@@ -432,10 +449,10 @@ class _Session:
     evaluation, last_save = None, time.monotonic()
     self.reached = np.zeros(len(self.members), bool)  # members at stop_at_return
     self.reached_at = None  # the env steps of the evaluation where the last of them got there
-    # [env steps, agents, their evaluation once started] of the evaluations not yet logged:
-    # kept while the evaluation compiles (on a GPU it was ready 11-19 s after the first chunk,
-    # after the first evaluation was due), and while the host evaluates them beside training.
-    self.pending = []
+    # The evaluations not yet logged: kept while the evaluation compiles (on a GPU it was ready
+    # 11-19 s after the first chunk, after the first evaluation was due), and while the host
+    # evaluates them beside training.
+    self.pending: list[_Pending] = []
     diverged = self.report.diverged  # members whose learning went non-finite
     deadline = self.t_start + 60 * cfg.max_minutes if cfg.max_minutes else float("inf")
     while (env_steps < cfg.total_env_steps and not stop.requested
@@ -462,7 +479,7 @@ class _Session:
       due = env_steps >= next_eval or last
       if due:
         next_eval += cfg.eval_every
-        self.pending.append([env_steps, self._copy(state.agent), None])  # a chunk donates it
+        self.pending.append(_Pending(env_steps, self._copy(state.agent), diverged.copy()))
       # A run's last evaluation and PBT's (which needs the returns) wait for the compile and
       # for the evaluations before them; the others need it compiled, and training goes on.
       wait = due and (last or cfg.pbt is not None)
@@ -476,6 +493,8 @@ class _Session:
         state = self._exploit_explore(state, np.asarray(evaluation["return"]).mean(-1),
                                       env_steps)
       if time.monotonic() - last_save >= 60 * cfg.checkpoint_minutes:
+        if self.pending:  # a checkpoint holds every evaluation due before it
+          evaluation = self.evaluate_pending(bar, wait=True) or evaluation
         self._save(state)
         last_save = time.monotonic()
       if bar is not None:

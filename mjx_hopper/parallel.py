@@ -12,9 +12,11 @@ ManualComputationUnusedInputsPattern; seen 2026-11-26). XLA's older GSPMD partit
 and runs them (printing, at each compile, a warning that GSPMD will be deprecated), and jax 0.9.2
 compiles them with Shardy. So `avoid_shardy_crash` switches such a jax to GSPMD in a process
 that has several devices, unless the user chose a partitioner with JAX_USE_SHARDY_PARTITIONER;
-every env (envs/base.py) and every mesh of mjx_hopper (`mesh`) calls it.
+every env (envs/base.py) and every mesh of mjx_hopper (`mesh`) calls it. `gspmd_in_this_thread`
+does the same for one thread's compiles only.
 """
 
+import contextlib
 import logging
 import os
 
@@ -26,13 +28,32 @@ BATCH = PartitionSpec("batch")
 SHARDY_CRASHES = (0, 11)  # the first jax whose Shardy crashes on our programs over several devices
 
 
+def _shardy_would_crash(num_devices: int) -> bool:
+  """Whether this thread's partitioner is a Shardy that crashes on our programs over
+  `num_devices`, and the user left the choice to us."""
+  return (num_devices > 1 and jax.__version_info__ >= SHARDY_CRASHES
+          and "JAX_USE_SHARDY_PARTITIONER" not in os.environ
+          and jax.config.jax_use_shardy_partitioner)  # this thread's value
+
+
+@contextlib.contextmanager
+def gspmd_in_this_thread(num_devices: int):
+  """A context in which this thread traces and compiles with GSPMD where Shardy would crash on
+  programs over `num_devices`, and the rest of the process keeps its partitioner: the host's
+  evaluation over several CPU devices compiles beside a training chunk on one GPU."""
+  if not _shardy_would_crash(num_devices):
+    yield
+    return
+  from jax._src import config  # jax_use_shardy_partitioner's thread-local form
+  with config.use_shardy_partitioner(False):
+    yield
+
+
 def avoid_shardy_crash(num_devices: int) -> None:
   """With several devices, on a jax whose Shardy partitioner crashes on our programs, switches
   this process to the GSPMD partitioner and says so once (module docstring); otherwise, or where
   JAX_USE_SHARDY_PARTITIONER is set, changes nothing."""
-  if (num_devices > 1 and jax.__version_info__ >= SHARDY_CRASHES
-      and "JAX_USE_SHARDY_PARTITIONER" not in os.environ
-      and jax.config.jax_use_shardy_partitioner):
+  if _shardy_would_crash(num_devices):
     logging.getLogger(__name__).warning(
         "mjx_hopper: jax %s's Shardy partitioner crashes compiling programs over %d devices; "
         "this process now uses XLA's GSPMD partitioner (set JAX_USE_SHARDY_PARTITIONER to "

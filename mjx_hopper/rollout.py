@@ -26,11 +26,11 @@ def episodes(env: LocomotionEnv, policy: Policy, key: jax.Array, num_episodes: i
              record_qpos: bool = False, record_rewards: bool = False,
              devices=None) -> dict[str, jax.Array]:
   """Runs `num_episodes` episodes in parallel, each to its end (at most env.episode_steps).
-  Jit it with `env`, `policy` and `num_episodes` static.
+  Jit it with `env`, `policy`, `num_episodes` and `devices` static.
 
   The episodes are spread over `devices` (default: the local devices), and each device stops
-  once all of its own episodes have ended. Episode i's randomness depends only on `key` and i, so the results do not
-  depend on the number of devices.
+  once all of its own episodes have ended. Episode i's randomness depends only on `key` and i,
+  so the results do not depend on the number of devices.
 
   Returns per-episode arrays of shape (num_episodes,): "length", "return", and the mean per
   step of each reward term, by name. With `record_qpos`, also "qpos" of episode 0, shape

@@ -120,9 +120,7 @@ class Trainer(NamedTuple):
     (S,), are the agent's, averaged over the chunk's updates, plus "episodes" (count ended in
     the chunk), "episode_return" (their mean return; NaN if none ended) and "learning" (1
     once updating).
-  evaluate(agent_states, keys) -> per-member, per-episode "return", "length" (S, episodes),
-    on the devices where its inputs are (their episodes spread over `make_trainer`'s
-    `eval_devices`).
+  evaluate(agent_states, keys) -> per-member, per-episode "return", "length" (S, episodes).
   shardings: where a TrainState's parts live (a NamedSharding per part), for compiling from
     shapes.
   """
@@ -193,21 +191,18 @@ def layout(num_members: int, devices: list) -> Layout:
 
 def make_trainer(env: LocomotionEnv, agent: Agent, cfg: TrainConfig, eval_episodes: int = 16,
                  num_members: int = 1, dynamic_updates: bool = False,
-                 devices: list | None = None, eval_devices: list | None = None) -> Trainer:
-  """The compiled trainer of `num_members` members on `devices` (default: every local one),
-  evaluating on `eval_devices` (default: `devices`).
+                 devices: list | None = None) -> Trainer:
+  """The compiled trainer of `num_members` members on `devices` (default: every local one).
 
   With `dynamic_updates`, each member runs round(its replay_ratio * num_envs * unroll_length /
   batch_size) updates per iteration, at most `cfg`'s (the rest are skipped); without, every
   member runs `cfg`'s count, whatever its replay_ratio.
   """
-  devices = list(jax.local_devices() if devices is None else devices)
-  where = layout(num_members, devices)
+  where = layout(num_members, list(jax.local_devices() if devices is None else devices))
   cfg.check(where.group_size)
   # One member's evaluation as plain code (vmap of one traces much slower), several under vmap.
-  evaluate_members = per_member(
-      lambda s, k: evaluate(env, agent, s, k, eval_episodes, devices=eval_devices or devices),
-      num_members)
+  evaluate_members = per_member(lambda s, k: evaluate(env, agent, s, k, eval_episodes),
+                                num_members)
   return Trainer(_make_init(env, agent, cfg, where, num_members),
                  _make_chunk(env, agent, cfg, where, dynamic_updates),
                  jax.jit(evaluate_members), cfg, env, agent, num_members, where.shardings)

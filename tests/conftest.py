@@ -47,15 +47,13 @@ def _frozen(x):
   return x
 
 
-def build_key(cfg: loop.RunConfig, num_members: int | None = None,
-              eval_devices: list | None = None) -> tuple:
-  """Everything `loop.build(cfg, num_members, eval_devices)` builds its trainer from: the env
-  and its episode length, the agent and its config, the train config, the evaluation's episodes
-  and devices, the number of members and whether their update counts are dynamic (out_dir,
-  budgets and seeds are not)."""
+def build_key(cfg: loop.RunConfig, num_members: int | None = None) -> tuple:
+  """Everything `loop.build(cfg, num_members)` builds its trainer from: the env and its episode
+  length, the agent and its config, the train config, the evaluation's episodes, the number of
+  members and whether their update counts are dynamic (out_dir, budgets and seeds are not)."""
   return (cfg.env, _frozen(cfg.env_settings), cfg.episode_steps, cfg.agent, _frozen(dataclasses.asdict(cfg.agent_config())),
           cfg.train_config(), cfg.eval_episodes, num_members or len(cfg.members()),
-          "replay_ratio" in cfg.grid, None if eval_devices is None else tuple(eval_devices))
+          "replay_ratio" in cfg.grid)
 
 
 @pytest.fixture(scope="session", autouse=True)
@@ -67,10 +65,10 @@ def shared_builds():
   a run is the same with a trainer built once or again."""
   built, build = {}, loop.build
 
-  def cached(cfg, num_members=None, eval_devices=None):
-    key = build_key(cfg, num_members, eval_devices)
+  def cached(cfg, num_members=None):
+    key = build_key(cfg, num_members)
     if key not in built:
-      built[key] = build(cfg, num_members, eval_devices)
+      built[key] = build(cfg, num_members)
     return built[key]
   with pytest.MonkeyPatch.context() as patch:
     patch.setattr(loop, "build", cached)

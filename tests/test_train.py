@@ -149,14 +149,12 @@ def test_bad_run_config():
 
 
 def test_where_evaluations_run(monkeypatch):
-  """"auto" evaluates on the host's CPU a single run (not PBT) that trains on an accelerator."""
-  pbt = dict(seeds=(0, 1), grid={"learning_rate": (1e-4, 1e-3)}, pbt=loop.sweep.PBT())
+  """"auto" evaluates on the host's CPU a single run that trains on an accelerator."""
   assert not TINY.evaluates_on_host()  # it trains on the CPU
   assert dataclasses.replace(TINY, eval_on="host").evaluates_on_host()
   monkeypatch.setattr(loop.jax, "default_backend", lambda: "gpu")
   assert TINY.evaluates_on_host()
-  assert not dataclasses.replace(TINY, seeds=(0, 1)).evaluates_on_host()
-  assert not dataclasses.replace(TINY, **pbt).evaluates_on_host()
+  assert not dataclasses.replace(TINY, seeds=(0, 1)).evaluates_on_host()  # a sweep (or PBT)
   assert not dataclasses.replace(TINY, eval_on="train").evaluates_on_host()
 
 
@@ -304,36 +302,77 @@ def test_evaluations_due_while_the_evaluation_compiles_are_kept_and_done_later(t
   assert deferred.best_return[0] == pytest.approx(on_time.best_return[0], rel=1e-5)
 
 
-def test_evaluations_on_the_host_run_beside_training(tmp_path, monkeypatch):
-  """With eval_on="host", training goes on while the host evaluates: each evaluation is logged
-  once it is finished, oldest first, and the last waits for the rest. The returns are those of
-  the run that evaluates on its training's devices (both on the two CPU devices here), to the
-  tolerance of another program (30 steps of contacts amplify rounding), and the best agent is
-  the same."""
-  cfg = dataclasses.replace(TINY, total_env_steps=160)  # an evaluation due after every chunk
-  start_compiling = loop._Session._start_compiling
-  # Compiled before training starts, and the first two polls find the first evaluation
-  # unfinished; the later ones wait for it.
+def _evaluations_compiled_first_and_never_finished(monkeypatch):
+  """The evaluation compiled before training starts, and every poll of a host evaluation's
+  result saying unfinished (after asking JAX), so that only waiting logs one."""
+  start_compiling, finished = loop._Session._start_compiling, loop._Session._finished
   monkeypatch.setattr(loop._Session, "_start_compiling", lambda self: (
       lambda chunk, evaluation: (chunk, evaluation.result() and evaluation))(
           *start_compiling(self)))
-  polls = iter(range(-2, 10**6))
-  monkeypatch.setattr(loop._Session, "_finished", staticmethod(
-      lambda started: next(polls) >= 0 and jax.block_until_ready(started) is not None))
+  monkeypatch.setattr(loop._Session, "_finished",
+                      staticmethod(lambda started: finished(started) and False))
+
+
+def test_evaluations_on_the_host_run_beside_training(tmp_path, monkeypatch):
+  """With eval_on="host", training goes on while the host evaluates: an evaluation is logged once
+  finished (here never), or when more than MAX_PENDING wait, oldest first, and the last waits
+  for the rest. The returns are those of the run that evaluates on its training's devices (both
+  on the two CPU devices here), to the tolerance of another program (30 steps of contacts
+  amplify rounding); the best agent is the same, and the trainer's own evaluation takes it."""
+  assert loop.MAX_PENDING == 3
+  cfg = dataclasses.replace(TINY, total_env_steps=200)  # an evaluation due after every chunk
+  _evaluations_compiled_first_and_never_finished(monkeypatch)
 
   def run(eval_on):
     return loop.run(dataclasses.replace(cfg, eval_on=eval_on, out_dir=str(tmp_path / eval_on)),
                     progress=False)
   on_devices, on_host = run("train"), run("host")
   order = [(r["kind"], int(r["env_steps"])) for r in on_host.history]
-  assert order == [("train", 40), ("train", 80), ("train", 120), ("eval", 40), ("eval", 80),
-                   ("eval", 120), ("train", 160), ("eval", 160)]
+  assert order == [("train", 40), ("train", 80), ("train", 120), ("train", 160), ("eval", 40),
+                   ("train", 200), ("eval", 80), ("eval", 120), ("eval", 160), ("eval", 200)]
   evals = {which: [(int(r["env_steps"]), float(r["eval_return"]))
                    for r in result.history if r["kind"] == "eval"]
            for which, result in (("devices", on_devices), ("host", on_host))}
-  assert [s for s, _ in evals["host"]] == [s for s, _ in evals["devices"]] == [40, 80, 120, 160]
+  assert [s for s, _ in evals["host"]] == [s for s, _ in evals["devices"]] == [40, 80, 120, 160,
+                                                                              200]
   np.testing.assert_allclose([r for _, r in evals["host"]], [r for _, r in evals["devices"]],
                              rtol=1e-3)
   assert on_host.best_return[0] == pytest.approx(on_devices.best_return[0], rel=1e-3)
   for a, b in zip(jax.tree.leaves(on_host.best), jax.tree.leaves(on_devices.best)):
     np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6)
+  again = on_host.trainer.evaluate(on_host.best, jax.random.PRNGKey(0)[None])
+  assert np.isfinite(np.asarray(again["return"])).all()
+
+
+def test_host_evaluations_pending_at_a_divergence_or_a_checkpoint_still_count(tmp_path,
+                                                                             monkeypatch):
+  """Evaluations still on the host when the run diverges are logged, and their agents (taken
+  before it diverged) can be its best; a checkpoint waits for those due before it, so that
+  its record holds them."""
+  chunk, calls = loop._Session._chunk, []
+
+  def poisoned(self, state):  # the third chunk's critic loss goes NaN
+    state, metrics = chunk(self, state)
+    calls.append(1)
+    if len(calls) == 3:
+      metrics = {**metrics, "critic_loss": np.full_like(metrics["critic_loss"], np.nan)}
+    return state, metrics
+  _evaluations_compiled_first_and_never_finished(monkeypatch)
+  monkeypatch.setattr(loop._Session, "_chunk", poisoned)
+  cfg = dataclasses.replace(TINY, eval_on="host", out_dir=str(tmp_path / "diverges"),
+                            total_env_steps=400)
+  result = loop.run(cfg, progress=False)
+  evals = [(int(r["env_steps"]), r["eval_return"]) for r in result.history if r["kind"] == "eval"]
+  assert [s for s, _ in evals] == [40, 80] and len(calls) == 3
+  assert result.best_return[0] == pytest.approx(max(r for _, r in evals))
+  calls.clear()
+  monkeypatch.setattr(loop._Session, "_chunk", chunk)
+  saved = loop.run(dataclasses.replace(cfg, out_dir=str(tmp_path / "saves"),
+                                       total_env_steps=80, checkpoint_minutes=0.0),
+                   progress=False)
+  first = next(r for r in saved.history if r["kind"] == "eval")
+  assert saved.history.index(first) == 1  # logged before the first checkpoint, not after 80
+  record = checkpoint.read_config(checkpoint.manager(str(tmp_path / "saves" / "checkpoints")),
+                                  5)["record"]
+  assert record["best_return"] == [pytest.approx(first["eval_return"])]
+  assert record["best_env_steps"] == [40]
