@@ -306,7 +306,7 @@ def _add_run_flags(t: argparse.ArgumentParser, sweep: bool = False) -> None:
   t.add_argument("--eval-on", choices=("auto", "host", "train"), default="auto",
                  help="where evaluations run: host, on the CPU beside training; train, on the "
                       "training's devices, which wait for them; auto (default): host for a "
-                      "single run on a GPU, else train")
+                      "single run on an accelerator (a GPU), else train")
   t.add_argument("--episode-steps", type=int, default=None,
                  help="steps before an episode is truncated (default: the task's; PyBullet's "
                       "1000 for the robots)")
