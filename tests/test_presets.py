@@ -67,6 +67,10 @@ def test_cli_starts_from_the_robot_preset():
   cfg = run_config("--env", "Hopper", "--agent", "ddpg", "--set", "sigma=0.3")
   assert (cfg.agent, cfg.preset, cfg.train) == ("ddpg", "cpu", train.TrainConfig())
   assert cfg.agent_overrides == {**presets.AGENT_OVERRIDES["Hopper", "cpu", "ddpg"], "sigma": 0.3}
+  # D4PG's Hopper networks are 128-128 on the CPU; DDPG keeps its preset's 256-256.
+  d4pg = run_config("--env", "Hopper").agent_config()
+  assert (d4pg.policy_layers, d4pg.critic_layers) == ((128, 128), (128, 128))
+  assert cfg.agent_config().critic_layers == (256, 256)
   assert run_config("--env", "Hopper", "--agent", "dmpo").agent_overrides == {
       "learning_rate": 1e-3}
   assert run_config("--env", "Hopper", "--agent", "mpo").agent_overrides == {}
