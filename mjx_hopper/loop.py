@@ -335,10 +335,9 @@ class _Session:
     """The members' evaluation compiled for the host's CPU devices, from their agents' and keys'
     shapes: `Trainer.evaluate`'s program, its episodes spread over those devices. The training
     keeps its partitioner (`parallel.gspmd_in_this_thread`)."""
-    trainer, cfg, devices = self.trainer, self.cfg, list(self.host.mesh.devices.flat)
-    evaluate = jax.jit(train.per_member(
-        lambda s, k: train.evaluate(trainer.env, trainer.agent, s, k, cfg.eval_episodes,
-                                    devices=devices), len(self.members)))
+    devices = list(self.host.mesh.devices.flat)
+    evaluate = train.make_evaluate(self.trainer.env, self.trainer.agent, self.cfg.eval_episodes,
+                                   len(self.members), devices)
     agent, keys = jax.tree.map(
         lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=self.host), (agent, keys))
     with parallel.gspmd_in_this_thread(len(devices)):

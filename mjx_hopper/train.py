@@ -200,12 +200,19 @@ def make_trainer(env: LocomotionEnv, agent: Agent, cfg: TrainConfig, eval_episod
   """
   where = layout(num_members, list(jax.local_devices() if devices is None else devices))
   cfg.check(where.group_size)
-  # One member's evaluation as plain code (vmap of one traces much slower), several under vmap.
-  evaluate_members = per_member(lambda s, k: evaluate(env, agent, s, k, eval_episodes),
-                                num_members)
   return Trainer(_make_init(env, agent, cfg, where, num_members),
                  _make_chunk(env, agent, cfg, where, dynamic_updates),
-                 jax.jit(evaluate_members), cfg, env, agent, num_members, where.shardings)
+                 make_evaluate(env, agent, eval_episodes, num_members), cfg, env, agent,
+                 num_members, where.shardings)
+
+
+def make_evaluate(env: LocomotionEnv, agent: Agent, eval_episodes: int, num_members: int,
+                  devices: list | None = None):
+  """Trainer.evaluate: the members' evaluation, jitted, each member's `eval_episodes` spread
+  over `devices` (default: the local ones)."""
+  # One member's evaluation as plain code (vmap of one traces much slower), several under vmap.
+  return jax.jit(per_member(
+      lambda s, k: evaluate(env, agent, s, k, eval_episodes, devices=devices), num_members))
 
 
 def _make_init(env: LocomotionEnv, agent: Agent, cfg: TrainConfig, where: Layout,
