@@ -50,6 +50,8 @@ _HOPPER_CPU = {"action_penalty": 0.1, "learning_rate": 2e-3, "sigma": 0.4, "sigm
 # learn sooner with all of it too; HalfCheetah did not (its seeds stood still, as with mixed noise
 # before), and the Humanoid's screen was too short to tell.
 _TUNED_CPU_D4PG = {**_HOPPER_CPU, "policy_layers": (128, 128), "critic_layers": (128, 128)}
+_TUNED_CPU_WHY = ("Hopper's cpu settings (128-128 networks, action penalty 0.1, learning rate "
+                  "2e-3, mixed noise 0.05 to 0.4)")
 
 # One GPU: few envs and many updates. 1,024 envs stepped once per iteration feed 8 updates of
 # 8,192 transitions (replay ratio 64, FastTD3's layout), and the envs explore at stds spread
@@ -96,12 +98,12 @@ PRESETS: dict[tuple[str, str], Preset] = {
     # seeds 0-3 passed 2,000 in 3.02M to 4.40M env steps (mean 3.52M; 2,500 on 3 of 4 by 7.4M),
     # against 5.02M to 6.25M (mean 5.53M; 2,500 on none) with D4PG's cpu preset as it is, in the
     # same run; with 256-256 networks 2.61M to 3.84M (mean 3.23M), but 128-128 runs 1.35x the
-    # env steps/s on 2 cores (BENCHMARKS.md, "On the 2-core CPU").
+    # env steps/s on 2 cores. There seeds 0-4 passed 2,000 at 199 to 355 s, median 283, where the
+    # preset as it was took 10.1 minutes (seed 0; BENCHMARKS.md, "On the 2-core CPU").
     ("Walker2D", "cpu"): Preset(**{**_CPU, "agent_overrides": _TUNED_CPU_D4PG}, target=2500.0,
                                 minutes=60.0, why=(
-        "Hopper's cpu settings (128-128 networks, action penalty 0.1, learning rate 2e-3, mixed "
-        "noise 0.05 to 0.4): 2,000 in 0.64x the env steps of D4PG's cpu preset, screened on "
-        "four seeds")),
+        _TUNED_CPU_WHY + ": 2,000 in 0.64x the env steps of D4PG's cpu preset (four seeds "
+        "screened on a GPU), and on 2 cores at 199 to 355 s, median 283, for seeds 0-4")),
     ("Walker2D", "gpu"): Preset(**_GPU, target=2500.0, minutes=4.0, why=_GPU_WHY),
     ("HalfCheetah", "cpu"): Preset(**_CPU, target=3000.0, minutes=60.0, why=(
         _CPU_UNTUNED + "; on 2 cores it passed 3,000 in 19.1 minutes (one seed), and mixed "
@@ -121,12 +123,13 @@ PRESETS: dict[tuple[str, str], Preset] = {
         "other robots' 8 updates of 8,192")),
     # Hopper's cpu settings: screened on an H100 in this layout, seeds 0-3 passed 2,000 in 1.84M
     # to 3.02M env steps (mean 2.37M) and 2,500 in 3.23M to 4.61M (mean 3.83M), against 3.02M to
-    # 3.43M (3.23M) and 3.84M to 5.02M (4.53M) with D4PG's cpu preset, in the same run.
+    # 3.43M (3.23M) and 3.84M to 5.02M (4.53M) with D4PG's cpu preset, in the same run. On 2
+    # cores seed 0 passed 3,000 at 12.3 minutes (7.63M env steps), against 18.7 (7.83M) before:
+    # its 128-128 networks run about 11,000 env steps/s against 7,500.
     ("Ant", "cpu"): Preset(**{**_CPU, "agent_overrides": _TUNED_CPU_D4PG}, target=3000.0,
                            minutes=60.0, why=(
-        "Hopper's cpu settings (128-128 networks, action penalty 0.1, learning rate 2e-3, mixed "
-        "noise 0.05 to 0.4): 2,500 in 0.85x the env steps of D4PG's cpu preset, screened on four "
-        "seeds")),
+        _TUNED_CPU_WHY + ": 2,500 in 0.85x the env steps of D4PG's cpu preset (four seeds "
+        "screened on a GPU), and 3,000 on 2 cores at 12.3 minutes, against 18.7 (seed 0)")),
     ("Ant", "gpu"): Preset(**_GPU, target=3000.0, minutes=5.0, why=_GPU_WHY),
     ("Humanoid", "cpu"): Preset(**_CPU, target=2500.0, minutes=60.0, why=(
         _CPU_UNTUNED + "; on 2 cores it passed 2,500 in 21.5 minutes (one seed)")),
