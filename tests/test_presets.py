@@ -71,10 +71,10 @@ def test_cli_starts_from_the_robot_preset():
   d4pg = run_config("--env", "Hopper").agent_config()
   assert (d4pg.policy_layers, d4pg.critic_layers) == ((128, 128), (128, 128))
   assert cfg.agent_config().critic_layers == (256, 256)
-  # Walker2D's and the Ant's D4PG take the Hopper's cpu settings; HalfCheetah's seeds stood still
+  # The other robots' D4PG take the Hopper's cpu settings, but HalfCheetah's seeds stood still
   # with them, so it keeps D4PG's cpu preset as it is.
   hopper = presets.get("Hopper", "cpu").agent_overrides
-  for robot in ("Walker2D", "Ant"):
+  for robot in ("Walker2D", "Ant", "Humanoid"):
     assert run_config("--env", robot).agent_overrides == hopper
   assert run_config("--env", "HalfCheetah").agent_overrides == {}
   assert run_config("--env", "Hopper", "--agent", "dmpo").agent_overrides == {
