@@ -2,13 +2,16 @@
 and the achieved FLOP/s against this machine's measured matmul peak in the networks' compute
 dtype (float32, or bfloat16 with --set compute_dtype=bfloat16), in one run: K updates
 in one compiled `lax.scan` over K random Hopper-sized batches, split over the devices as the
-trainer does (BENCHMARKS.md, "Learner throughput"). FLOPs are XLA's count for one update, taken
+trainer does (BENCHMARKS.md, "Learner throughput"). With --robots, each robot's own preset of
+each --presets kind instead (`mjx_hopper.presets`: its agent, settings and batch size, and the
+robot's observation and action sizes). FLOPs are XLA's count for one update, taken
 from the program compiled for the host's CPU: on a GPU the compiled program hands its products
 to cuBLAS, whose FLOPs XLA's count of it leaves out. "kernels" counts the compiled update's
 launches (fusions, library calls and unfused ops), and "us/kernel" is an update's time over them.
 
     python benchmarks/learner_throughput.py                     # CPU: 1 and 2 XLA devices
     python benchmarks/learner_throughput.py --devices 1         # on a GPU
+    python benchmarks/learner_throughput.py --devices 1 --presets gpu --robots Hopper,Humanoid
 """
 
 from __future__ import annotations
@@ -71,75 +74,99 @@ def count_kernels(hlo: str) -> int:
   return count
 
 
-def learner_rows(agent_name: str, presets: list[str], batch: int, updates: int,
-                 overrides: dict) -> list[dict]:
+def cases(agents_: str, presets: str, robots: str | None, batch: int | None,
+          overrides: dict) -> list[dict]:
+  """What to time: each agent's preset of each name at `batch` (256 unless given) on
+  Hopper-sized data, or with `robots`, each robot's preset of each kind (its agent, settings,
+  batch size and sizes), `overrides` over either."""
+  if not robots:
+    return [dict(robot="Hopper", agent=a, preset=p, overrides=overrides, obs=OBS, act=ACT,
+                 batch=batch or 256) for a in agents_.split(",") for p in presets.split(",")]
+  from mjx_hopper import envs, presets as robot_presets
+  out = []
+  for robot in robots.split(","):
+    env = envs.make(robot)
+    for kind in presets.split(","):
+      preset = robot_presets.get(robot, kind)
+      out.append(dict(robot=robot, agent=preset.agent, preset=preset.agent_preset,
+                      overrides={**preset.agent_overrides, **overrides},
+                      obs=env.observation_size, act=env.action_size,
+                      batch=batch or preset.train.batch_size, kind=kind))
+  return out
+
+
+def learner_row(case: dict, updates: int) -> dict:
+  """`case` timed: `updates` updates in one compiled scan, the median of 3 calls."""
   import jax
   import numpy as np
   from jax.sharding import NamedSharding, PartitionSpec as P
 
   from mjx_hopper import agents, parallel, replay
-
   devices = jax.local_devices()
   mesh = parallel.mesh(devices, ("devices",))
   rng = np.random.default_rng(0)
+  agent_name, preset, overrides = case["agent"], case["preset"], case["overrides"]
+  obs_size, act_size, batch = case["obs"], case["act"], case["batch"]
+  if batch % len(devices):
+    raise SystemExit(f"batch {batch} must divide over {len(devices)} devices")
 
   def batches(k):
     return replay.Transition(
-        obs=rng.normal(size=(k, batch, OBS)).astype(np.float32),
-        action=rng.uniform(-1, 1, (k, batch, ACT)).astype(np.float32),
+        obs=rng.normal(size=(k, batch, obs_size)).astype(np.float32),
+        action=rng.uniform(-1, 1, (k, batch, act_size)).astype(np.float32),
         reward=rng.normal(size=(k, batch)).astype(np.float32),
         discount=np.full((k, batch), 0.99**5, np.float32),
-        next_obs=rng.normal(size=(k, batch, OBS)).astype(np.float32))
+        next_obs=rng.normal(size=(k, batch, obs_size)).astype(np.float32))
 
-  rows = []
-  for preset in presets:
-    agent = agents.make(agent_name, OBS, ACT, agents.config(agent_name, preset, **overrides))
-    state = agent.init(jax.random.PRNGKey(0))
-    one = jax.tree.map(lambda x: x[0], batches(1))
-    update = jax.jit(lambda s, b, k: agent.update(s, b, k))
-    # Counted on the program compiled for the host's CPU, whose products stay XLA's own dots.
-    cost = update.lower(*jax.device_put((state, one, jax.random.PRNGKey(0)),
-                                        jax.devices("cpu")[0])).compile().cost_analysis()
-    flops = float((cost[0] if isinstance(cost, (list, tuple)) else cost).get("flops", np.nan))
-    kernels = count_kernels(update.lower(state, one, jax.random.PRNGKey(0)).compile().as_text())
+  agent = agents.make(agent_name, obs_size, act_size,
+                      agents.config(agent_name, preset, **overrides))
+  state = agent.init(jax.random.PRNGKey(0))
+  one = jax.tree.map(lambda x: x[0], batches(1))
+  update = jax.jit(lambda s, b, k: agent.update(s, b, k))
+  # Counted on the program compiled for the host's CPU, whose products stay XLA's own dots.
+  cost = update.lower(*jax.device_put((state, one, jax.random.PRNGKey(0)),
+                                      jax.devices("cpu")[0])).compile().cost_analysis()
+  flops = float((cost[0] if isinstance(cost, (list, tuple)) else cost).get("flops", np.nan))
+  kernels = count_kernels(update.lower(state, one, jax.random.PRNGKey(0)).compile().as_text())
 
-    def run(state, data, key):
-      def step(state, inputs):
-        b, k = inputs
-        return agent.update(state, b, k, axis_name="devices")
-      keys = jax.random.split(key, updates)
-      state, metrics = jax.lax.scan(step, state, (data, keys))
-      return state, jax.tree.map(lambda m: m[-1], metrics)
+  def run(state, data, key):
+    def step(state, inputs):
+      b, k = inputs
+      return agent.update(state, b, k, axis_name="devices")
+    keys = jax.random.split(key, updates)
+    state, metrics = jax.lax.scan(step, state, (data, keys))
+    return state, jax.tree.map(lambda m: m[-1], metrics)
 
-    data_spec = replay.Transition(*[P(None, "devices")] * 5)
-    run = jax.jit(jax.shard_map(run, mesh=mesh, in_specs=(P(), data_spec, P()),
-                                out_specs=(P(), P()), check_vma=False))
-    data = jax.device_put(batches(updates), jax.tree.map(
-        lambda s: NamedSharding(mesh, s), data_spec, is_leaf=lambda x: isinstance(x, P)))
-    state = jax.device_put(state, NamedSharding(mesh, P()))
-    timed = common.Timed(run, state, data, jax.random.PRNGKey(1))
-    compile_s = timed.trace_s + timed.compile_s
-    rate = updates / statistics.median(timed() for _ in range(3))
-    losses = {k: float(v) for k, v in timed.out.items()}
-    if not all(np.isfinite(v) for v in losses.values()):
-      raise SystemExit(f"{agent_name}/{preset}: non-finite metrics {losses}")
-    rows.append({"agent": agent_name, "preset": preset, "overrides": overrides,
-                 "platform": devices[0].platform, "devices": len(devices), "batch": batch,
-                 "compile_s": compile_s, "updates_per_s": rate, "gflop_per_update": flops / 1e9,
-                 "gflops": rate * flops / 1e9, "kernels": kernels,
-                 "us_per_kernel": 1e6 / rate / kernels})
-    print(f"  {agent_name}/{preset} x{len(devices)}: {rate:,.0f} updates/s, "
-          f"{rate * flops / 1e9:.1f} GFLOP/s, compile {compile_s:.1f} s", file=sys.stderr,
-          flush=True)
-  return rows
+  data_spec = replay.Transition(*[P(None, "devices")] * 5)
+  run = jax.jit(jax.shard_map(run, mesh=mesh, in_specs=(P(), data_spec, P()),
+                              out_specs=(P(), P()), check_vma=False))
+  data = jax.device_put(batches(updates), jax.tree.map(
+      lambda s: NamedSharding(mesh, s), data_spec, is_leaf=lambda x: isinstance(x, P)))
+  state = jax.device_put(state, NamedSharding(mesh, P()))
+  timed = common.Timed(run, state, data, jax.random.PRNGKey(1))
+  compile_s = timed.trace_s + timed.compile_s
+  rate = updates / statistics.median(timed() for _ in range(3))
+  losses = {k: float(v) for k, v in timed.out.items()}
+  if not all(np.isfinite(v) for v in losses.values()):
+    raise SystemExit(f"{agent_name}/{preset}: non-finite metrics {losses}")
+  label = case["robot"] + (f" ({case['kind']})" if "kind" in case else "")
+  print(f"  {label} {agent_name}/{preset} x{len(devices)}: {rate:,.0f} updates/s, "
+        f"{rate * flops / 1e9:.1f} GFLOP/s, compile {compile_s:.1f} s", file=sys.stderr,
+        flush=True)
+  return {**case, "label": label, "platform": devices[0].platform, "devices": len(devices),
+          "compile_s": compile_s, "updates_per_s": rate, "gflop_per_update": flops / 1e9,
+          "gflops": rate * flops / 1e9, "kernels": kernels, "us_per_kernel": 1e6 / rate / kernels}
 
 
 def main() -> None:
   parser = argparse.ArgumentParser(description=__doc__,
                                    formatter_class=argparse.RawDescriptionHelpFormatter)
   parser.add_argument("--agents", default="d4pg", help="comma-separated agent names")
-  parser.add_argument("--presets", default="seed,gpu,cpu")
-  parser.add_argument("--batch", type=int, default=256)
+  parser.add_argument("--presets", default="seed,gpu,cpu",
+                      help="the agents' presets, or with --robots the robots' (gpu, cpu)")
+  parser.add_argument("--robots", help="comma-separated robots: time each robot's preset")
+  parser.add_argument("--batch", type=int,
+                      help="default: 256, or with --robots each preset's batch size")
   parser.add_argument("--updates", type=int, default=100, help="updates per timed call")
   parser.add_argument("--devices", default="1,2",
                       help="XLA CPU device counts (on a GPU: GPUs used)")
@@ -151,17 +178,14 @@ def main() -> None:
   if args.worker:  # one device count per process: XLA reads the flag at start-up
     args = argparse.Namespace(**json.loads(args.worker))
     from mjx_hopper import cli
-    rows = [r for a in args.agents.split(",")
-            for r in learner_rows(a, args.presets.split(","), args.batch, args.updates,
-                                  cli._overrides(args.set))]
+    rows = [learner_row(case, args.updates) for case in cases(
+        args.agents, args.presets, args.robots, args.batch, cli._overrides(args.set))]
     print(json.dumps({"peak": matmul_peak(), "peak_bf16": matmul_peak("bfloat16"),
                       "rows": rows}))
     return
 
   rows, peaks, peaks_bf16 = [], {}, {}
   for d in [int(x) for x in args.devices.split(",")]:
-    if args.batch % d:
-      raise SystemExit(f"--batch {args.batch} must divide over {d} devices")
     result = common.worker(__file__, vars(args), d)
     if result is None:
       raise SystemExit(1)
@@ -176,9 +200,9 @@ def main() -> None:
   print(f"# learner throughput, {time.strftime('%Y-%m-%d')}, {platform.node()}, "
         f"{os.cpu_count()} CPUs\n")
   print(common.table(
-      ["agent", "preset", "platform", "devices", "batch", "compile (s)", "updates/s",
+      ["robot", "agent", "preset", "platform", "devices", "batch", "compile (s)", "updates/s",
        "GFLOP/update", "GFLOP/s", "% of matmul peak", "kernels", "us/kernel"],
-      [[r["agent"], r["preset"], r["platform"], r["devices"], r["batch"], f"{r['compile_s']:.1f}",
+      [[r["label"], r["agent"], r["preset"], r["platform"], r["devices"], r["batch"], f"{r['compile_s']:.1f}",
         f"{r['updates_per_s']:,.0f}", f"{r['gflop_per_update']:.3f}", f"{r['gflops']:.1f}",
         f"{100 * r['gflops'] / peak(r):.1f}%", r["kernels"],
         f"{r['us_per_kernel']:.1f}"] for r in rows]))
