@@ -160,10 +160,14 @@ def get(env, kind: str) -> Preset:
 # 176), where it took 9 to 17 minutes before (BENCHMARKS.md, "Learning, per agent"). DMPO on
 # Hopper learns at 1e-3 instead of 3e-4: on 2 cores, seeds 0-2 passed 2,000 at 842, 529 and
 # 831 s (3e-4: 688, 802 and 897, the last 3 s inside the notebook's 15-minute cell); on H200s in
-# the cpu layout, seeds 0-4 in 2.82M to 3.43M env steps (3e-4: seed 0 not in 4.1M).
+# the cpu layout, seeds 0-4 in 2.82M to 3.43M env steps (3e-4: seed 0 not in 4.1M). Its networks
+# are 128-128, as D4PG's: its update scores 20 sampled actions per state, and runs 1.59x the
+# updates/s on 2 cores; seed 0 passed 2,000 at 500 s (4.04M env steps) against 842, and seeds
+# 0-2 trained at once in 2.61M, 3.43M and 4.04M env steps (BENCHMARKS.md, "Learning, per agent").
 AGENT_OVERRIDES: dict[tuple[str, str, str], dict] = {
     ("Hopper", "cpu", "ddpg"): _HOPPER_CPU,
-    ("Hopper", "cpu", "dmpo"): {"learning_rate": 1e-3},
+    ("Hopper", "cpu", "dmpo"): {"learning_rate": 1e-3, "policy_layers": (128, 128),
+                                "critic_layers": (128, 128)},
 }
 
 

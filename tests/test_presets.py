@@ -77,8 +77,10 @@ def test_cli_starts_from_the_robot_preset():
   for robot in ("Walker2D", "Ant", "Humanoid"):
     assert run_config("--env", robot).agent_overrides == hopper
   assert run_config("--env", "HalfCheetah").agent_overrides == {}
-  assert run_config("--env", "Hopper", "--agent", "dmpo").agent_overrides == {
-      "learning_rate": 1e-3}
+  dmpo = run_config("--env", "Hopper", "--agent", "dmpo")
+  assert dmpo.agent_overrides == {"learning_rate": 1e-3, "policy_layers": (128, 128),
+                                  "critic_layers": (128, 128)}
+  assert dmpo.agent_config().critic_layers == (128, 128)
   assert run_config("--env", "Hopper", "--agent", "mpo").agent_overrides == {}
   # With no flags: D4PG's cpu preset and the trainer's defaults (the README's main job).
   cfg = run_config()
