@@ -202,8 +202,8 @@ def main() -> None:
   print(common.table(
       ["robot", "agent", "preset", "platform", "devices", "batch", "compile (s)", "updates/s",
        "GFLOP/update", "GFLOP/s", "% of matmul peak", "kernels", "us/kernel"],
-      [[r["label"], r["agent"], r["preset"], r["platform"], r["devices"], r["batch"], f"{r['compile_s']:.1f}",
-        f"{r['updates_per_s']:,.0f}", f"{r['gflop_per_update']:.3f}", f"{r['gflops']:.1f}",
+      [[r["label"], r["agent"], r["preset"], r["platform"], r["devices"], r["batch"],
+        f"{r['compile_s']:.1f}", f"{r['updates_per_s']:,.0f}", f"{r['gflop_per_update']:.3f}", f"{r['gflops']:.1f}",
         f"{100 * r['gflops'] / peak(r):.1f}%", r["kernels"],
         f"{r['us_per_kernel']:.1f}"] for r in rows]))
   print("\nmeasured matmul peak (GFLOP/s), float32 / bfloat16: "

@@ -49,7 +49,8 @@ _HOPPER_CPU = {"action_penalty": 0.1, "learning_rate": 2e-3, "sigma": 0.4, "sigm
 # (BENCHMARKS.md, "On the 2-core CPU"). DDPG keeps 256-256, as measured. Walker2D, the Ant and
 # the Humanoid learn sooner with all of it too; HalfCheetah did not (its seeds stood still, as
 # with mixed noise before).
-_TUNED_CPU_D4PG = {**_HOPPER_CPU, "policy_layers": (128, 128), "critic_layers": (128, 128)}
+_SMALL_NETWORKS = {"policy_layers": (128, 128), "critic_layers": (128, 128)}
+_TUNED_CPU_D4PG = {**_HOPPER_CPU, **_SMALL_NETWORKS}
 _CPU_TUNED = {**_CPU, "agent_overrides": _TUNED_CPU_D4PG}
 _TUNED_CPU_WHY = ("Hopper's cpu settings (128-128 networks, action penalty 0.1, learning rate "
                   "2e-3, mixed noise 0.05 to 0.4)")
@@ -166,8 +167,7 @@ def get(env, kind: str) -> Preset:
 # 0-2 trained at once in 2.61M, 3.43M and 4.04M env steps (BENCHMARKS.md, "Learning, per agent").
 AGENT_OVERRIDES: dict[tuple[str, str, str], dict] = {
     ("Hopper", "cpu", "ddpg"): _HOPPER_CPU,
-    ("Hopper", "cpu", "dmpo"): {"learning_rate": 1e-3, "policy_layers": (128, 128),
-                                "critic_layers": (128, 128)},
+    ("Hopper", "cpu", "dmpo"): {"learning_rate": 1e-3, **_SMALL_NETWORKS},
 }
 
 
