@@ -67,7 +67,7 @@ class CommonConfig:
   max_grad_norm: float = 40.0        # acme's gradient clipping (by global norm)
   # The networks' hidden layers compute in this dtype: "bfloat16" halves the bytes their
   # activations move and runs their products on the GPU's bf16 units, on float32 parameters,
-  # gradients and optimizer (mjx_hopper.networks). The output layers and losses stay float32.
+  # gradients and optimizer (agents/networks.py). The output layers and losses stay float32.
   compute_dtype: str = "float32"
 
   def __post_init__(self):

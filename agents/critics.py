@@ -15,7 +15,7 @@ from typing import Callable, NamedTuple
 import jax
 import jax.numpy as jnp
 
-from mjx_hopper import distributional
+from mjx_hopper.agents import distributional
 
 
 class Head(NamedTuple):

@@ -9,7 +9,7 @@ from __future__ import annotations
 import dataclasses
 from typing import ClassVar
 
-from mjx_hopper import distributional
+from mjx_hopper.agents import distributional
 from mjx_hopper.agents import critics, dpg
 from mjx_hopper.agents.base import Agent
 

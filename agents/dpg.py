@@ -12,7 +12,7 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from mjx_hopper import networks
+from mjx_hopper.agents import networks
 from mjx_hopper.agents import critics
 from mjx_hopper.agents.base import (COMPUTE_DTYPES, Agent, CommonConfig, hparams, optimizer,
                                     pmean, update_targets)

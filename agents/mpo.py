@@ -30,7 +30,7 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from mjx_hopper import distributional, networks
+from mjx_hopper.agents import distributional, networks
 from mjx_hopper.agents import critics
 from mjx_hopper.agents.base import (COMPUTE_DTYPES, Agent, CommonConfig, hparams, optimizer,
                                     pmean, update_targets)
