@@ -28,11 +28,11 @@ class Config(dpg.Config):
     distributional.check_support(self.vmin, self.vmax, self.num_atoms)
 
 
-# "seed": the seed notebook's settings. The others widen the critic's support, since a hopping
-# Hopper earns ~2.5 per step, a discounted value of ~250 (> the seed's vmax of 150), and learn
-# at 3e-4; "cpu" also halves the networks' depth for a 2-core CPU. BENCHMARKS.md has the runs.
+# "acme": the NMA notebook's acme settings. The others widen the critic's support, since a
+# hopping Hopper earns ~2.5 per step, a discounted value of ~250 (above acme's vmax of 150), and
+# learn at 3e-4; "cpu" also has shallower networks, for a small CPU.
 PRESETS = {
-    "seed": Config(),
+    "acme": Config(),
     "gpu": Config(vmin=-150.0, vmax=450.0, learning_rate=3e-4),
     "cpu": Config(policy_layers=(256, 256), critic_layers=(256, 256), vmin=-150.0, vmax=450.0,
                   learning_rate=3e-4),
@@ -44,3 +44,9 @@ State = dpg.State
 def make(obs_size: int, action_size: int, cfg: Config = Config()) -> Agent:
   return dpg.make(obs_size, action_size, cfg,
                   lambda hp: critics.categorical(hp["vmin"], hp["vmax"], cfg.num_atoms))
+
+
+# The learner figures on the terminal line (log.csv has all of them): a bounded critic loss, and a
+# mean Q that follows the returns' scale rather than running away.
+LEARNER_FIELDS = (("critic_loss", "critic loss {}"), ("q_mean", "Q {}"))
+TINY = {"policy_layers": (16,), "critic_layers": (16,), "n_step": 3, "num_atoms": 11}

@@ -13,10 +13,10 @@ from mjx_hopper.agents.base import Agent
 # The defaults are the seed notebook's networks and acme's DDPG hyperparameters.
 Config = dpg.Config
 
-# "seed": the seed notebook's settings; "gpu" and "cpu" learn at 3e-4 as D4PG's presets do, and
-# "cpu" has D4PG's cpu networks. BENCHMARKS.md has the runs.
+# "acme": the NMA notebook's acme settings; "gpu" and "cpu" learn at 3e-4 as D4PG's presets do,
+# and "cpu" has D4PG's cpu networks.
 PRESETS = {
-    "seed": Config(),
+    "acme": Config(),
     "gpu": Config(learning_rate=3e-4),
     "cpu": Config(policy_layers=(256, 256), critic_layers=(256, 256), learning_rate=3e-4),
 }
@@ -26,3 +26,7 @@ State = dpg.State
 
 def make(obs_size: int, action_size: int, cfg: Config = Config()) -> Agent:
   return dpg.make(obs_size, action_size, cfg, lambda hp: critics.scalar())
+
+
+LEARNER_FIELDS = (("critic_loss", "critic loss {}"), ("q_mean", "Q {}"))
+TINY = {"policy_layers": (16,), "critic_layers": (16,), "n_step": 3}

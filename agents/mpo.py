@@ -89,13 +89,13 @@ class Config(CommonConfig):
 # hopper stalls. BENCHMARKS.md has the runs.
 LOOSER_STD = dict(epsilon_stddev=1e-5, init_log_alpha_stddev=10.0)
 PRESETS = {
-    "seed": Config(),
+    "acme": Config(),
     "gpu": Config(learning_rate=3e-4, **LOOSER_STD),
     "cpu": Config(policy_layers=(256, 256), critic_layers=(256, 256), learning_rate=3e-4,
                   **LOOSER_STD),
 }
 DMPO_PRESETS = {
-    "seed": Config(distributional=True),
+    "acme": Config(distributional=True),
     "gpu": Config(distributional=True, vmax=450.0, learning_rate=3e-4, **LOOSER_STD),
     "cpu": Config(distributional=True, vmax=450.0, learning_rate=3e-4,
                   policy_layers=(256, 256), critic_layers=(256, 256), **LOOSER_STD),
@@ -288,3 +288,10 @@ def make(obs_size: int, action_size: int, cfg: Config = Config()) -> Agent:
 
   return Agent(init=init, act=act, policy=policy, update=update, n_step=cfg.n_step,
                hparams=defaults)
+
+
+# The terminal line's learner figures: the critic's loss, and the temperature, which should settle
+# rather than collapse to its floor or keep growing.
+LEARNER_FIELDS = (("critic_loss", "critic loss {}"), ("temperature", "temperature {}"))
+TINY = {"policy_layers": (16,), "critic_layers": (16,), "n_step": 3, "num_samples": 4}
+DMPO_TINY = {**TINY, "num_atoms": 11}

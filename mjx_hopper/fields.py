@@ -70,3 +70,12 @@ def check_types(cfg) -> None:
       raise ValueError(f"{field.name} takes a {_kind(hints[field.name])}, got {value!r}") from None
     if converted is not value:
       object.__setattr__(cfg, field.name, converted)
+
+
+def setting(default, help: str, flag: bool = True, aliases: tuple[str, ...] = ()):
+  """A dataclass field with its help text; the command line offers it as --name (and
+  `aliases`) when `flag`."""
+  meta = {"help": help, "flag": flag, "aliases": aliases}
+  if isinstance(default, dict):
+    return dataclasses.field(default_factory=dict, metadata=meta)
+  return dataclasses.field(default=default, metadata=meta)

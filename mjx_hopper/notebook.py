@@ -20,27 +20,20 @@ import html
 import jax
 import numpy as np
 
-from mjx_hopper import loop, rollout, train
+from mjx_hopper import agents, loop, rollout, train
 from mjx_hopper.envs import render
 
-# The tiny runs of the notebook's short mode, which tests/test_train.py's TINY run (and its
-# TINY_ARGS on the command line) also use, so that they share compiled programs through the
-# persistent compile cache.
 TINY_TRAIN = train.TrainConfig(num_envs=4, unroll_length=2, batch_size=8, replay_ratio=2.0,
                                replay_size=64, min_replay=24, iterations_per_chunk=5)
-TINY_AGENT = {"policy_layers": (16,), "critic_layers": (16,), "n_step": 3}
-TINY_AGENT_EXTRA = {"d4pg": {"num_atoms": 11}, "mpo": {"num_samples": 4},
-                    "dmpo": {"num_samples": 4, "num_atoms": 11}}
 
 
 def tiny(cfg: loop.RunConfig) -> loop.RunConfig:
-  """`cfg` shrunk to a few seconds of training: 16-unit networks, 4 envs, 80 env steps of
-  30-step episodes, an evaluation of 2 episodes every 40 env steps. Its env, agent, seed and
-  files stay."""
-  overrides = {**TINY_AGENT, **TINY_AGENT_EXTRA.get(cfg.agent, {})}
-  return dataclasses.replace(cfg, agent_overrides=overrides, train=TINY_TRAIN, episode_steps=30,
-                             total_env_steps=80, max_minutes=None, eval_every=40,
-                             eval_episodes=2)
+  """`cfg` shrunk to seconds of training: the agent's tiny settings, 4 envs, 80 env steps of
+  30-step episodes, an evaluation of 2 episodes every 40 env steps. Tests share its programs
+  through the compile cache."""
+  return dataclasses.replace(cfg, agent_overrides=agents.spec(cfg.agent).tiny, train=TINY_TRAIN,
+                             episode_steps=30, total_env_steps=80, max_minutes=None,
+                             eval_every=40, eval_episodes=2)
 
 
 def evaluate(result: loop.Result, num_episodes: int, seed: int = 0, which: str = "best",

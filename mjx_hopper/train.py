@@ -32,7 +32,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
 
 from mjx_hopper import parallel, replay, rollout
-from mjx_hopper.fields import check_types
+from mjx_hopper.fields import check_types, setting
 from mjx_hopper.agents.base import Agent
 from mjx_hopper.envs import AutoReset, LocomotionEnv
 
@@ -50,13 +50,13 @@ class TrainConfig:
   the trainer's); the others are structural.
   """
 
-  num_envs: int = 512
-  unroll_length: int = 4         # env steps per env per iteration
-  batch_size: int = 256
-  replay_ratio: float = 4.0      # samples drawn per transition inserted
-  replay_size: int = 1_000_000   # transitions kept
-  min_replay: int = 20_000       # transitions collected before learning starts
-  iterations_per_chunk: int = 25
+  num_envs: int = setting(512, "envs stepped at once")
+  unroll_length: int = setting(4, "env steps per env per iteration")
+  batch_size: int = setting(256, "transitions per update")
+  replay_ratio: float = setting(4.0, "samples drawn per transition inserted")
+  replay_size: int = setting(1_000_000, "transitions kept in the replay")
+  min_replay: int = setting(20_000, "transitions collected before learning starts")
+  iterations_per_chunk: int = setting(25, "iterations per compiled chunk", aliases=("--chunk",))
 
   @property
   def steps_per_iteration(self) -> int:
