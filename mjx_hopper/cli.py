@@ -178,9 +178,10 @@ def _run_config(args: argparse.Namespace, command: str = "train"):
     train_given["replay_ratio"] = fixed.pop("replay_ratio")
   sweep = {}
   if command == "sweep":
-    sweep = dict(seeds=tuple(range(run_given.get("seed", base.seed),
-                                   run_given.get("seed", base.seed) + args.seeds)),
-                 grid={**base.grid, **grid}, pbt=_pbt(args) or base.pbt)
+    seed = run_given.get("seed", base.seed)
+    seeds = (tuple(range(seed, seed + args.seeds)) if args.seeds is not None
+             else base.seeds or (seed,))
+    sweep = dict(seeds=seeds, grid={**base.grid, **grid}, pbt=_pbt(args) or base.pbt)
   return dataclasses.replace(
       base, **run_given, **sweep, train=dataclasses.replace(base.train, **train_given),
       env_settings={**base.env_settings, **_overrides(args.env_set, "--env-set")},
@@ -202,7 +203,7 @@ def sweep(args: argparse.Namespace) -> None:
   curves.png, a ranking, checkpoints; over several processes, each its share."""
   from mjx_hopper import loop, parallel
   try:
-    if args.seeds < 1:
+    if args.seeds is not None and args.seeds < 1:
       raise ValueError(f"--seeds must be >= 1, got {args.seeds}")
     process = None
     if args.distributed or args.coordinator or args.num_processes or args.process_id is not None:
@@ -307,8 +308,9 @@ def build_parser(bases: dict | None = None) -> argparse.ArgumentParser:
   _add_run_flags(t, (bases or {}).get("train"))
   w = sub.add_parser("sweep", help="train many seeds and settings at once, in one program")
   _add_run_flags(w, (bases or {}).get("sweep"), sweep=True)
-  w.add_argument("--seeds", type=int, default=1,
-                 help="members per setting: seeds SEED to SEED+N-1 (becomes the config's seeds)")
+  w.add_argument("--seeds", type=int, default=None,
+                 help="members per setting: seeds SEED to SEED+N-1 (becomes the config's "
+                      "seeds; default 1, or a --config's seeds)")
   w.add_argument("--distributed", action="store_true",
                  help="a sweep over processes, each told its place by its launcher (SLURM, "
                       "Open MPI): each trains its share of the members")
