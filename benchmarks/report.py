@@ -150,7 +150,8 @@ def summary() -> str:
       "is a robot's measured settings: agent, networks and trainer layout; "
       "`mjx_hopper/presets.py`). Seeds: those that reached the score, of those run. Env steps/s "
       "× PyBullet: MJX against PyBullet on the same 2 cores. rl-baselines3-zoo's SAC and TQC "
-      "scores are PyBullet's robots after 1M env steps (published; other physics).",
+      "scores are PyBullet's robots after 1M env steps (published, other physics: "
+      f"`benchmarks/results/{RL_ZOO}`).",
       table(["robot", "GPU: score", "GPU: median (s)", "GPU: seeds", "2 cores: score",
              "2 cores: median (min)", "2 cores: seeds", "env steps/s × PyBullet",
              "rl-zoo SAC", "rl-zoo TQC"], rows),
