@@ -69,7 +69,7 @@ def machine(name: str) -> str:
   chip = next((c for c in ("H100", "H200") if c in text), None)
   if chip:
     return f"{text.split(' x ')[0]} {chip}"
-  return "2 CPU cores" if "2-core" in text else text
+  return "2 CPU cores" if "2-core" in text or text.endswith(" 2 cores") else text
 
 
 def time_to_score(names: list[str], scale: float = 1.0) -> dict:
