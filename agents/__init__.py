@@ -1,5 +1,4 @@
-"""Functional RL agents (JAX, flax, optax) for the MJX locomotion envs: D4PG, DDPG, MPO and
-DMPO (MPO with D4PG's categorical critic).
+"""Functional RL agents in JAX: D4PG, DDPG, MPO and DMPO (MPO with a categorical critic).
 
     from mjx_hopper import agents
     cfg = agents.config("d4pg", preset="cpu", sigma=0.2)

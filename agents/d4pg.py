@@ -1,5 +1,4 @@
-"""D4PG: a deterministic policy with a categorical (distributional) critic, n-step returns,
-target networks and Gaussian exploration, with acme's JAX learner semantics.
+"""D4PG: a deterministic policy with a categorical critic, after acme's JAX learner.
 
     agent = d4pg.make(obs_size, action_size, d4pg.Config())     # or d4pg.PRESETS["cpu"]
 """
@@ -29,8 +28,8 @@ class Config(dpg.Config):
 
 
 # "seed": the seed notebook's settings. The others widen the critic's support, since a hopping
-# Hopper earns ~2.5 per step, a discounted value of ~250 (> the seed's vmax of 150), and learn
-# at 3e-4; "cpu" also halves the networks' depth for a 2-core CPU. BENCHMARKS.md has the runs.
+# Hopper's discounted value (~250) exceeds the seed's vmax of 150, and learn at 3e-4; "cpu" also
+# has shallower networks, for a small CPU.
 PRESETS = {
     "seed": Config(),
     "gpu": Config(vmin=-150.0, vmax=450.0, learning_rate=3e-4),

@@ -1,5 +1,4 @@
-"""DDPG: a deterministic policy with a scalar critic, n-step returns, target networks and
-Gaussian exploration, with acme's learner semantics.
+"""DDPG: a deterministic policy with a scalar critic, after acme's learner.
 
     agent = ddpg.make(obs_size, action_size, ddpg.Config())
 """
@@ -14,7 +13,7 @@ from mjx_hopper.agents.base import Agent
 Config = dpg.Config
 
 # "seed": the seed notebook's settings; "gpu" and "cpu" learn at 3e-4 as D4PG's presets do, and
-# "cpu" has D4PG's cpu networks. BENCHMARKS.md has the runs.
+# "cpu" has D4PG's cpu networks.
 PRESETS = {
     "seed": Config(),
     "gpu": Config(learning_rate=3e-4),
