@@ -1,5 +1,4 @@
-"""D4PG: a deterministic policy with a categorical (distributional) critic, n-step returns,
-target networks and Gaussian exploration, with acme's JAX learner semantics.
+"""D4PG: a deterministic policy with a categorical critic, after acme's JAX learner.
 
     agent = d4pg.make(obs_size, action_size, d4pg.Config())     # or d4pg.PRESETS["cpu"]
 """
@@ -16,7 +15,7 @@ from mjx_hopper.agents.base import Agent
 
 @dataclasses.dataclass(frozen=True)
 class Config(dpg.Config):
-  """Defaults are the seed notebook's networks and acme's D4PG hyperparameters."""
+  """Defaults are the NMA notebook's networks and acme's D4PG hyperparameters."""
 
   DYNAMIC: ClassVar[tuple[str, ...]] = dpg.Config.DYNAMIC + ("vmin", "vmax")
   vmin: float = -150.0

@@ -1,5 +1,4 @@
-"""DDPG: a deterministic policy with a scalar critic, n-step returns, target networks and
-Gaussian exploration, with acme's learner semantics.
+"""DDPG: a deterministic policy with a scalar critic, after acme's learner.
 
     agent = ddpg.make(obs_size, action_size, ddpg.Config())
 """
@@ -10,7 +9,7 @@ from mjx_hopper.agents import critics, dpg
 from mjx_hopper.agents.base import Agent
 
 
-# The defaults are the seed notebook's networks and acme's DDPG hyperparameters.
+# The defaults are the NMA notebook's networks and acme's DDPG hyperparameters.
 Config = dpg.Config
 
 # "acme": the NMA notebook's acme settings; "gpu" and "cpu" learn at 3e-4 as D4PG's presets do,

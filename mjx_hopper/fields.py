@@ -1,6 +1,4 @@
-"""Type checks for the settings dataclasses (agent configs, TrainConfig), so that a value of the
-wrong type (a string from the command line, say) is refused with a one-line error naming it,
-before any comparison trips over it."""
+"""Type checks for the settings dataclasses, refusing a wrong type in one line."""
 
 from __future__ import annotations
 
@@ -58,9 +56,8 @@ def convert(hint, value):
 
 
 def check_types(cfg) -> None:
-  """Checks every field of the frozen dataclass `cfg` against its type hint, converting in place
-  an int given for a float and a list for a tuple. Raises ValueError naming the first field of
-  the wrong type, its value and the type it takes."""
+  """Checks each field of the frozen dataclass `cfg` against its type hint, converting an int
+  for a float and a list for a tuple in place; a ValueError names the first bad field."""
   hints = typing.get_type_hints(type(cfg))
   for field in dataclasses.fields(cfg):
     value = getattr(cfg, field.name)

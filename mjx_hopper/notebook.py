@@ -1,5 +1,5 @@
 """What the Robolympics notebook shows, each in one call: a recorded evaluation of a trained
-policy, inline videos (side by side, too), the seed's per-step reward plot, a run's learning
+policy, inline videos (side by side, too), the NMA notebook's per-step reward plot, a run's learning
 curve, and the tiny settings the tests run the notebook with.
 
     from mjx_hopper import loop, notebook
@@ -86,7 +86,7 @@ def side_by_side(videos: dict[str, str], width: int = 320):
 
 
 def plot_episode_rewards(episodes: dict, ax=None):
-  """The reward of every step, the episodes one after another, a colour each (the seed's
+  """The reward of every step, the episodes one after another, a colour each (the NMA notebook's
   plot). Returns the matplotlib Axes."""
   ax = ax or _axes()
   start = 0
