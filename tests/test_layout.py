@@ -18,9 +18,6 @@ SHARED = {"agents", "envs", "fields", "parallel"}
 
 HISTORY = re.compile(r"\b\d{4}-\d{2}-\d{2}\b|H100|H200|\b2 cores\b|\b2-core\b|BENCHMARKS\.md"
                      r"|history\.md", re.IGNORECASE)
-# Files the host-layer redesign (issue 43) has not cleaned yet; remove each name once it has.
-NOT_YET_CLEAN = {"mjx_hopper/__init__.py", "mjx_hopper/loop.py", "mjx_hopper/parallel.py",
-                 "mjx_hopper/presets.py"}
 
 
 def _python_files(*folders: str) -> list[pathlib.Path]:
@@ -155,10 +152,8 @@ def test_strings_and_names_are_not_history():
   assert history_in("KIND = 'nvidia-h100-x1'\nwhy = f(date='2026-11-26')\n") == []
 
 
-@pytest.mark.parametrize("path", [
-    pytest.param(p, marks=pytest.mark.xfail(strict=False, reason="awaits issue 43's cleaning"))
-    if str(p.relative_to(ROOT)) in NOT_YET_CLEAN else p
-    for p in _python_files("mjx_hopper", *LEAVES)], ids=lambda p: str(p.relative_to(ROOT)))
+@pytest.mark.parametrize("path", _python_files("mjx_hopper", *LEAVES),
+                         ids=lambda p: str(p.relative_to(ROOT)))
 def test_no_history_in_comments_or_docstrings(path):
   hits = history_in(path.read_text())
   assert not hits, (f"{path.relative_to(ROOT)} has history (dates, machine names, benchmark-page "
