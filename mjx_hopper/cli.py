@@ -288,7 +288,7 @@ def evaluate(args: argparse.Namespace) -> None:
                                       record_qpos=True))(agent_state,
                                                          jax.random.PRNGKey(args.seed)))
   returns = np.asarray(result["return"])
-  print(f"{cfg.env} / {cfg.agent}: return {returns.mean():.1f} +- {returns.std():.1f}, length "
+  print(f"{cfg.task_id} / {cfg.agent}: return {returns.mean():.1f} +- {returns.std():.1f}, length "
         f"{np.mean(result['length']):.0f} over {args.episodes} episodes")
   length = int(result["length"][0])
   frames = render.render_frames(trainer.env.mj_model, np.asarray(result["qpos"][:length + 1]))

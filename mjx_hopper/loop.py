@@ -101,7 +101,7 @@ def _train(p: _Parts, state: train.TrainState, progress: bool, stop) -> train.Tr
     before, t0 = env_steps, time.perf_counter()
     state, metrics = p.chunk(state)
     env_steps = p.env_steps(state)
-    members.check(env_steps, metrics, jax.device_get(_finite_members(state.agent)))
+    state = p.chunk.check(state, metrics, env_steps)
     rate = (env_steps - before) * len(members) / (time.perf_counter() - t0)
     _log_train(p, state, env_steps, rate, metrics)
     if members.all_diverged():
@@ -192,8 +192,8 @@ def _compile(trainer: train.Trainer, cfg: RunConfig, members: list[dict], evalua
 
 
 class _Chunk:
-  """Runs one compiled chunk: (state, its metrics on the host). A sweep's diverged members stay
-  frozen at their agents before it."""
+  """Runs one compiled chunk: (state, its metrics on the host); `check` then freezes a sweep's
+  members that diverged in it at their agents before it."""
 
   def __init__(self, program, trainer: train.Trainer, members: Members):
     self.program, self.members = program, members
@@ -202,12 +202,17 @@ class _Chunk:
     self._select = jax.jit(select_members, out_shardings=sharding)
 
   def __call__(self, state: train.TrainState):
-    before = None if self.members.single else self._copy(state.agent)
+    self.before = None if self.members.single else self._copy(state.agent)
     state, metrics = self.program.result()(state)
-    metrics = jax.device_get(metrics)
-    if before is not None and self.members.diverged.any():
-      state = state._replace(agent=self._select(self.members.diverged, before, state.agent))
-    return state, metrics
+    return state, jax.device_get(metrics)
+
+  def check(self, state: train.TrainState, metrics: dict, env_steps: int):
+    """Marks the members that went non-finite in the chunk, and freezes them."""
+    self.members.check(env_steps, metrics, jax.device_get(_finite_members(state.agent)))
+    if self.before is not None and self.members.diverged.any():
+      state = state._replace(agent=self._select(self.members.diverged, self.before,
+                                                state.agent))
+    return state
 
 
 class _Until:

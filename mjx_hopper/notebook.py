@@ -142,3 +142,52 @@ def _number(text) -> float:
     return float(text)
   except (TypeError, ValueError):
     return float("nan")
+
+
+class LiveCurve:
+  """A `progress_fn` for `loop.run` that draws the learning curve while training: one figure,
+  redrawn in place at most every `every` seconds and at each evaluation.
+
+      loop.run(cfg, progress_fn=notebook.LiveCurve())
+  """
+
+  def __init__(self, every: float = 5.0):
+    self.every, self.last = every, -float("inf")
+    self.train: list[tuple[int, float]] = []
+    self.eval: list[tuple[int, float]] = []
+    self.handle = None
+
+  def __call__(self, env_steps: int, metrics: dict) -> None:
+    import time
+    if metrics["kind"] == "eval":
+      self.eval.append((env_steps, float(np.mean(metrics["eval_return"]))))
+    elif np.isfinite(np.mean(metrics["episode_return"])):
+      self.train.append((env_steps, float(np.nanmean(metrics["episode_return"]))))
+    if metrics["kind"] == "eval" or time.monotonic() - self.last >= self.every:
+      self.last = time.monotonic()
+      self.draw()
+
+  def draw(self):
+    """Draws the curve so far into the notebook's output, replacing the last drawing."""
+    import io
+
+    from IPython.display import Image, display
+    from matplotlib.figure import Figure
+    fig = Figure(figsize=(8, 3))
+    ax = fig.subplots()
+    for points, style, label in ((self.train, "-", "training episodes (exploring)"),
+                                 (self.eval, "o-", "evaluation (deterministic policy)")):
+      if points:
+        ax.plot(*zip(*points), style, label=label)
+    ax.set(xlabel="env steps", ylabel="episode return")
+    ax.grid(True)
+    if self.train or self.eval:
+      ax.legend(fontsize="small", loc="upper left")
+    png = io.BytesIO()
+    fig.savefig(png, format="png", dpi=80, bbox_inches="tight")
+    image = Image(png.getvalue())
+    if self.handle is None:
+      self.handle = display(image, display_id=True)
+    else:
+      self.handle.update(image)
+    return fig
