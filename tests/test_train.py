@@ -379,3 +379,23 @@ def test_host_evaluations_pending_at_a_divergence_or_a_checkpoint_still_count(tm
                                   5)["record"]
   assert record["best_return"] == [pytest.approx(first["eval_return"])]
   assert record["best_env_steps"] == [40]
+
+
+def test_progress_fn_sees_every_row_and_its_false_ends_the_run_cleanly(tmp_path):
+  """progress_fn gets what log.csv gets, after each chunk and each evaluation; returning False
+  ends the run as max_minutes does: that chunk is evaluated, saved and logged."""
+  calls = []
+
+  def progress_fn(env_steps, metrics):
+    calls.append((env_steps, metrics["kind"], metrics.get("eval_return")))
+    return not (metrics["kind"] == "train" and env_steps >= 80)
+  cfg = dataclasses.replace(TINY, total_env_steps=400, eval_every=80,
+                            out_dir=str(tmp_path))
+  result = loop.run(cfg, progress=False, progress_fn=progress_fn)
+  assert [(s, k) for s, k, _ in calls] == [(40, "train"), (80, "train"), (80, "eval")]
+  with open(tmp_path / "log.csv") as f:
+    rows = list(csv.DictReader(f))
+  assert [(int(r["env_steps"]), r["kind"]) for r in rows] == [(s, k) for s, k, _ in calls]
+  assert calls[-1][2] == pytest.approx(float(rows[-1]["eval_return"]))
+  assert checkpoint.manager(str(tmp_path / "checkpoints")).all_steps() == [
+      train.iterations(result.state)] == [10]
