@@ -18,14 +18,19 @@ import time
 
 
 def _setup_jax(cpu_devices: int) -> None:
-  """Splits the CPU into `cpu_devices` XLA devices and turns on the persistent compile cache.
-
-  Must run before JAX initialises its backends.
-  """
+  """Before JAX starts: the CPU split into `cpu_devices` XLA devices, the persistent compile
+  cache, and XLA's C++ log at errors only where this process may use XLA's GSPMD partitioner
+  (`parallel.SHARDY_CRASHES`): GSPMD warns at every compile that it is deprecated, and XLA
+  offers no way to silence that one line. TF_CPP_MIN_LOG_LEVEL, when set, wins."""
   if cpu_devices < 1:
     raise SystemExit(f"--cpu-devices must be >= 1, got {cpu_devices}")
+  import importlib.metadata
+
   import mjx_hopper
   os.environ["XLA_FLAGS"] = mjx_hopper.xla_flags_with_cpu_devices(cpu_devices)
+  version = tuple(int(p) for p in importlib.metadata.version("jax").split(".")[:2])
+  if version >= (0, 11):  # parallel.SHARDY_CRASHES, without importing JAX yet
+    os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "2")
   mjx_hopper.use_compile_cache()
 
 

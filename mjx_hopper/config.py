@@ -94,7 +94,6 @@ class RunConfig:
           self.agent, self.agent_preset, name, value, self.train, self.agent_overrides))
 
   def task(self) -> type[envs.LocomotionEnv]:
-    """The task's class."""
     return envs.task_class(self.env)
 
   @property
@@ -137,8 +136,7 @@ class RunConfig:
     return dataclasses.replace(self.train, replay_ratio=self._largest("replay_ratio"))
 
   def _largest(self, name: str):
-    return (self.pbt.ranges(self.grid)[name][1] if self.pbt is not None
-            else max(self.grid[name]))
+    return self.pbt.ranges(self.grid)[name][1] if self.pbt else max(self.grid[name])
 
   def to_json(self) -> dict:
     """The config as a checkpoint and config.json record it: the task by id, with every

@@ -93,8 +93,6 @@ def _train(p: _Parts, state: train.TrainState, progress: bool, stop) -> train.Tr
   env_steps = p.env_steps(state)
   bar = _progress_bar(cfg.total_env_steps, env_steps) if progress and not p.until.reached(
       env_steps) else None
-  if bar is not None:
-    bar.set_postfix_str("compiling the training step")
   next_eval = (env_steps // cfg.eval_every + 1) * cfg.eval_every
   pbt_period = cfg.eval_every * cfg.pbt.every if cfg.pbt else 0
   while not (p.until.reached(env_steps) or stop.requested or members.done()):
@@ -113,7 +111,8 @@ def _train(p: _Parts, state: train.TrainState, progress: bool, stop) -> train.Tr
       evaluator.submit(env_steps, state.agent, members.diverged)
     # A run's last evaluation and PBT's (which needs the returns) wait; the others do not.
     _log_evaluations(p, evaluator.collect(members, wait=due and (last or bool(pbt_period))))
-    if due and pbt_period and env_steps // pbt_period > before // pbt_period and not last:
+    if (due and pbt_period and env_steps // pbt_period > before // pbt_period
+        and env_steps < cfg.total_env_steps):
       state = p.pbt_step(state, evaluator.latest["return"].mean(-1), env_steps, members)
     if p.saver.due():
       _log_evaluations(p, evaluator.collect(members, wait=True))  # a checkpoint holds them
@@ -121,13 +120,18 @@ def _train(p: _Parts, state: train.TrainState, progress: bool, stop) -> train.Tr
     if bar is not None:
       bar.update(min(env_steps, cfg.total_env_steps) - bar.n)
       bar.set_postfix_str(p.display.status(rate, p.logger))
-  _log_evaluations(p, evaluator.collect(members, wait=True))
+  _close(p, state, bar)
+  return state
+
+
+def _close(p: _Parts, state: train.TrainState, bar) -> None:
+  """After the last chunk: the evaluations still due, the bar, the last checkpoint."""
+  _log_evaluations(p, p.evaluator.collect(p.members, wait=True))
   if bar is not None:
     bar.close()
-  if not members.all_diverged():
-    p.saver.save(state, evaluator.best, members)
+  if not p.members.all_diverged():
+    p.saver.save(state, p.evaluator.best, p.members)
   checkpoint.finish(p.saver.mngr)
-  return state
 
 
 def _open(cfg: RunConfig, checkpoint_dir: str | None, say, process, progress_fn):
@@ -335,8 +339,10 @@ def _field_defaults(config) -> dict:
 
 
 def _progress_bar(total: int, initial: int):
-  return tqdm(total=total, initial=min(initial, total), unit=" env steps", unit_scale=True,
-              dynamic_ncols=True)
+  bar = tqdm(total=total, initial=min(initial, total), unit=" env steps", unit_scale=True,
+             dynamic_ncols=True)
+  bar.set_postfix_str("compiling the training step")
+  return bar
 
 
 def _above_progress_bars(print_fn: Callable[[str], None]) -> Callable[[str], None]:

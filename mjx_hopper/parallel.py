@@ -29,10 +29,10 @@ def _shardy_would_crash(num_devices: int) -> bool:
 
 
 def avoid_shardy_crash(num_devices: int) -> None:
-  """Switches the process to GSPMD where Shardy would crash over `num_devices`, saying so
-  once; changes nothing where JAX_USE_SHARDY_PARTITIONER is set."""
+  """Switches the process to GSPMD where Shardy would crash over `num_devices` (logged at info
+  level); changes nothing where JAX_USE_SHARDY_PARTITIONER is set."""
   if _shardy_would_crash(num_devices):
-    logging.getLogger(__name__).warning(
+    logging.getLogger(__name__).info(
         "mjx_hopper: jax %s's Shardy partitioner crashes compiling programs over %d devices; "
         "this process now uses XLA's GSPMD partitioner (set JAX_USE_SHARDY_PARTITIONER to "
         "choose)", jax.__version__, num_devices)
