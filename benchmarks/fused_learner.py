@@ -155,7 +155,7 @@ def main() -> None:
         row["x_xla"] = row["updates_per_s"] / xla if xla else None
     results.append(r)
   device = jax.devices()[0]
-  commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
+  commit = os.environ.get("MJX_HOPPER_COMMIT") or subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
                           text=True, cwd=os.path.dirname(os.path.abspath(__file__))).stdout
   print(f"# fused learner, {time.strftime('%Y-%m-%d')}, {device.device_kind}, jax "
         f"{jax.__version__}\n")
