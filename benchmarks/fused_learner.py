@@ -89,6 +89,43 @@ def _agreement(case, data):
           "params_max_abs": diff}
 
 
+def _critic_parts(case, tiles, calls=5, repeats=20):
+  """Seconds of the critic's forward pass, and of its forward and backward passes (gradients of
+  the parameters and the action), XLA's and fused, at the preset's batch."""
+  import jax
+  import jax.numpy as jnp
+  from mjx_hopper.agents import fused, networks
+  from mjx_hopper.agents.base import COMPUTE_DTYPES
+  from mjx_hopper import agents
+  cfg = agents.config("d4pg", case["preset"], **case["overrides"])
+  net = networks.Critic(cfg.critic_layers, cfg.num_atoms, COMPUTE_DTYPES[cfg.compute_dtype])
+  k = jax.random.split(jax.random.PRNGKey(0), 3)
+  obs = jax.random.normal(k[0], (case["batch"], case["obs"]))
+  act = jax.random.uniform(k[1], (case["batch"], case["act"]), minval=-1, maxval=1)
+  params = net.init(k[2], obs, act)
+  out = {}
+  for name, apply in (("xla", net.apply),
+                      ("fused", fused.critic(net, fused.Tiles(*map(int, tiles.split(",")))))):
+    def fwd(p, o, a):
+      return jnp.sum(apply(p, o, a) ** 2)
+    for part, fn in (("forward", fwd), ("forward_backward", jax.grad(fwd, argnums=(0, 2)))):
+      def loop(p, o, a, fn=fn):  # `repeats` calls in one program, each on a shifted input
+        def body(i, acc):
+          r = fn(p, o + i * 1e-3, a)
+          return acc + sum(jnp.sum(x) for x in jax.tree.leaves(r))
+        return jax.lax.fori_loop(0, repeats, body, 0.0)
+      f = jax.jit(loop)
+      f(params, obs, act).block_until_ready()
+      times = []
+      for _ in range(calls):
+        t0 = time.perf_counter()
+        f(params, obs, act).block_until_ready()
+        times.append((time.perf_counter() - t0) / repeats)
+      out[f"{name}_{part}_us"] = 1e6 * statistics.median(times)
+  print(f"  {case['label']} critic alone: {out}", file=sys.stderr, flush=True)
+  return out
+
+
 def rows_for(case, args):
   import jax
   import numpy as np
@@ -123,8 +160,11 @@ def rows_for(case, args):
     out.append({"learner": learner, "tiles": tiles, "updates_per_s": rate,
                 "compile_s": compile_s, "kernels": kernels,
                 "tflops": rate * flops / 1e12})
+  timed = [r for r in out if "updates_per_s" in r and r["learner"] == "fused"]
+  best = max(timed, key=lambda r: r["updates_per_s"])["tiles"] if timed else None
   return {"case": case, "gflop_per_update": flops / 1e9, "rows": out,
-          "agreement": _agreement(case, data)}
+          "agreement": _agreement(case, data),
+          "critic_alone": _critic_parts(case, best) if best and args.parts else None}
 
 
 def main() -> None:
@@ -136,6 +176,8 @@ def main() -> None:
   parser.add_argument("--calls", type=int, default=5, help="timed calls (the median counts)")
   parser.add_argument("--tiles", default="64,64,4,2",
                       help="fused tile settings, rows,block,num_warps,num_stages; ';' between")
+  parser.add_argument("--parts", action="store_true",
+                      help="also time the critic alone, XLA's and fused (best tiles)")
   parser.add_argument("--name", default="fused_learner", help="the results file's name")
   args = parser.parse_args()
   import jax
