@@ -9,11 +9,10 @@ at=${AUTOTUNE_FILE:-${OUT:-/tmp}/autotune.textproto}
 cache=$(mktemp -d)
 out=$(mktemp -d)
 export MJX_HOPPER_LEARNER=${MJX_HOPPER_LEARNER:-xla}
-start=$(date +%s.%N)
 MJX_HOPPER_JAX_CACHE=$cache XLA_FLAGS="--xla_gpu_dump_autotune_results_to=$at" \
   python -m mjx_hopper.cli train --env Hopper --agent d4pg --preset gpu --steps 1000000000 \
-  --no-progress --log-every 1 --max-minutes 0.5 --out "$out" | grep -m 1 '^\[train\]' || true
-echo "dump run: first row after $(echo "$(date +%s.%N) - $start" | bc) s (the machine's first)"
+  --no-progress --log-every 1 --max-minutes 0.5 --out "$out" >"$out/log.txt" 2>&1
+grep -m 1 '^\[train\]' "$out/log.txt" || tail -20 "$out/log.txt"
 ls -la "$at"
 XLA_FLAGS="--xla_gpu_load_autotune_results_from=$at" python benchmarks/start_time.py \
   --kind gpu --rounds 1 --seconds 40 --label h100_autotune_loaded
