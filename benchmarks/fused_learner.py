@@ -13,6 +13,7 @@ update's metrics and new parameters are from XLA's on the same state and batch.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import platform
 import statistics
@@ -44,7 +45,41 @@ def _agent(case, learner):
   return d4pg.make(case["obs"], case["act"], cfg, learner=learner)
 
 
-def _timed(case, learner, updates, data, calls):
+GEMM_NAMES = ("gemm", "xmma", "nvjet", "cutlass")  # cuBLAS's, CUTLASS's and Triton's products
+
+
+def _profile(compiled, state, data, updates):
+  """Per update: the GPU's kernels, their summed microseconds, those of the matrix products and
+  of the Pallas kernels, and the 12 kernels (by name) that took the most, from one traced call."""
+  import collections
+  import gzip
+  import pathlib
+  import tempfile
+  import jax
+  folder = tempfile.mkdtemp()
+  with jax.profiler.trace(folder, create_perfetto_trace=True):
+    jax.block_until_ready(compiled(state, *data))
+  path = next(pathlib.Path(folder).glob("**/*.trace.json.gz"))
+  with gzip.open(path) as f:
+    events = json.load(f)["traceEvents"]
+  gpu = {e["pid"] for e in events if e.get("ph") == "M" and e.get("name") == "process_name"
+         and "GPU" in e["args"]["name"]}
+  streams = {(e["pid"], e["tid"]) for e in events if e.get("ph") == "M"
+             and e.get("name") == "thread_name" and e["args"]["name"].startswith("Stream")}
+  kernels = [e for e in events if e.get("ph") == "X" and e["pid"] in gpu
+             and (e["pid"], e.get("tid")) in streams]
+  by_name, count = collections.Counter(), collections.Counter()
+  for e in kernels:
+    by_name[e["name"][:60]] += e["dur"] / updates
+    count[e["name"][:60]] += 1 / updates
+  total = sum(by_name.values())
+  return {"kernels": len(kernels) / updates, "kernel_us": total,
+          "gemm_us": sum(t for n, t in by_name.items() if any(g in n for g in GEMM_NAMES)),
+          "pallas_us": sum(t for n, t in by_name.items() if "_kernel" in n),
+          "top": [[n, round(t, 1), round(count[n], 1)] for n, t in by_name.most_common(12)]}
+
+
+def _timed(case, learner, updates, data, calls, profile=False):
   """updates/s of `updates` updates per compiled call (median of `calls`), compile seconds,
   and the launches of one compiled update."""
   import jax
@@ -62,7 +97,8 @@ def _timed(case, learner, updates, data, calls):
   one = jax.tree.map(lambda x: x[0], data)
   kernels = lt.count_kernels(jax.jit(agent.update).lower(
       state, one, jax.random.PRNGKey(0)).compile().as_text())
-  return rate, timed.trace_s + timed.compile_s, kernels
+  traced = _profile(timed.compiled, timed.state, timed.args, updates) if profile else None
+  return rate, timed.trace_s + timed.compile_s, kernels, traced
 
 
 def _agreement(case, data):
@@ -146,7 +182,8 @@ def rows_for(case, args):
     if tiles:
       os.environ["MJX_HOPPER_TILES"] = tiles
     try:
-      rate, compile_s, kernels = _timed(case, learner, args.updates, data, args.calls)
+      rate, compile_s, kernels, traced = _timed(case, learner, args.updates, data, args.calls,
+                                                args.profile)
     except Exception as e:  # a tile setting the GPU cannot compile: say so, time the others
       print(f"  {case['label']} {learner} {tiles}: failed: {type(e).__name__}: "
             f"{str(e)[:400]}", file=sys.stderr, flush=True)
@@ -159,7 +196,9 @@ def rows_for(case, args):
           f"launches, compile {compile_s:.1f} s", file=sys.stderr, flush=True)
     out.append({"learner": learner, "tiles": tiles, "updates_per_s": rate,
                 "compile_s": compile_s, "kernels": kernels,
-                "tflops": rate * flops / 1e12})
+                "tflops": rate * flops / 1e12, "profile": traced})
+    if traced:
+      print(f"    profile: {json.dumps(traced)}", file=sys.stderr, flush=True)
   timed = [r for r in out if "updates_per_s" in r and r["learner"] == "fused"]
   best = max(timed, key=lambda r: r["updates_per_s"])["tiles"] if timed else None
   return {"case": case, "gflop_per_update": flops / 1e9, "rows": out,
@@ -178,6 +217,8 @@ def main() -> None:
                       help="fused tile settings, rows,block,num_warps,num_stages; ';' between")
   parser.add_argument("--parts", action="store_true",
                       help="also time the critic alone, XLA's and fused (best tiles)")
+  parser.add_argument("--profile", action="store_true",
+                      help="also trace one call of each and sum its kernels' times")
   parser.add_argument("--name", default="fused_learner", help="the results file's name")
   args = parser.parse_args()
   import jax
