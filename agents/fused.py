@@ -36,16 +36,18 @@ class Tiles(NamedTuple):
   num_stages: int = 2
 
 
+# What "auto" picks. The fused kernels were measured no faster than XLA's update on the GPU
+# presets (benchmarks/fused_learner.py), so it is XLA's, on every platform.
+_AUTO = "xla"
+
+
 def path(learner: str | None = None) -> str:
-  """"fused" or "xla": `learner` (or $MJX_HOPPER_LEARNER, default "auto"), where "auto" is
-  "fused" on a GPU and "xla" elsewhere."""
+  """"fused" or "xla": `learner`, else $MJX_HOPPER_LEARNER, else "auto" (XLA's update)."""
   learner = learner or os.environ.get(ENV_VAR) or "auto"
   if learner not in PATHS:
     raise ValueError(f"learner path must be one of {list(PATHS)}, got {learner!r} "
                      f"(argument or ${ENV_VAR})")
-  if learner == "auto":
-    return "fused" if jax.default_backend() == "gpu" else "xla"
-  return learner
+  return _AUTO if learner == "auto" else learner
 
 
 def tiles_from_env() -> Tiles:
