@@ -183,7 +183,9 @@ def _backward_kernel(spec, *refs):
   xhat, rstd, refs = refs[0], refs[1], refs[2:]
   w, refs = refs[:layers], refs[layers:]
   gamma, dy0, refs = refs[0], refs[1], refs[2:]
-  dz, dx = refs[:layers - 1], refs[layers - 1]
+  dz, dx, refs = refs[:layers - 1], refs[layers - 1], refs[layers:]
+  # This program's sums over its rows, of each hidden layer's bias gradient and LayerNorm's.
+  d_bias, d_gamma, d_beta = refs[:layers - 1], refs[layers - 1], refs[layers]
   rows, cd = spec.tiles.rows, jnp.dtype(spec.dtype)
 
   def upstream(i):  # the gradient at dense layer i's pre-activations
@@ -196,7 +198,9 @@ def _backward_kernel(spec, *refs):
       dh = _rows_product(spec, upstream(i + 1), w[i + 1], n0, nb, spec.sizes[i + 2],
                          _layer_dtype(spec, i + 1), transpose=True)
       slope = _elu_slope(h[i][:, pl.ds(n0, nb)].astype(jnp.float32))
-      dz[i][:, pl.ds(n0, nb)] = (dh * slope).astype(dz[i].dtype)
+      d = dh * slope
+      dz[i][:, pl.ds(n0, nb)] = d.astype(dz[i].dtype)
+      d_bias[i][:, pl.ds(n0, nb)] = d.sum(axis=0)[None, :]
       return carry
     _over_blocks(spec.sizes[i + 1], nb, elu_layer, 0)
     _barrier(spec)
@@ -212,6 +216,8 @@ def _backward_kernel(spec, *refs):
     dy0[:, pl.ds(n0, nb)] = dy
     dxh = dy * gamma[pl.ds(n0, nb)][None, :]
     xh = xhat[:, pl.ds(n0, nb)]
+    d_beta[:, pl.ds(n0, nb)] = dy.sum(axis=0)[None, :]
+    d_gamma[:, pl.ds(n0, nb)] = (dy * xh).sum(axis=0)[None, :]
     return sums[0] + dxh.sum(axis=1), sums[1] + (dxh * xh).sum(axis=1)
   zero = jnp.zeros((rows,), jnp.float32)
   a1, a2 = _over_blocks(width, nb, tanh_and_scale, (zero, zero))
@@ -223,16 +229,18 @@ def _backward_kernel(spec, *refs):
     dxh = dy0[:, pl.ds(n0, nb)] * gamma[pl.ds(n0, nb)][None, :]
     xh = xhat[:, pl.ds(n0, nb)]
     real = (n0 + jax.lax.broadcasted_iota(jnp.int32, (1, nb), 1)) < spec.real[1]
-    d = jnp.where(real, inv[:, None] * (dxh - a1[:, None] - xh * a2[:, None]), 0.0).astype(cd)
+    d = jnp.where(real, inv[:, None] * (dxh - a1[:, None] - xh * a2[:, None]), 0.0)
     dz[0][:, pl.ds(n0, nb)] = d.astype(dz[0].dtype)
-    return dx_acc + _dot(d, w[0][:, pl.ds(n0, nb)].astype(cd), transpose_b=True)
+    d_bias[0][:, pl.ds(n0, nb)] = d.sum(axis=0)[None, :]
+    return dx_acc + _dot(d.astype(cd), w[0][:, pl.ds(n0, nb)].astype(cd), transpose_b=True)
   dx[...] = _over_blocks(width, nb, normalization,
                          jnp.zeros((rows, spec.sizes[0]), jnp.float32))
 
 
-def _call(spec, kernel, inputs, outputs, rows_in):
+def _call(spec, kernel, inputs, outputs, rows_in, per_program=0):
   """pallas_call over tiles of batch rows. rows_in[j]: whether input j is split by rows
-  (else whole); outputs are all split by rows."""
+  (else whole); outputs are split by rows, but for the last `per_program`, of one row per
+  program."""
   rows = spec.tiles.rows
   batch = inputs[0].shape[0]
 
@@ -250,7 +258,9 @@ def _call(spec, kernel, inputs, outputs, rows_in):
   return pl.pallas_call(
       kernel, out_shape=outputs, grid=(batch // rows,),
       in_specs=[by_rows(x.shape) if r else whole(x) for x, r in zip(inputs, rows_in)],
-      out_specs=[by_rows(o.shape) for o in outputs], interpret=spec.interpret, **kwargs)(*inputs)
+      out_specs=[by_rows(o.shape) for o in outputs[:len(outputs) - per_program]]
+      + [pl.BlockSpec((1,) + o.shape[1:], lambda i: (i, 0))
+         for o in outputs[len(outputs) - per_program:]], interpret=spec.interpret, **kwargs)(*inputs)
 
 
 def _prepare(spec, params, x):
@@ -300,9 +310,14 @@ def _mlp_bwd(spec, saved, dout):
   outputs = [jax.ShapeDtypeStruct((batch, spec.sizes[1]), jnp.float32)]
   outputs += [jax.ShapeDtypeStruct((batch, s), cd) for s in spec.sizes[1:-1]]
   outputs += [jax.ShapeDtypeStruct((batch, spec.sizes[0]), jnp.float32)]
+  programs = batch // spec.tiles.rows
+  sums = [jax.ShapeDtypeStruct((programs, s), jnp.float32) for s in spec.sizes[1:-1]]
+  sums += [jax.ShapeDtypeStruct((programs, spec.sizes[1]), jnp.float32)] * 2
   inputs = [dout_p, *hs, xhat, rstd, *ws, gamma]
-  dy0, *dz, dx = _call(spec, functools.partial(_backward_kernel, spec), inputs, outputs,
-                       [True] * (layers + 2) + [False] * (layers + 1))
+  results = _call(spec, functools.partial(_backward_kernel, spec), inputs, outputs + sums,
+                  [True] * (layers + 2) + [False] * (layers + 1), per_program=len(sums))
+  dy0, dz, dx = results[0], list(results[1:layers]), results[layers]
+  sums = [s.sum(0) for s in results[layers + 1:]]
   dz.append(dout_p)
   below = [xp] + list(hs)  # each dense layer's input
 
@@ -312,9 +327,8 @@ def _mlp_bwd(spec, saved, dout):
                       preferred_element_type=jnp.float32)
   real = spec.real
   d_kernels = tuple(product(below[i], dz[i], i)[:real[i], :real[i + 1]] for i in range(layers))
-  d_biases = tuple(dz[i].astype(jnp.float32).sum(0)[:real[i + 1]] for i in range(layers))
-  d_gamma = (dy0 * xhat).sum(0)[:real[1]]
-  d_beta = dy0.sum(0)[:real[1]]
+  d_biases = tuple(s[:r] for s, r in zip(sums[:layers - 1] + [dout_p.sum(0)], real[1:]))
+  d_gamma, d_beta = sums[-2][:real[1]], sums[-1][:real[1]]
   n = dout.shape[0]
   return (d_kernels, d_biases, d_gamma, d_beta), dx[:n, :real[0]]
 
