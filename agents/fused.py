@@ -30,10 +30,10 @@ _EPS = 1e-6  # flax LayerNorm's
 class Tiles(NamedTuple):
   """How the kernels cut the work: batch rows per program, features per product step, and
   Triton's warps and pipeline stages."""
-  rows: int = 64
-  block: int = 64
-  num_warps: int = 4
-  num_stages: int = 2
+  rows: int
+  block: int
+  num_warps: int
+  num_stages: int
 
 
 # What "auto" picks. The fused kernels were measured no faster than XLA's update on the GPU
@@ -50,11 +50,16 @@ def path(learner: str | None = None) -> str:
   return _AUTO if learner == "auto" else learner
 
 
-def tiles_from_env() -> Tiles:
-  """Tiles, with fields replaced from $MJX_HOPPER_TILES ("rows,block,num_warps,num_stages")."""
+# The fastest measured per compute dtype (benchmarks/fused_learner.py's tile sweeps); float32's
+# products stage twice the bytes, so fewer pipeline stages fit in shared memory.
+DEFAULT_TILES = {"bfloat16": Tiles(32, 128, 4, 3), "float32": Tiles(32, 128, 8, 2)}
+
+
+def tiles_from_env(dtype: str = "float32") -> Tiles:
+  """$MJX_HOPPER_TILES ("rows,block,num_warps,num_stages") if set, else DEFAULT_TILES[dtype]."""
   text = os.environ.get("MJX_HOPPER_TILES")
   if not text:
-    return Tiles()
+    return DEFAULT_TILES[dtype]
   values = [int(v) for v in text.split(",")]
   if len(values) != 4 or any(v < 1 or v & (v - 1) for v in values[:2]):
     raise ValueError(f"MJX_HOPPER_TILES must be 4 integers rows,block,num_warps,num_stages "
@@ -360,8 +365,9 @@ def mlp(params, x, dtype: str = "float32", tiles: Tiles | None = None,
                      f"{len(kernels)} layer(s)")
   if interpret is None:
     interpret = jax.default_backend() != "gpu"
-  spec = _Spec(tuple(_padded(n) for n in real), real, jnp.dtype(dtype).name,
-               tiles or tiles_from_env(), interpret)
+  dtype = jnp.dtype(dtype).name
+  spec = _Spec(tuple(_padded(n) for n in real), real, dtype, tiles or tiles_from_env(dtype),
+               interpret)
   lead = x.shape[:-1]
   out = _mlp(spec, params, x.reshape(-1, x.shape[-1]))
   return out.reshape(lead + (real[-1],))

@@ -213,7 +213,7 @@ def main() -> None:
   parser.add_argument("--batch", type=int, help="default: each preset's")
   parser.add_argument("--updates", type=int, default=20, help="updates per timed call")
   parser.add_argument("--calls", type=int, default=5, help="timed calls (the median counts)")
-  parser.add_argument("--tiles", default="64,64,4,2",
+  parser.add_argument("--tiles", default="32,128,4,3;32,128,8,2",
                       help="fused tile settings, rows,block,num_warps,num_stages; ';' between")
   parser.add_argument("--parts", action="store_true",
                       help="also time the critic alone, XLA's and fused (best tiles)")

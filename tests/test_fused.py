@@ -16,7 +16,7 @@ from mjx_hopper import replay
 from mjx_hopper.agents import d4pg, ddpg, fused, networks
 
 OBS, ACT, BATCH = 5, 2, 40  # BATCH is no multiple of the tiles' rows: the kernels pad it
-TILES = fused.Tiles(rows=32, block=16)
+TILES = fused.Tiles(rows=32, block=16, num_warps=4, num_stages=2)
 TOLERANCE = {"float32": 1e-5, "bfloat16": 3e-2}
 
 
