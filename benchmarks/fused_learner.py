@@ -1,6 +1,7 @@
 """The fused learner against XLA's, in one process: D4PG's update as each robot's preset ships
 it (its networks, precision and batch), K updates in one compiled `lax.scan` over K random
-batches, on the XLA path and on the fused path (agents/fused.py) with each --tiles setting.
+batches, on the XLA path and on the fused path (agents/fused.py, agents/pallas_mlp.py) with
+each --tiles setting.
 Reports updates/s, the ratio to XLA's, the launches of one compiled update, the fraction of
 the measured matmul peak in the networks' compute dtype from XLA's FLOP count of one update
 (learner_throughput.py's count, which includes the matrix products), and how far one fused
@@ -130,7 +131,7 @@ def _critic_parts(case, tiles, calls=5, repeats=20):
   the parameters and the action), XLA's and fused, at the preset's batch."""
   import jax
   import jax.numpy as jnp
-  from mjx_hopper.agents import fused, networks
+  from mjx_hopper.agents import fused, networks, pallas_mlp
   from mjx_hopper.agents.base import COMPUTE_DTYPES
   from mjx_hopper import agents
   cfg = agents.config("d4pg", case["preset"], **case["overrides"])
@@ -141,7 +142,7 @@ def _critic_parts(case, tiles, calls=5, repeats=20):
   params = net.init(k[2], obs, act)
   out = {}
   for name, apply in (("xla", net.apply),
-                      ("fused", fused.critic(net, fused.Tiles(*map(int, tiles.split(",")))))):
+                      ("fused", fused.critic(net, pallas_mlp.Tiles(*map(int, tiles.split(",")))))):
     def fwd(p, o, a):
       return jnp.sum(apply(p, o, a) ** 2)
     for part, fn in (("forward", fwd), ("forward_backward", jax.grad(fwd, argnums=(0, 2)))):
@@ -238,8 +239,9 @@ def main() -> None:
         row["x_xla"] = row["updates_per_s"] / xla if xla else None
     results.append(r)
   device = jax.devices()[0]
-  commit = os.environ.get("MJX_HOPPER_COMMIT") or subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
-                          text=True, cwd=os.path.dirname(os.path.abspath(__file__))).stdout
+  commit = os.environ.get("MJX_HOPPER_COMMIT") or subprocess.run(
+      ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+      cwd=os.path.dirname(os.path.abspath(__file__))).stdout
   print(f"# fused learner, {time.strftime('%Y-%m-%d')}, {device.device_kind}, jax "
         f"{jax.__version__}\n")
   print(common.table(

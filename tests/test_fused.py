@@ -1,7 +1,8 @@
-"""The fused learner (agents/fused.py) against XLA's, on the CPU in Pallas's interpret mode: each
-network's outputs and gradients against its flax module, and D4PG's and DDPG's whole update
-(clipped gradients, target copies, the action penalty, two critics, delayed policy updates, and
-per-member settings under a sweep's vmap) against the same update on XLA's path.
+"""The fused learner (agents/fused.py, pallas_mlp.py) against XLA's, on the CPU in Pallas's
+interpret mode: each network's outputs and gradients against its flax module, and D4PG's and
+DDPG's whole update (clipped gradients, target copies, the action penalty, two critics, delayed
+policy updates, and per-member settings under a sweep's vmap) against the same update on XLA's
+path.
 
 Tolerances: float32 agrees to 1e-5 of each array's largest value (the two programs sum the same
 products in other orders); bfloat16 to 3e-2 (the fused kernels keep float32 between a layer's
@@ -13,10 +14,10 @@ import numpy as np
 import pytest
 
 from mjx_hopper import replay
-from mjx_hopper.agents import d4pg, ddpg, fused, networks
+from mjx_hopper.agents import d4pg, ddpg, fused, networks, pallas_mlp
 
 OBS, ACT, BATCH = 5, 2, 40  # BATCH is no multiple of the tiles' rows: the kernels pad it
-TILES = fused.Tiles(rows=32, block=16, num_warps=4, num_stages=2)
+TILES = pallas_mlp.Tiles(rows=32, block=16, num_warps=4, num_stages=2)
 TOLERANCE = {"float32": 1e-5, "bfloat16": 3e-2}
 
 
