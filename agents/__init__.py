@@ -1,25 +1,54 @@
-"""Functional RL agents (JAX, flax, optax) for the MJX locomotion envs: D4PG, DDPG, MPO and
-DMPO (MPO with D4PG's categorical critic).
+"""Functional RL agents (JAX, flax, optax): D4PG, DDPG, MPO and DMPO (MPO with D4PG's
+categorical critic), and `register` for an agent of your own.
 
     from mjx_hopper import agents
-    cfg = agents.config("d4pg", preset="cpu", sigma=0.2)
+    cfg = agents.config("d4pg", "cpu", sigma=0.2)
     agent = agents.make("d4pg", obs_size, action_size, cfg)
 """
 
 from __future__ import annotations
 
 import dataclasses
+from typing import Any, Callable, NamedTuple
 
 from mjx_hopper.agents import d4pg, ddpg, mpo
 from mjx_hopper.agents.base import Agent
 
-# name -> (make, presets)
-_AGENTS = {
-    "d4pg": (d4pg.make, d4pg.PRESETS),
-    "ddpg": (ddpg.make, ddpg.PRESETS),
-    "mpo": (mpo.make, mpo.PRESETS),
-    "dmpo": (mpo.make, mpo.DMPO_PRESETS),
-}
+PRESET_NAMES = ("cpu", "gpu")  # the presets every agent declares
+OLD_PRESET_NAMES = {"seed": "acme"}
+
+
+class Spec(NamedTuple):
+  """What an agent declares: how to build it, its named configs, the learner metrics its
+  terminal line shows ((metric, "text {}") pairs), and settings small enough for tests."""
+  make: Callable[[int, int, Any], Agent]
+  presets: dict[str, Any]
+  learner_fields: tuple[tuple[str, str], ...]
+  tiny: dict
+
+
+_AGENTS: dict[str, Spec] = {}
+
+
+def register(name: str, make: Callable[[int, int, Any], Agent], presets: dict[str, Any],
+             learner_fields: tuple[tuple[str, str], ...] = (), tiny: dict | None = None) -> None:
+  """Makes agent `name` trainable everywhere an agent's name is taken. `make(obs_size,
+  action_size, config)` builds it; `presets` ({name: config dataclass}) must hold "cpu" and
+  "gpu"; `learner_fields` name the metrics of its `update` shown on the terminal; `tiny`
+  overrides the config for the short runs of tests and the notebook's quick mode."""
+  missing = [p for p in PRESET_NAMES if p not in presets]
+  if missing:
+    raise ValueError(f"agent {name!r} must declare the presets {list(PRESET_NAMES)}; it lacks "
+                     f"{missing}")
+  if not all(dataclasses.is_dataclass(c) for c in presets.values()):
+    raise ValueError(f"agent {name!r}'s presets must be config dataclasses, got {presets!r}")
+  _AGENTS[name] = Spec(make, dict(presets), tuple(learner_fields), dict(tiny or {}))
+
+
+register("d4pg", d4pg.make, d4pg.PRESETS, d4pg.LEARNER_FIELDS, d4pg.TINY)
+register("ddpg", ddpg.make, ddpg.PRESETS, ddpg.LEARNER_FIELDS, ddpg.TINY)
+register("mpo", mpo.make, mpo.PRESETS, mpo.LEARNER_FIELDS, mpo.TINY)
+register("dmpo", mpo.make, mpo.DMPO_PRESETS, mpo.LEARNER_FIELDS, mpo.DMPO_TINY)
 
 
 def list_agents() -> list[str]:
@@ -27,15 +56,21 @@ def list_agents() -> list[str]:
   return sorted(_AGENTS)
 
 
-def _lookup(name: str):
+def spec(name: str) -> Spec:
+  """What agent `name` declared; an unknown name is a ValueError listing the known ones."""
   if name not in _AGENTS:
     raise ValueError(f"unknown agent {name!r}; valid agents are {list_agents()}")
   return _AGENTS[name]
 
 
-def config(name: str, preset: str = "seed", **overrides):
-  """The named preset's config for agent `name`, with fields replaced by `overrides`."""
-  presets = _lookup(name)[1]
+def learner_fields(name: str) -> tuple[tuple[str, str], ...]:
+  return spec(name).learner_fields
+
+
+def config(name: str, preset: str = "acme", **overrides):
+  """Agent `name`'s config: its preset `preset` with fields replaced by `overrides`."""
+  presets = spec(name).presets
+  preset = OLD_PRESET_NAMES.get(preset, preset)
   if preset not in presets:
     raise ValueError(f"unknown preset {preset!r} for {name}; valid presets are "
                      f"{sorted(presets)}")
@@ -48,9 +83,11 @@ def config(name: str, preset: str = "seed", **overrides):
 
 
 def make(name: str, obs_size: int, action_size: int, cfg=None) -> Agent:
-  """Builds agent `name` for these sizes, with `cfg` (default: its "seed" preset)."""
-  make_fn, presets = _lookup(name)
-  return make_fn(obs_size, action_size, presets["seed"] if cfg is None else cfg)
+  """Builds agent `name` for these sizes, with `cfg` (default: its "acme" preset, else "cpu")."""
+  found = spec(name)
+  default = found.presets.get("acme", found.presets["cpu"])
+  return found.make(obs_size, action_size, default if cfg is None else cfg)
 
 
-__all__ = ["Agent", "config", "d4pg", "ddpg", "list_agents", "make", "mpo"]
+__all__ = ["Agent", "Spec", "config", "d4pg", "ddpg", "learner_fields", "list_agents", "make",
+           "mpo", "register", "spec"]

@@ -1,10 +1,5 @@
-"""The agent interface, a small container of pure functions in the style of optax, and the
-pieces every agent shares: common settings, the optimizer, and target-network updates.
-
-The trainer knows nothing agent-specific: it calls `init` once, `act` to collect, `update` on
-sampled n-step transitions, and `policy` to evaluate. Agent state is any pytree with a
-`hparams` field: the config's dynamic settings as arrays (see `CommonConfig.DYNAMIC`).
-"""
+"""The agent interface, pure functions in optax's style, and what every agent shares: common
+settings, the optimizer and target-network updates."""
 
 from __future__ import annotations
 
@@ -23,15 +18,14 @@ AgentState = Any
 class Agent(NamedTuple):
   """A learner as pure functions. Observations are (..., O), actions (..., A) in [-1, 1].
 
-  init(key, hparams=None) -> state; `hparams` (the config's dynamic settings as arrays, see
-    `hparams`) default to the config's values, and are kept in the state as `state.hparams`
+  init(key, hparams=None) -> state, which keeps `hparams` (default: the config's) as
+    `state.hparams`
   act(state, obs, key) -> action, with exploration
-  policy(state, obs) -> action, deterministic (for evaluation)
-  update(state, transitions, key, axis_name=None) -> (state, metrics); with `axis_name`, the
-    gradients (and metrics) are averaged over that mapped axis (data-parallel learning).
-  n_step: the longest n-step window the trainer builds for `update`; each state's own n and
-    discount are `state.hparams["n_step"]` and `state.hparams["discount"]`.
-  hparams: the config's dynamic settings, as arrays: what `init` uses by default.
+  policy(state, obs) -> action, deterministic
+  update(state, transitions, key, axis_name=None) -> (state, metrics); gradients are averaged
+    over `axis_name` when given
+  n_step: the longest n-step window `update` takes; a state's own is `hparams["n_step"]`
+  hparams: the config's dynamic settings as arrays
   """
 
   init: Callable[[jax.Array], AgentState]
@@ -47,12 +41,10 @@ COMPUTE_DTYPES = {"float32": jnp.float32, "bfloat16": jnp.bfloat16}
 
 @dataclasses.dataclass(frozen=True)
 class CommonConfig:
-  """Settings every agent has. The defaults are the seed notebook's networks and acme's
-  hyperparameters.
+  """Settings every agent has; defaults are the NMA notebook's networks and acme's values.
 
-  The settings named in DYNAMIC are read from the agent state's `hparams` inside the compiled
-  functions, so that one compiled program serves any of their values (a sweep's members each
-  have their own); the others (network sizes, ...) shape the program and are structural.
+  DYNAMIC settings are read from the state's `hparams`, so one compiled program serves any of
+  their values; the others shape the program.
   """
 
   DYNAMIC: ClassVar[tuple[str, ...]] = ("learning_rate", "discount", "n_step",
@@ -65,9 +57,7 @@ class CommonConfig:
   n_step: int = 5
   target_update_period: int = 100    # updates between copies into the target networks
   max_grad_norm: float = 40.0        # acme's gradient clipping (by global norm)
-  # The networks' hidden layers compute in this dtype: "bfloat16" halves the bytes their
-  # activations move and runs their products on the GPU's bf16 units, on float32 parameters,
-  # gradients and optimizer (agents/networks.py). The output layers and losses stay float32.
+  # The hidden layers' dtype; parameters, gradients, output layers and losses stay float32.
   compute_dtype: str = "float32"
 
   def __post_init__(self):
@@ -92,27 +82,23 @@ class CommonConfig:
 
 
 def hparams(cfg: CommonConfig) -> dict[str, jax.Array]:
-  """The config's dynamic settings (`cfg.DYNAMIC`) as arrays: int32 for integer settings,
-  float32 for the others."""
+  """`cfg.DYNAMIC`'s settings as int32 or float32 arrays."""
   return {name: jnp.asarray(getattr(cfg, name),
                             jnp.int32 if isinstance(getattr(cfg, name), int) else jnp.float32)
           for name in cfg.DYNAMIC}
 
 
 def optimizer(learning_rate, max_grad_norm) -> optax.GradientTransformation:
-  """Adam at `learning_rate`, after clipping the gradients' global norm to `max_grad_norm`
-  (acme's); either may be an array. Its state does not depend on them, so a state made with
-  any values serves every value."""
+  """Adam after clipping the global gradient norm, as acme; either setting may be an array."""
   return optax.chain(optax.clip_by_global_norm(max_grad_norm), optax.adam(learning_rate))
 
 
 def update_targets(steps: jax.Array, period: int, online, target):
-  """The online params when `steps` is a multiple of `period`, else the target params (acme's
-  periodic hard update)."""
+  """acme's periodic hard update: `online` when `steps % period == 0`, else `target`."""
   copy = steps % period == 0
   return jax.tree.map(lambda o, t: jnp.where(copy, o, t), online, target)
 
 
 def pmean(tree, axis_name: str | None):
-  """Averages a pytree over a mapped axis, or returns it as it is when there is none."""
+  """`tree` averaged over the mapped axis `axis_name`, if any."""
   return tree if axis_name is None else jax.lax.pmean(tree, axis_name)

@@ -1,5 +1,4 @@
-"""D4PG: a deterministic policy with a categorical (distributional) critic, n-step returns,
-target networks and Gaussian exploration, with acme's JAX learner semantics.
+"""D4PG: a deterministic policy with a categorical critic, after acme's JAX learner.
 
     agent = d4pg.make(obs_size, action_size, d4pg.Config())     # or d4pg.PRESETS["cpu"]
 """
@@ -16,7 +15,7 @@ from mjx_hopper.agents.base import Agent
 
 @dataclasses.dataclass(frozen=True)
 class Config(dpg.Config):
-  """Defaults are the seed notebook's networks and acme's D4PG hyperparameters."""
+  """Defaults are the NMA notebook's networks and acme's D4PG hyperparameters."""
 
   DYNAMIC: ClassVar[tuple[str, ...]] = dpg.Config.DYNAMIC + ("vmin", "vmax")
   vmin: float = -150.0
@@ -28,11 +27,11 @@ class Config(dpg.Config):
     distributional.check_support(self.vmin, self.vmax, self.num_atoms)
 
 
-# "seed": the seed notebook's settings. The others widen the critic's support, since a hopping
-# Hopper earns ~2.5 per step, a discounted value of ~250 (> the seed's vmax of 150), and learn
-# at 3e-4; "cpu" also halves the networks' depth for a 2-core CPU. BENCHMARKS.md has the runs.
+# "acme": the NMA notebook's acme settings. The others widen the critic's support, since a
+# hopping Hopper earns ~2.5 per step, a discounted value of ~250 (above acme's vmax of 150), and
+# learn at 3e-4; "cpu" also has shallower networks, for a small CPU.
 PRESETS = {
-    "seed": Config(),
+    "acme": Config(),
     "gpu": Config(vmin=-150.0, vmax=450.0, learning_rate=3e-4),
     "cpu": Config(policy_layers=(256, 256), critic_layers=(256, 256), vmin=-150.0, vmax=450.0,
                   learning_rate=3e-4),
@@ -46,3 +45,9 @@ def make(obs_size: int, action_size: int, cfg: Config = Config(),
   """`learner`: how the update runs its networks (dpg.make's)."""
   return dpg.make(obs_size, action_size, cfg,
                   lambda hp: critics.categorical(hp["vmin"], hp["vmax"], cfg.num_atoms), learner)
+
+
+# The learner figures on the terminal line (log.csv has all of them): a bounded critic loss, and a
+# mean Q that follows the returns' scale rather than running away.
+LEARNER_FIELDS = (("critic_loss", "critic loss {}"), ("q_mean", "Q {}"))
+TINY = {"policy_layers": (16,), "critic_layers": (16,), "n_step": 3, "num_atoms": 11}

@@ -1,5 +1,4 @@
-"""DDPG: a deterministic policy with a scalar critic, n-step returns, target networks and
-Gaussian exploration, with acme's learner semantics.
+"""DDPG: a deterministic policy with a scalar critic, after acme's learner.
 
     agent = ddpg.make(obs_size, action_size, ddpg.Config())
 """
@@ -10,13 +9,13 @@ from mjx_hopper.agents import critics, dpg
 from mjx_hopper.agents.base import Agent
 
 
-# The defaults are the seed notebook's networks and acme's DDPG hyperparameters.
+# The defaults are the NMA notebook's networks and acme's DDPG hyperparameters.
 Config = dpg.Config
 
-# "seed": the seed notebook's settings; "gpu" and "cpu" learn at 3e-4 as D4PG's presets do, and
-# "cpu" has D4PG's cpu networks. BENCHMARKS.md has the runs.
+# "acme": the NMA notebook's acme settings; "gpu" and "cpu" learn at 3e-4 as D4PG's presets do,
+# and "cpu" has D4PG's cpu networks.
 PRESETS = {
-    "seed": Config(),
+    "acme": Config(),
     "gpu": Config(learning_rate=3e-4),
     "cpu": Config(policy_layers=(256, 256), critic_layers=(256, 256), learning_rate=3e-4),
 }
@@ -28,3 +27,7 @@ def make(obs_size: int, action_size: int, cfg: Config = Config(),
          learner: str | None = None) -> Agent:
   """`learner`: how the update runs its networks (dpg.make's)."""
   return dpg.make(obs_size, action_size, cfg, lambda hp: critics.scalar(), learner)
+
+
+LEARNER_FIELDS = (("critic_loss", "critic loss {}"), ("q_mean", "Q {}"))
+TINY = {"policy_layers": (16,), "critic_layers": (16,), "n_step": 3}

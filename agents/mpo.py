@@ -1,21 +1,8 @@
-"""MPO (maximum a posteriori policy optimisation), and with `distributional=True` DMPO, with
-acme's learner semantics.
+"""MPO, and with `distributional=True` DMPO (a categorical critic), after acme's learner.
 
-E-step: N actions per next state are sampled from the target policy and weighted by
-softmax(Q / temperature) over the samples; the temperature is a dual variable trained so that
-the KL of these weights from uniform stays near `epsilon`. M-step: the online Gaussian is fitted
-to the weighted samples under decoupled, per-dimension KL constraints from the target policy,
-one on the mean (std held at the target's) and one on the std (mean held at the target's), each
-with its own dual. Duals are softplus'd and their raw values clipped from below.
-
-Action bounds (`action_bounds`): "penalize" (acme's default) keeps the Gaussian unbounded, clips
-actions to [-1, 1] for the env and critic, and adds a second E-step that weights samples by how
-little they leave the bounds (MO-MPO's action penalisation, its own dual on `epsilon_penalty`);
-"squash" instead passes the Gaussian's samples through tanh, so the Gaussian lives in pre-tanh
-space and needs no penalty.
-
-DMPO uses D4PG's categorical critic; its target is the projection of the next-state value
-distributions averaged over the sampled actions.
+The E-step weights sampled actions by softmax(Q / temperature), a dual keeping their KL from
+uniform near `epsilon`; the M-step fits the Gaussian policy to them under decoupled KL bounds on
+its mean and std.
 
     agent = mpo.make(obs_size, action_size, mpo.Config(distributional=True))
 """
@@ -37,13 +24,15 @@ from mjx_hopper.agents.base import (COMPUTE_DTYPES, Agent, CommonConfig, hparams
 
 MIN_LOG_DUAL = -18.0   # raw dual values are clipped from below at this (as acme)
 DUAL_FLOOR = 1e-8      # added after softplus, so that every dual is > 0
+# "penalize" (acme's) clips the Gaussian's samples to [-1, 1] and adds an E-step that weights
+# them by how little they leave the bounds (MO-MPO's action penalty); "squash" applies tanh.
 ACTION_BOUNDS = ("penalize", "squash")
 
 
 @dataclasses.dataclass(frozen=True)
 class Config(CommonConfig):
-  """Defaults are the seed notebook's DMPO networks and acme's (D)MPO hyperparameters, with a
-  scalar critic; `distributional=True` is DMPO."""
+  """Defaults are the NMA notebook's DMPO networks and acme's values; `distributional=True` is
+  DMPO."""
 
   DYNAMIC: ClassVar[tuple[str, ...]] = CommonConfig.DYNAMIC + (
       "epsilon", "epsilon_mean", "epsilon_stddev", "epsilon_penalty", "init_log_temperature",
@@ -59,7 +48,7 @@ class Config(CommonConfig):
   dual_learning_rate: float = 1e-2
   init_scale: float = 0.7            # the policy's initial std
   min_scale: float = 1e-6            # the policy's smallest std
-  action_bounds: str = "penalize"    # or "squash"; see the module's docstring
+  action_bounds: str = "penalize"    # or "squash"; see ACTION_BOUNDS
   distributional: bool = False       # DMPO: a categorical critic over these atoms
   vmin: float = -150.0
   vmax: float = 150.0
@@ -83,19 +72,17 @@ class Config(CommonConfig):
 
 
 # As D4PG's: "gpu" and "cpu" learn at 3e-4 with the critic's support widened to [-150, 450]
-# (DMPO), and "cpu" has (256, 256) networks. Both also loosen acme's std constraint (eps 1e-5
-# instead of 1e-6, its dual starting at softplus(10) instead of 1000): with acme's values the
-# std stays near 0.6 for millions of Hopper steps, and with 1e-4 it collapses to ~0.14 and the
-# hopper stalls. BENCHMARKS.md has the runs.
+# (DMPO), and "cpu" has (256, 256) networks. Both also loosen acme's std constraint, which keeps
+# the std near its start for too long on the Hopper; a much looser one lets it collapse.
 LOOSER_STD = dict(epsilon_stddev=1e-5, init_log_alpha_stddev=10.0)
 PRESETS = {
-    "seed": Config(),
+    "acme": Config(),
     "gpu": Config(learning_rate=3e-4, **LOOSER_STD),
     "cpu": Config(policy_layers=(256, 256), critic_layers=(256, 256), learning_rate=3e-4,
                   **LOOSER_STD),
 }
 DMPO_PRESETS = {
-    "seed": Config(distributional=True),
+    "acme": Config(distributional=True),
     "gpu": Config(distributional=True, vmax=450.0, learning_rate=3e-4, **LOOSER_STD),
     "cpu": Config(distributional=True, vmax=450.0, learning_rate=3e-4,
                   policy_layers=(256, 256), critic_layers=(256, 256), **LOOSER_STD),
@@ -130,13 +117,8 @@ def positive(raw: jax.Array) -> jax.Array:
 
 
 def e_step(q: jax.Array, temperature: jax.Array, epsilon: float):
-  """The nonparametric E-step over N samples of B states.
-
-  q: (N, B) values of the sampled actions. Returns the weights softmax(q / temperature) over
-  the N samples (no gradient) and the temperature's dual loss,
-  temperature * (epsilon + mean_B log mean_N exp(q / temperature)), whose gradient drives the
-  KL of the weights from uniform towards epsilon.
-  """
+  """Weights softmax(q / temperature) over the N samples of q (N, B), without gradient, and
+  the temperature's dual loss, which drives their KL from uniform towards `epsilon`."""
   tempered = jax.lax.stop_gradient(q) / temperature
   weights = jax.lax.stop_gradient(jax.nn.softmax(tempered, axis=0))
   log_mean_exp = jax.nn.logsumexp(tempered, axis=0) - math.log(q.shape[0])
@@ -144,11 +126,7 @@ def e_step(q: jax.Array, temperature: jax.Array, epsilon: float):
 
 
 def decoupled_kl(target_mean, target_std, online_mean, online_std):
-  """Per-dimension KLs of the target Gaussian from the online one, decoupled: (..., A) each.
-
-  kl_mean: KL(N(target_mean, target_std) || N(online_mean, target_std)), the mean's move;
-  kl_stddev: KL(N(target_mean, target_std) || N(target_mean, online_std)), the std's.
-  """
+  """Per-dimension KLs (..., A) of the online mean and std, each with the other the target's."""
   kl_mean = 0.5 * jnp.square((online_mean - target_mean) / target_std)
   ratio = target_std / online_std
   kl_stddev = 0.5 * jnp.square(ratio) - jnp.log(ratio) - 0.5
@@ -156,12 +134,7 @@ def decoupled_kl(target_mean, target_std, online_mean, online_std):
 
 
 def kl_losses(kl: jax.Array, alpha: jax.Array, epsilon: float):
-  """The M-step's constraint terms for KLs (B, A) and per-dimension duals alpha (A,).
-
-  Returns (penalty, dual_loss, mean_kl): the policy's penalty sum_a alpha_a * mean_B kl (alpha
-  held fixed), alpha's dual loss sum_a alpha_a * (epsilon - mean_B kl) (the KL held fixed), and
-  the (A,) mean KL itself.
-  """
+  """(policy penalty, alpha's dual loss, mean KL (A,)) for KLs (B, A) and duals alpha (A,)."""
   mean_kl = kl.mean(axis=0)
   penalty = jnp.sum(jax.lax.stop_gradient(alpha) * mean_kl)
   dual_loss = jnp.sum(alpha * (epsilon - jax.lax.stop_gradient(mean_kl)))
@@ -288,3 +261,10 @@ def make(obs_size: int, action_size: int, cfg: Config = Config()) -> Agent:
 
   return Agent(init=init, act=act, policy=policy, update=update, n_step=cfg.n_step,
                hparams=defaults)
+
+
+# The terminal line's learner figures: the critic's loss, and the temperature, which should settle
+# rather than collapse to its floor or keep growing.
+LEARNER_FIELDS = (("critic_loss", "critic loss {}"), ("temperature", "temperature {}"))
+TINY = {"policy_layers": (16,), "critic_layers": (16,), "n_step": 3, "num_samples": 4}
+DMPO_TINY = {**TINY, "num_atoms": 11}

@@ -1,4 +1,4 @@
-"""The seed's networks (acme's), in flax linen: LayerNormMLP, a tanh policy, and critics.
+"""The NMA notebook's networks (acme's), in flax linen: LayerNormMLP, a tanh policy, and critics.
 
 Every module works on any leading batch shape: observations (..., O), actions (..., A).
 

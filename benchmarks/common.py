@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import json
 import os
+import shlex
 import subprocess
 import sys
 import time
@@ -64,16 +65,45 @@ def evaluations(log_csv: str) -> dict[int, list[dict]]:
   return out
 
 
-def write_results(name: str, results: dict) -> str:
-  """`results`, with the command line that made them, as benchmarks/results/NAME.json (or in
-  the folder $MJX_HOPPER_RESULTS names: gpu.sh's, which comes back from the lent GPU); prints
-  and returns its path."""
+def machine() -> str:
+  """The GPUs (as nvidia-smi names them) and the CPU's model and cores this process runs on."""
+  try:
+    gpus = subprocess.run(["nvidia-smi", "--query-gpu=name", "--format=csv,noheader"],
+                          capture_output=True, text=True).stdout.split("\n")
+  except OSError:
+    gpus = []
+  with open("/proc/cpuinfo") as f:
+    cpu = next((l.split(":")[1].strip() for l in f if l.startswith("model name")), "a CPU")
+  gpus = [g.strip() for g in gpus if g.strip()]
+  return (f"{len(gpus)} x {gpus[0]}; " if gpus else "") + f"{cpu}, {os.cpu_count()} cores"
+
+
+def commit() -> str:
+  """The code's commit: $MJX_HOPPER_COMMIT (where the tree has no .git, as on the lent GPU), or
+  git's, with "+changes" when tracked files differ from it; else "unknown"."""
+  here = os.path.dirname(os.path.abspath(__file__))
+  git = lambda *a: subprocess.run(["git", "-C", here, *a], capture_output=True, text=True)
+  try:
+    head = git("rev-parse", "--short=10", "HEAD")
+  except OSError:  # no git
+    head = None
+  if os.environ.get("MJX_HOPPER_COMMIT") or not head or head.returncode:
+    return os.environ.get("MJX_HOPPER_COMMIT", "unknown")
+  return head.stdout.strip() + ("+changes" if git("status", "--porcelain", "-uno").stdout else "")
+
+
+def write_results(name: str, figures, command: str | None = None) -> str:
+  """`figures` as benchmarks/results/NAME.json (or in the folder $MJX_HOPPER_RESULTS names:
+  gpu.sh's, which comes back from the lent GPU), beside the command line, machine, date and
+  commit that made them: the form benchmarks/report.py reads. Prints and returns its path."""
   folder = os.environ.get("MJX_HOPPER_RESULTS") or os.path.join(
       os.path.dirname(os.path.abspath(__file__)), "results")
   os.makedirs(folder, exist_ok=True)
   path = os.path.join(folder, f"{name}.json")
+  record = {"command": command or shlex.join(["python", *sys.argv]), "machine": machine(),
+            "date": time.strftime("%Y-%m-%d"), "commit": commit(), "figures": figures}
   with open(path, "w") as f:
-    json.dump({"command": sys.argv, **results}, f, indent=1)
+    json.dump(record, f, indent=1)
   print(f"results: {path}")
   return path
 

@@ -102,7 +102,8 @@ def main() -> None:
                       help="XLA CPU device counts to run MJX on (on a GPU: GPUs used)")
   parser.add_argument("--steps-total", type=int, default=200_000,
                       help="env steps per timed call, roughly (T = this / batch)")
-  parser.add_argument("--json", help="also write the rows to this file")
+  parser.add_argument("--label", default="cpu",
+                      help="results: benchmarks/results/env_throughput_LABEL.json")
   parser.add_argument("--worker", help=argparse.SUPPRESS)  # the arguments, as JSON
   args = parser.parse_args()
   if args.worker:  # one device count, in its own process: XLA reads the flag at start-up
@@ -139,9 +140,7 @@ def main() -> None:
       [[r["env"], r["engine"], r["platform"], r["devices"], r["batch"], f"{r['compile_s']:.1f}",
         f"{r['env_steps_per_s']:,.0f}", ratio(r, "PyBullet", 1), ratio(r, "MuJoCo C", 2)]
        for r in rows]))
-  if args.json:
-    with open(args.json, "w") as f:
-      json.dump(rows, f, indent=1)
+  common.write_results(f"env_throughput_{args.label}", {"rows": rows})
 
 
 if __name__ == "__main__":

@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # Runs benchmark commands on the lent GPU machine (the device tool), one after another, each
 # command's output to $OUT/<n>.txt and the benchmarks' results files to $OUT/results/, then
-# packs runs/ into $OUT/runs.tgz (checkpoints left out):
-#   bash benchmarks/gpu.sh "python benchmarks/event_cost.py --kind gpu"
+# packs runs/ into $OUT/runs.tgz (checkpoints left out). The copy there has no .git: put the
+# commit in front, MJX_HOPPER_COMMIT=abc1234 bash benchmarks/gpu.sh ..., for the results files:
+#   bash benchmarks/gpu.sh "python benchmarks/env_throughput.py --devices 1 --label h100"
 # With --parallel first, the commands run at once, command n alone on GPU n-1 (a machine of
 # several GPUs: each its own GPU, sharing the host's CPUs):
 #   bash benchmarks/gpu.sh --parallel "COMMAND ON GPU 0" "COMMAND ON GPU 1"

@@ -172,7 +172,8 @@ def main() -> None:
                       help="XLA CPU device counts (on a GPU: GPUs used)")
   parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                       help="an agent setting for every preset, e.g. compute_dtype=bfloat16")
-  parser.add_argument("--json", help="also write the rows to this file")
+  parser.add_argument("--label", default="cpu",
+                      help="results: benchmarks/results/learner_throughput_LABEL.json")
   parser.add_argument("--worker", help=argparse.SUPPRESS)  # the arguments, as JSON
   args = parser.parse_args()
   if args.worker:  # one device count per process: XLA reads the flag at start-up
@@ -208,11 +209,8 @@ def main() -> None:
         f"{r['us_per_kernel']:.1f}"] for r in rows]))
   print("\nmeasured matmul peak (GFLOP/s), float32 / bfloat16: "
         + ", ".join(f"{d} device(s): {p:,.1f} / {peaks_bf16[d]:,.1f}" for d, p in peaks.items()))
-  if args.json:
-    os.makedirs(os.path.dirname(os.path.abspath(args.json)), exist_ok=True)
-    with open(args.json, "w") as f:
-      json.dump({"date": time.strftime("%Y-%m-%d"), "command": sys.argv, "peaks_gflops": peaks,
-                 "peaks_bf16_gflops": peaks_bf16, "rows": rows}, f, indent=1)
+  common.write_results(f"learner_throughput_{args.label}",
+                       {"peaks_gflops": peaks, "peaks_bf16_gflops": peaks_bf16, "rows": rows})
 
 
 if __name__ == "__main__":

@@ -3,7 +3,8 @@ Colab user runs it, with each section's wall-clock time (its first cell's start 
 
     python benchmarks/notebook_time.py --out runs/notebook_full
 
-Runs in OUT with an empty compile cache (OUT/jax_cache) and keeps OUT/robolympics.ipynb.
+Runs in OUT with an empty compile cache (OUT/jax_cache) and keeps OUT/robolympics.ipynb; the
+times go to benchmarks/results/notebook_time_LABEL.json.
 """
 
 from __future__ import annotations
@@ -12,8 +13,9 @@ import argparse
 import datetime
 import os
 import pathlib
-import platform
 import time
+
+import common
 
 NOTEBOOK = pathlib.Path(__file__).parent.parent / "notebooks" / "robolympics.ipynb"
 
@@ -32,6 +34,7 @@ def main() -> None:
                               formatter_class=argparse.RawDescriptionHelpFormatter)
   p.add_argument("--out", default="runs/notebook_full")
   p.add_argument("--timeout", type=int, default=3600, help="seconds a cell may take")
+  p.add_argument("--label", default="cpu")
   args = p.parse_args()
   import nbformat
   from nbclient import NotebookClient
@@ -55,12 +58,11 @@ def main() -> None:
       first, last = seconds(cell)
       begun, _ = sections.get(title, (first, last))
       sections[title] = (begun, last)
-  print(f"{platform.node()}, {os.cpu_count()} cores, {time.strftime('%Y-%m-%d')}: the notebook "
-        f"in {total / 60:.1f} min")
-  print("| section | wall-clock |")
-  print("|---|---|")
-  for title, (begun, ended) in sections.items():
-    print(f"| {title} | {ended - begun:,.0f} s ({(ended - begun) / 60:.1f} min) |")
+  seconds_ = {title: round(ended - begun, 1) for title, (begun, ended) in sections.items()}
+  print(f"the notebook in {total / 60:.1f} min")
+  print(common.table(["section", "wall-clock (s)"], [[t, f"{s:,.0f}"] for t, s in seconds_.items()]))
+  common.write_results(f"notebook_time_{args.label}", {"total_s": round(total, 1),
+                                                        "sections_s": seconds_})
 
 
 if __name__ == "__main__":

@@ -1,11 +1,9 @@
-"""Population-based training against the grid it starts from, and what its step costs.
+"""Population-based training against the grid it starts from.
 
-    # quality, one GPU: per --seeds value, the grid and PBT side by side for --minutes each
+    # one GPU: per --seeds value, the grid and PBT side by side for --minutes each
     python benchmarks/pbt.py quality --minutes 4 --seeds 0 1 --label h100
     # two GPUs, a seed on each at once; then --resume for as many more --minutes (cumulative)
     python benchmarks/pbt.py quality --env HalfCheetah --target 3000 --gpus 2 --minutes 8
-    # overhead: the same sweep with and without PBT (a step at every evaluation), in turns
-    python benchmarks/pbt.py overhead --label cpu
 
 Each run is `mjx-hopper sweep` in a process of its own, writing OUT/<run>/log.csv. quality runs
 the grid and PBT at once (each with half the GPU's memory), the same 16 members (4 learning rates
@@ -15,9 +13,7 @@ every second one), for the same minutes. Its figures: when the population's best
 first reached the target (seconds from the run's start, compile included; with --resume, the
 processes' times added, each one's compile included), its best evaluation, the median over
 members of each one's best, and each run's median chunk's env steps/s (side by side, their
-ratio is PBT's overhead). overhead times chunks (steps/s of every train row but the first) of
-the same small sweep with and without PBT, alternating, --rounds times. Results go to
-benchmarks/results/pbt_<mode>_<label>.json.
+ratio is PBT's overhead). Results go to benchmarks/results/pbt_quality_<label>.json.
 """
 
 from __future__ import annotations
@@ -35,9 +31,6 @@ import common
 GRID = ["--set", "learning_rate=2.5e-4,5e-4,1e-3,2e-3", "--set", "sigma=0.2,0.4,0.6,0.8"]
 QUALITY = ["--preset", "gpu", "--num-envs", "512", "--batch-size", "1024", "--replay-size",
            "1000000", *GRID, "--steps", str(10**10)]
-OVERHEAD = ["--env", "Hopper", "--preset", "cpu", "--seeds", "2", "--num-envs", "64",
-            "--batch-size", "64", "--min-replay", "1024", "--chunk", "5", "--eval-every", "1280",
-            "--eval-episodes", "2", "--episode-steps", "100", *GRID[:2]]
 PBT = ["--pbt", "--pbt-every", "1"]
 HEAD = ["seed", "run", "best to target (s)", "best return", "members' median best",
         "env steps", "env steps/s (median chunk)"]
@@ -112,47 +105,25 @@ def quality(args) -> list[list]:
   return rows
 
 
-def overhead(args) -> list[list]:
-  rates = {"sweep": [], "pbt": []}
-  for i in range(args.rounds):
-    for arm in ("sweep", "pbt") if i % 2 == 0 else ("pbt", "sweep"):
-      out = os.path.join(args.out, f"{arm}_{i}")
-      flags = [*OVERHEAD, "--steps", str(args.steps), *(PBT if arm == "pbt" else [])]
-      if sweep(flags, out).wait():
-        raise SystemExit("a run failed; see its output above")
-      with open(os.path.join(out, "log.csv")) as f:
-        chunks = [float(r["steps_per_s"]) for r in csv.DictReader(f)
-                  if r["kind"] == "train" and r["member"] == "0"]
-      rates[arm].append(statistics.median(chunks[1:]))
-  base, pbt = (statistics.median(rates[a]) for a in ("sweep", "pbt"))
-  return [["sweep", f"{base:,.0f}", "1.000"], ["sweep + PBT every evaluation", f"{pbt:,.0f}",
-                                                f"{base / pbt:.3f}"]]
-
-
 def main() -> None:
   p = argparse.ArgumentParser(description=__doc__,
                               formatter_class=argparse.RawDescriptionHelpFormatter)
-  p.add_argument("mode", choices=("quality", "overhead"))
-  p.add_argument("--minutes", type=float, default=6.0, help="quality: each run's budget")
-  p.add_argument("--seeds", type=int, nargs="+", default=[0, 1], help="quality: its seeds")
-  p.add_argument("--env", default="Hopper", help="quality: the robot")
-  p.add_argument("--target", type=float, default=2500.0, help="quality: its target")
+  p.add_argument("mode", choices=("quality",), help="the only mode: quality")
+  p.add_argument("--minutes", type=float, default=6.0, help="each run's budget")
+  p.add_argument("--seeds", type=int, nargs="+", default=[0, 1], help="its seeds")
+  p.add_argument("--env", default="Hopper", help="the robot")
+  p.add_argument("--target", type=float, default=2500.0, help="its target")
   p.add_argument("--eval-every", type=int, default=100_000,
-                 help="quality: env steps between evaluations (PBT steps at every second)")
+                 help="env steps between evaluations (PBT steps at every second)")
   p.add_argument("--gpus", type=int, default=0,
-                 help="quality: run all seeds at once, seed i on GPU i mod GPUS")
+                 help="run all seeds at once, seed i on GPU i mod GPUS")
   p.add_argument("--resume", action="store_true",
-                 help="quality: continue the runs in --out for --minutes more")
-  p.add_argument("--rounds", type=int, default=3, help="overhead: runs of each")
-  p.add_argument("--steps", type=int, default=64_000, help="overhead: each run's env steps")
+                 help="continue the runs in --out for --minutes more")
   p.add_argument("--label", default="run")
   p.add_argument("--out", default="runs/pbt")
   args = p.parse_args()
-  if args.mode == "quality":
-    head, rows = HEAD, quality(args)
-  else:
-    head, rows = ["run", "env steps/s", "time per chunk (x sweep)"], overhead(args)
-  text = common.table(head, rows)
+  rows = quality(args)
+  text = common.table(HEAD, rows)
   print(text)
   common.write_results(f"pbt_{args.mode}_{args.label}", {"table": text, "rows": rows})
 

@@ -4,7 +4,7 @@ rl-baselines3-zoo's HopperBulletEnv-v0 settings on PyBullet, then our D4PG cpu p
 each, on the CPU (the `peers` extra). Evaluations: 16 deterministic 1,000-step episodes of our
 Hopper (SB3's on PyBullet with its clock paused, and on ours at the end), timed from each
 process's start. The table goes to the screen and, with every curve, to
-benchmarks/results/peers_LABEL.json. BENCHMARKS.md, "Peers", has the commands and the results.
+benchmarks/results/peers_LABEL.json.
 
 --grid TRAINER:NAME=V1,V2 replaces one of the settings the Brax trainers start from (Brax's for
 its hopper: SAC's from its training notebook, PPO's its locomotion ones, the notebook's `ant`);
@@ -174,34 +174,11 @@ def summarise(runs: list[dict], out: str) -> list[dict]:
   return rows
 
 
-def settings_text(run: dict) -> str:
-  if run["trainer"] == "ours":
-    return " ".join(run["settings"])
-  base = BRAX.get(run["trainer"], RL_ZOO_SAC)
-  changed = {k: v for k, v in run["settings"].items() if base.get(k) != v}
-  return ", ".join(f"{k}={v}" for k, v in changed.items()) or "defaults"
-
-
 def report(rows: list[dict]) -> None:
-  head = ["run", "trainer", "settings"] + [f"to {t:,} (s / env steps)" for t in THRESHOLDS]
-  print("| " + " | ".join(head + ["best return", "final return", "env steps"]) + " |")
-  print("|" + "---|" * (len(head) + 3))
-  for r in rows:
-    hits = [f"{r[f'to_{t}']['wall_s']:.0f} / {r[f'to_{t}']['env_steps']:,}" if r[f"to_{t}"]
-            else "not reached" for t in THRESHOLDS]
-    best, final = ("none" if r[k] is None else f"{r[k]:.0f}"
-                   for k in ("best_return", "final_return"))
-    print(f"| {r['name']} | {r['trainer']} | {settings_text(r)} | {' | '.join(hits)} | "
-          f"{best} | {final} | {r['env_steps']:,} |")
-  for r in rows:
-    if r["trainer"] == "sb3" and r["meta"].get("train_steps_per_s"):
-      m = r["meta"]
-      print(f"SB3 SAC on PyBullet: {m['train_steps_per_s']:.0f} env steps/s over its training "
-            f"time, {m['learning_steps_per_s']:.1f} once learning (after "
-            f"{RL_ZOO_SAC['learning_starts']:,} random steps); after "
-            f"{m['train_s'] / 60:.1f} min of training: return {m['final_return_pybullet']:.0f} "
-            f"on PyBullet, {m['final_return_ours']:.0f} on our Hopper ({r['eval_episodes']} "
-            "episodes each)")
+  hits = lambda r, t: f"{r[f'to_{t}']['wall_s']:.0f}" if r[f"to_{t}"] else "not reached"
+  print(common.table(["run", *(f"to {t:,} (s)" for t in THRESHOLDS), "best return", "env steps"],
+                     [[r["name"], *(hits(r, t) for t in THRESHOLDS), f"{r['best_return'] or 0:.0f}",
+                       f"{r['env_steps']:,}"] for r in rows]))
 
 
 def log_eval(folder: str, row: dict) -> None:

@@ -20,7 +20,6 @@ import os
 import platform
 import resource
 import sys
-import time
 
 import common
 
@@ -79,7 +78,8 @@ def main() -> None:
   p.add_argument("--cpu-devices", type=int, default=os.cpu_count() or 1)
   p.add_argument("--gpus", help="comma-separated GPU counts: every sweep size on the first N "
                  "GPUs, for each N (default: on every visible GPU)")
-  p.add_argument("--out", default="benchmarks/results/sweep_throughput_cpu.json")
+  p.add_argument("--label", default="cpu",
+                 help="results: benchmarks/results/sweep_throughput_LABEL.json")
   p.add_argument("--worker", help=argparse.SUPPRESS)  # one sweep size's arguments, as JSON
   args = p.parse_args()
   if args.worker:
@@ -110,11 +110,8 @@ def main() -> None:
         f"{args.agent} ({args.preset}{', ' + ', '.join(args.set) if args.set else ''}), "
         f"{args.num_envs} envs and batch {args.batch_size} per member"
         f"{', collect only (learning off)' if args.collect_only else ''}\n{lines}")
-  os.makedirs(os.path.dirname(args.out) or ".", exist_ok=True)
-  with open(args.out, "w") as f:
-    json.dump({"date": time.strftime("%Y-%m-%d"), "machine": platform.node(),
-               "settings": {k: v for k, v in vars(args).items() if k != "worker"},
-               "rows": rows}, f, indent=1)
+  common.write_results(f"sweep_throughput_{args.label}", {
+      "settings": {k: v for k, v in vars(args).items() if k != "worker"}, "rows": rows})
 
 
 if __name__ == "__main__":

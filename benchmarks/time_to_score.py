@@ -1,8 +1,9 @@
 """Time to score: one robot trained with its preset (mjx_hopper.presets), seeds one after another
 (or --at-once, as one sweep), each until the robot's target or the time budget; a task of your
-own (module:Class, a subclass of a robot) with its robot's preset. Writes OUT/summary.json,
-OUT/score_curves.png and the best seed's final episode (episode.npz, rendered to frame.png and
-robot.gif where a renderer works). BENCHMARKS.md, "Every robot, time to score", has the commands.
+own (module:Class, a subclass of a robot) with its robot's preset. Writes its figures to
+benchmarks/results/time_to_score_ROBOT_KIND[_LABEL].json, and to OUT the score curves
+(score_curves.png) and the best seed's final episode (episode.npz, rendered to frame.png and
+robot.gif where a renderer works).
 
     python benchmarks/time_to_score.py Hopper --kind cpu              # on the 2-core CPU
     python benchmarks/time_to_score.py Walker2D --render-only runs/time_to_score/Walker2D_gpu
@@ -12,9 +13,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import os
-import platform
 import time
 
 import numpy as np
@@ -117,6 +116,7 @@ def main() -> None:
                  "default the compile cache loads the programs of the seeds after the first)")
   p.add_argument("--cpu-devices", type=int, default=os.cpu_count() or 1)
   p.add_argument("--out", default=None, help="default: runs/time_to_score/ROBOT_KIND")
+  p.add_argument("--label", default="", help="results: time_to_score_ROBOT_KIND_LABEL.json")
   p.add_argument("--render-only", metavar="OUT", default=None,
                  help="only render OUT/episode.npz to frame.png and robot.gif")
   args = p.parse_args()
@@ -177,11 +177,10 @@ def main() -> None:
              "minutes": minutes, "env_steps_budget": args.env_steps, "agent": cfg.agent,
              "agent_preset": cfg.preset, "agent_overrides": cfg.agent_overrides,
              "train": dataclasses.asdict(cfg.train), "at_once": args.at_once,
-             "device": f"{device.platform} {device.device_kind}", "machine": platform.node(),
-             "date": time.strftime("%Y-%m-%d"), "best_seed": best, "best_seed_episode": episode,
-             "seeds": results}
-  with open(os.path.join(out, "summary.json"), "w") as f:
-    json.dump(summary, f, indent=1)
+             "device": f"{device.platform} {device.device_kind}", "best_seed": best,
+             "best_seed_episode": episode, "seeds": results}
+  label = f"_{args.label}" if args.label else ""
+  common.write_results(f"time_to_score_{name}_{args.kind}{label}", summary)
   how = "at once" if args.at_once else "one after another"
   plot(results, name, target,
        f"{cfg.agent} {args.kind} preset, {len(seeds)} seed{'s' if len(seeds) > 1 else ''} {how}",
@@ -198,7 +197,7 @@ def main() -> None:
       [[seed, "not reached" if s["target_wall_s"] is None else f"{s['target_wall_s']:.0f}",
         "-" if s["target_env_steps"] is None else f"{s['target_env_steps']:,}",
         f"{s['best_return']:,.0f}", f"{s['final_return']:,.0f}"] for seed, s in results.items()]))
-  print(f"files: {out}/summary.json, score_curves.png, episode.npz; " + ", ".join(rendered))
+  print(f"files: {out}/score_curves.png, episode.npz; " + ", ".join(rendered))
 
 
 if __name__ == "__main__":

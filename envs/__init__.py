@@ -5,8 +5,7 @@
     state = jax.jit(env.reset)(jax.random.PRNGKey(0))
     state = jax.jit(env.step)(state, jnp.zeros(env.action_size))
 
-A task of your own is a subclass of a robot; `mjx_hopper.envs.tasks` says how one is named
-(a class, a `module:Class` path, or a name given with `register`) and what a run records of it.
+A task of your own is a subclass of a robot (see `mjx_hopper.envs.tasks`).
 """
 
 from mjx_hopper.envs.ant import Ant

@@ -1,13 +1,7 @@
-"""The locomotion base: what PyBullet's walker robots and their env share, on MuJoCo MJX.
+"""PyBullet's walker env on MuJoCo MJX, behind Brax's `Env`/`State` interface.
 
-A robot is a subclass that names its MJCF file, joints, feet and constants, and says when it is
-alive. Everything else (the observation, the reward terms, termination, truncation and reset)
-lives here, once, with PyBullet's semantics (shared/reference/pybullet-locomotion.md).
-
-The env follows Brax's `Env`/`State` interface: `reset(key)` and `step(state, action)` are pure,
-and jit-, vmap- and shard-able. Per-term rewards are in `state.metrics`. `step` keeps every key
-a wrapper put in `state.metrics` and `state.info`, and the MJX model is also `env.sys`, so Brax's
-wrappers and trainers run on these envs (docs/brax.md).
+A robot subclass names its MJCF file, joints, feet and constants, and says when it is alive; the
+observation, reward terms, termination and reset live here, with PyBullet's semantics.
 """
 
 from __future__ import annotations
@@ -46,19 +40,13 @@ BRAX_EPISODE_KEY = "episode_done"
 def _physics(model: mjx.Model, data: mjx.Data, substeps: int) -> mjx.Data:
   """`substeps` MJX steps of `data` under `model`.
 
-  Tracing MJX's step costs 2-5 s of Python, and every program that steps an env (a training
-  chunk, an evaluation, a rollout, Brax's trainers) used to trace it again. As one jitted
-  function of the model and data, it is traced once per model layout and input shapes, and
-  every later program reuses that trace (JAX caches it; under vmap too). XLA inlines the call,
-  so a compiled program is the same but for the order of some operands (a Hopper batch's
-  outputs were bit-identical). The model is an argument, not a constant, so that Brax's
-  DomainRandomizationVmapWrapper, which swaps `env.sys` while it steps, still steps each env
-  with its own model."""
+  Jitted on its own so that every program that steps an env reuses one trace of MJX's slow-to-
+  trace step. The model is an argument so that Brax's DomainRandomizationVmapWrapper, which swaps
+  `env.sys`, steps each env with its own model."""
   return jax.lax.fori_loop(0, substeps, lambda _, d: mjx.step(model, d), data)
 
 
-# A reset's kinematics, traced once per model layout in the same way (about 1 s each: every
-# reset, AutoReset's step and evaluation traces it).
+# A reset's kinematics, traced once per model layout in the same way.
 _forward_kinematics = jax.jit(mjx.kinematics)
 
 
@@ -85,8 +73,7 @@ def _quat_to_mat(q: jax.Array) -> jax.Array:
 
 
 def quat_to_rpy(quat: jax.Array) -> jax.Array:
-  """Roll, pitch, yaw (rad) of a (w, x, y, z) unit quaternion, as Bullet's
-  getEulerFromQuaternion gives them (extrinsic x-y-z)."""
+  """Bullet's roll, pitch, yaw (rad) of (w, x, y, z) quaternions (extrinsic x-y-z)."""
   w, x, y, z = quat[..., 0], quat[..., 1], quat[..., 2], quat[..., 3]
   roll = jnp.arctan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
   pitch = jnp.arcsin(jnp.clip(2 * (w * y - z * x), -1.0, 1.0))
@@ -97,9 +84,8 @@ def quat_to_rpy(quat: jax.Array) -> jax.Array:
 class LocomotionEnv(Env):
   """A PyBullet locomotion task (WalkerBaseBulletEnv) on MuJoCo MJX.
 
-  Subclasses set the class constants below and `alive_bonus`. A custom task subclasses a robot
-  and overrides `reward` and/or `is_done`; `episode_steps` sets the time limit; `edit_model`
-  changes the physics.
+  A robot sets the class constants and `alive_bonus`; a custom task overrides `reward` and/or
+  `is_done`, and `edit_model` changes the physics.
   """
 
   xml_file: ClassVar[str]
@@ -116,7 +102,7 @@ class LocomotionEnv(Env):
   control_dt: ClassVar[float] = 0.0165
   n_substeps: ClassVar[int] = 4
   reset_noise: ClassVar[float] = 0.1
-  contact_distance: ClassVar[float] = 0.005  # Bullet reports a contact within ~5 mm (measured)
+  contact_distance: ClassVar[float] = 0.005  # Bullet reports a contact within ~5 mm
   # Bodies whose geoms touch the floor; None: every body's. Leaving out parts that cannot reach
   # the floor while the robot is alive makes the step cheaper.
   floor_bodies: ClassVar[tuple[str, ...] | None] = None
@@ -192,8 +178,7 @@ class LocomotionEnv(Env):
     self._data0 = mjx.make_data(self.mjx_model, device=device)
 
   def edit_model(self, model: mujoco.MjModel) -> None:
-    """Change the MuJoCo model in place before the env is built from it (masses, friction,
-    solver options, timestep with `n_substeps`, ...). The default changes nothing."""
+    """Edits the MuJoCo model before the env is built; a no-op by default."""
 
   def _root_kind(self, model: mujoco.MjModel) -> str:
     """'planar' (slide x, slide z, hinge y at the torso's origin) or 'free'."""
@@ -223,8 +208,7 @@ class LocomotionEnv(Env):
     return linear + jnp.cross(angular, offset)
 
   def _foot_geoms(self, model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Each foot's capsule and sphere geoms: ids (G,), half-lengths (G,), radii (G,), and a
-    (F, G) mask saying which foot each belongs to."""
+    """The feet's capsule and sphere geoms: ids, half-lengths, radii (G,), owner mask (F, G)."""
     capsule, sphere = int(mujoco.mjtGeom.mjGEOM_CAPSULE), int(mujoco.mjtGeom.mjGEOM_SPHERE)
     ids, owner = [], []
     for f, foot in enumerate(self.feet):
@@ -261,8 +245,7 @@ class LocomotionEnv(Env):
 
   @property
   def sys(self) -> mjx.Model:
-    """The MJX model, under the name Brax's wrappers use: Brax's
-    DomainRandomizationVmapWrapper sets it to each randomised model while it steps."""
+    """The MJX model, under the name Brax's wrappers read and set."""
     return self.mjx_model
 
   @sys.setter
@@ -289,13 +272,10 @@ class LocomotionEnv(Env):
                  info=info)
 
   def step(self, state: State, action: jax.Array) -> State:
-    """One control step of 0.0165 s: torques for 4 physics substeps, then observe and score.
+    """One control step: torques for `n_substeps` physics substeps, then observe and score.
 
-    `state.done` is 1 when the episode ended, by termination or by the time limit;
-    `state.info["truncation"]` is 1 when it ended by the time limit only, so that learners
-    bootstrap through it. Every other key of `state.metrics` and `state.info` (a wrapper's) is
-    passed on. Under Brax's EpisodeWrapper (`BRAX_EPISODE_KEY` in `state.info`) the wrapper
-    counts the steps and sets the time limit, so this step only reports termination.
+    `done` is 1 when the episode ended; `info["truncation"]` is 1 when only the time limit ended
+    it, so learners bootstrap through it. A wrapper's keys in `metrics` and `info` pass through.
     """
     action = jnp.asarray(action)
     if action.shape != (self.action_size,):
@@ -335,10 +315,7 @@ class LocomotionEnv(Env):
     raise NotImplementedError(f"{type(self).__name__} must define alive_bonus")
 
   def reward(self, before: Robot, after: Robot, action: jax.Array) -> dict[str, jax.Array]:
-    """The named reward terms of one step, from the robot before and after it.
-
-    Their sum is the reward; each is reported in `state.metrics`.
-    """
+    """The named reward terms of one step; their sum is the reward."""
     alive = self.alive_bonus(after.body_xyz[2], after.body_rpy[1], after)
     electricity = (self.electricity_cost * jnp.mean(jnp.abs(action * after.joint_speeds))
                    + self.stall_torque_cost * jnp.mean(jnp.square(action)))
@@ -356,11 +333,9 @@ class LocomotionEnv(Env):
     return terms["alive"] < 0
 
   def progress(self, xyz_before: jax.Array, xyz_after: jax.Array) -> jax.Array:
-    """Change of potential, -distance_to_target / dt: about the speed toward the target (m/s).
-
-    PyBullet differences two potentials of ~6e4, which float32 cannot; the change of distance
-    is computed directly instead: |o|-|n| = (n-o).(2T-o-n) / (|o|+|n|), o, n = positions.
-    """
+    """Change of potential, -distance_to_target / dt: about the speed toward the target (m/s)."""
+    # PyBullet differences two potentials of ~6e4, too large for float32; this computes the
+    # change directly: |o|-|n| = (n-o).(2T-o-n) / (|o|+|n|).
     target = jnp.asarray(self.walk_target)
     old, new = xyz_before[:2], xyz_after[:2]
     d_old = jnp.linalg.norm(target - old)
@@ -370,8 +345,7 @@ class LocomotionEnv(Env):
   # ---- What the robot observes ---------------------------------------------------------------
 
   def robot(self, data: mjx.Data, feet_contact: jax.Array) -> Robot:
-    """PyBullet's `calc_state` quantities: body poses from `data`'s kinematics, the torso speed
-    and the joints from its current qpos and qvel."""
+    """PyBullet's `calc_state` quantities of `data`."""
     parts_xy = (data.xanchor[self._after_hinge, :2].sum(0)
                 + data.xanchor[self._after_slide_anchor, :2].sum(0)
                 + data.xpos[self._after_slide_body, :2].sum(0)
@@ -411,7 +385,7 @@ class LocomotionEnv(Env):
     """Poses of every body and geom for the current qpos."""
     return _forward_kinematics(self.mjx_model, data)
 
-  # ---- What the seed inspects ----------------------------------------------------------------
+  # ---- What the NMA notebook inspects ----------------------------------------------------------------
 
   def action_spec(self) -> specs.BoundedArray:
     return specs.BoundedArray((self.action_size,), np.dtype(np.float32), "action",
@@ -437,6 +411,6 @@ class LocomotionEnv(Env):
     return state.info["robot"].speed
 
   def render(self, qpos, width: int = 320, height: int = 240, camera: str = "track"):
-    """RGB frames (uint8, [T,] height, width, 3) of one or more stored qpos, on the host."""
+    """RGB frames (uint8, [T,] height, width, 3) of stored qpos ([T,] nq)."""
     from mjx_hopper.envs import render
     return render.render_frames(self.mj_model, qpos, width=width, height=height, camera=camera)

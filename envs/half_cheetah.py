@@ -7,14 +7,13 @@ from mjx_hopper.envs.base import LocomotionEnv, Robot
 
 
 class HalfCheetah(LocomotionEnv):
-  """Run toward (1000, 0). Observation 26, action 6. Its "feet" are all six leg links: alive
-  is -1 while a shin or thigh touches the floor (as last observed) or it pitches over."""
+  """Run toward (1000, 0). Observation 26, action 6; never terminates."""
 
   xml_file = "half_cheetah.xml"
   joints = ("bthigh", "bshin", "bfoot", "fthigh", "fshin", "ffoot")
   power = 0.9
   power_coefs = (120.0, 90.0, 60.0, 140.0, 60.0, 30.0)
-  feet = ("ffoot", "fshin", "fthigh", "bfoot", "bshin", "bthigh")
+  feet = ("ffoot", "fshin", "fthigh", "bfoot", "bshin", "bthigh")  # all six leg links
   initial_z = 0.7
 
   def alive_bonus(self, z: jax.Array, pitch: jax.Array, robot: Robot) -> jax.Array:

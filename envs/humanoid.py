@@ -7,12 +7,8 @@ from mjx_hopper.envs.base import LocomotionEnv, Robot
 
 
 class Humanoid(LocomotionEnv):
-  """Walk toward (1000, 0). Observation 44, action 17; alive gives +2, and the electricity
-  costs are 4.25 times the other robots'.
-
-  Torques at |a| = 1 are 41 Nm, but 123 at the hips' y joints, 82 at the knees and 30.75 at the
-  arms: PyBullet's Humanoid applies its own `motor_power` list, not the joints' power_coef.
-  """
+  """Walk toward (1000, 0). Observation 44, action 17; alive gives +2 and electricity costs
+  4.25 times the other robots'."""
 
   xml_file = "humanoid.xml"
   joints = ("abdomen_z", "abdomen_y", "abdomen_x",
@@ -21,6 +17,7 @@ class Humanoid(LocomotionEnv):
             "right_shoulder1", "right_shoulder2", "right_elbow",
             "left_shoulder1", "left_shoulder2", "left_elbow")
   power = 0.41
+  # PyBullet's Humanoid applies its own `motor_power` list, not the joints' power_coef.
   power_coefs = ((100.0,) * 3 + (100.0, 100.0, 300.0, 200.0) * 2 + (75.0,) * 6)
   feet = ("right_foot", "left_foot")
   # Only the legs touch the floor. While alive (torso centre of mass above 0.78 m) the torso,

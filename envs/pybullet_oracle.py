@@ -1,10 +1,6 @@
-"""PyBullet's own locomotion envs, the reference oracle of the tests and benchmarks.
+"""PyBullet's own locomotion envs, the reference of the tests and benchmarks.
 
-Needs the test extra (`pip install -e .[test]`: pybullet and gym); the runtime never imports it.
-
-`pybullet_envs/__init__.py` registers its envs into the old gym registry, which gym 0.26
-no longer has; the env modules themselves only need `gym.Env` and `gym.spaces`, so the package
-is entered without running its `__init__`.
+Needs the test extra (pybullet and gym); the runtime never imports it.
 """
 
 import contextlib
@@ -43,6 +39,8 @@ def _quiet():
 
 
 def _import_locomotion_envs():
+  # pybullet_envs/__init__.py registers into gym's old registry, which gym 0.26 lacks; the env
+  # modules need only gym.Env and gym.spaces, so the package is entered without its __init__.
   if "pybullet_envs.gym_locomotion_envs" not in sys.modules:
     spec = importlib.util.find_spec("pybullet_envs")
     if spec is None:
@@ -78,11 +76,10 @@ def link_masses(env) -> dict[str, float]:
 
 
 def set_state(env, ours, qpos, qvel) -> np.ndarray:
-  """Puts Bullet's robot in the state our env `ours` describes by `qpos` (nq,) and `qvel` (nv,),
-  and returns the observation PyBullet computes there.
+  """Puts Bullet's robot in our env's state `qpos` (nq,), `qvel` (nv,); returns its observation.
 
-  A planar root maps to Bullet's first three joints (slide x, slide z, hinge y); a free root to
-  Bullet's base, whose pose is that of the torso's centre of mass; other joints go by name.
+  A planar root maps to Bullet's first three joints, a free root to Bullet's base (the torso's
+  centre of mass); other joints go by name.
   """
   import mujoco
   model = ours.mj_model
@@ -111,10 +108,7 @@ def set_state(env, ours, qpos, qvel) -> np.ndarray:
 
 
 def run_episodes(env, n_episodes: int, policy: str, seed: int) -> dict[str, np.ndarray]:
-  """Runs whole episodes (up to the 1000-step limit) with 'random' or 'zero' actions.
-
-  Returns per-episode arrays: length, return, and the mean over steps of each reward term.
-  """
+  """Per-episode length, return and mean reward terms of 'random' or 'zero' actions."""
   rng = np.random.default_rng(seed)
   names = ("alive", "progress", "electricity_cost", "joints_at_limit_cost", "feet_collision_cost")
   out = {"length": [], "return": [], **{n: [] for n in names}}

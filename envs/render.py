@@ -31,8 +31,7 @@ def render_frames(model: mujoco.MjModel, qpos, width: int = 320, height: int = 2
 
 
 def write_mp4(path: str, frames: np.ndarray, fps: float) -> str:
-  """Writes uint8 frames (T, H, W, 3) to an H.264 mp4 at `path` (its folder made if missing)
-  and returns the path."""
+  """Writes uint8 frames (T, H, W, 3) to an H.264 mp4 at `path`; returns the path."""
   import imageio_ffmpeg
 
   frames = np.asarray(frames)

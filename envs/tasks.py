@@ -1,19 +1,15 @@
-"""Naming a task: the built-in robots, the names users register, and any `LocomotionEnv`
-subclass, given as a class, an instance or a `module:Class` import path.
+"""Naming a task: a built-in robot, a registered name, or a `LocomotionEnv` subclass (a class,
+an instance or a `module:Class` path).
 
-A task is a class and its constructor settings. A run records the task's id (its registered
-name, else `module:Qualname`) and every constructor setting, defaults included, so that a
-checkpoint can find its task again and refuse another:
+A run records its task's id and settings, so a checkpoint finds its task again:
 
     envs.task_id(HighJump)                          # 'my_events:HighJump'
     envs.task_settings(HighJump, {"height_weight": 5.0})
     # {'episode_steps': 1000, 'height_weight': 5.0}
     envs.make("my_events:HighJump", episode_steps=300)
 
-A class defined in a notebook or a script (module `__main__`) has the id `__main__:Name`. It is
-found again in the process that defined it, and in a notebook that has run the cell defining it
-again (after a restart), but no other process can import it: there it has to be passed again
-(`loop.resume(directory, env=HighJump)`), or moved to a module.
+A class defined in `__main__` (a notebook, a script) is found only where it is defined;
+elsewhere pass the class again or move it to a module.
 """
 
 from __future__ import annotations
@@ -40,9 +36,7 @@ BUILT_IN: tuple[str, ...] = ()  # the five robots, set by envs/__init__.py
 
 
 def register(name: str, cls: type[LocomotionEnv]) -> None:
-  """Makes `name` a task name, for `make`, `RunConfig(env=...)` and the CLI's `--env`. A
-  registered name is what checkpoints record, so register it again (at import, say) in a
-  process that resumes them. The built-in robots' names cannot be taken."""
+  """Makes `name` a task name; a process resuming its checkpoints must register it too."""
   _check_class(cls, repr(cls))
   if not isinstance(name, str) or not name or ":" in name:
     raise ValueError(f"a task name is a non-empty string without ':', got {name!r}")
@@ -106,8 +100,7 @@ def task_class(spec: Any) -> type[LocomotionEnv]:
 
 
 def task_id(cls: type[LocomotionEnv]) -> str:
-  """What a run records of its task: the name it is registered under, else
-  `module:Qualname`."""
+  """The task's registered name, else `module:Qualname`."""
   for name, registered in _REGISTRY.items():
     if registered is cls:
       return name
@@ -115,8 +108,7 @@ def task_id(cls: type[LocomotionEnv]) -> str:
 
 
 def robot_of(cls: type[LocomotionEnv]) -> str:
-  """The built-in robot a task subclasses, e.g. 'Hopper' for a high jump on the Hopper (its
-  presets are the robot's)."""
+  """The built-in robot a task subclasses, e.g. 'Hopper' for a Hopper high jump."""
   for base in cls.__mro__:
     if base.__name__ in BUILT_IN and _REGISTRY.get(base.__name__) is base:
       return base.__name__
@@ -124,8 +116,7 @@ def robot_of(cls: type[LocomotionEnv]) -> str:
 
 
 def _parameters(cls) -> dict[str, inspect.Parameter]:
-  """The keyword settings `cls(...)` takes, following `**kwargs` up the constructors of its
-  bases; the nearest constructor's parameter wins."""
+  """The keyword settings `cls(...)` takes, following `**kwargs` up its bases."""
   out: dict[str, inspect.Parameter] = {}
   for base in cls.__mro__:
     if "__init__" not in vars(base):
@@ -150,9 +141,10 @@ def _check_names(cls: type[LocomotionEnv], given: dict) -> dict[str, inspect.Par
 
 
 def task_settings(cls: type[LocomotionEnv], given: dict | None = None) -> dict:
-  """Every constructor setting of `cls`, defaults included, with `given` in place. Raises
-  ValueError for an unknown or missing setting, one whose value is not of its default's type
-  (an int is a float), or one that a JSON config cannot hold."""
+  """Every constructor setting of `cls`, defaults included, with `given` in place.
+
+  A ValueError for an unknown or missing setting, a value not of its default's type, or one JSON
+  cannot hold."""
   given = dict(given or {})
   params = _check_names(cls, given)
   out = {}
@@ -186,18 +178,15 @@ def settings_of(env: LocomotionEnv) -> dict:
 
 
 def make(spec: Any, **settings) -> LocomotionEnv:
-  """Builds the task `spec` (a name of `list_envs()`, a `module:Class` path, a class) with these
-  constructor settings (e.g. episode_steps); an unknown setting is a ValueError naming the
-  task's settings."""
+  """Builds the task `spec` (a name, a `module:Class` path, a class) with these settings."""
   cls = task_class(spec)
   _check_names(cls, settings)
   return cls(**settings)
 
 
 def check_task(env: LocomotionEnv) -> None:
-  """Raises a one-line ValueError when the task's reward is not a dict of named scalar terms,
-  its termination not a scalar, or a term is not finite at reset. Traces the reset and
-  evaluates the reward once, eagerly: nothing is compiled."""
+  """A one-line ValueError unless the reward is a dict of scalar terms, finite at reset, and
+  `is_done` a scalar; compiles nothing."""
   name = type(env).__name__
   try:
     state = jax.eval_shape(env.reset, jax.random.PRNGKey(0))
@@ -220,8 +209,7 @@ def check_task(env: LocomotionEnv) -> None:
 
 
 def _reset_terms(env: LocomotionEnv) -> dict:
-  """The reward terms of a step that changes nothing, at the robot's initial pose. MuJoCo's C
-  kinematics stands in for MJX's (MjData has the fields `robot` reads), so nothing compiles."""
+  """The reward terms of a still step at the initial pose, on MuJoCo's C kinematics."""
   data = mujoco.MjData(env.mj_model)
   mujoco.mj_kinematics(env.mj_model, data)
   robot = env.robot(data, jnp.zeros(len(env.feet)))

@@ -6,23 +6,19 @@ from brax.envs.base import State, Wrapper
 
 
 def _split(rng: jax.Array) -> tuple[jax.Array, jax.Array]:
-  """`jax.random.split(rng)` as (next rng, reset key), over any leading batch axes of `rng`:
-  raw keys (..., 2) uint32, or typed key arrays (...)."""
+  """(next rng, reset key) of raw (..., 2) or typed (...) keys, over any batch axes."""
   typed = jnp.issubdtype(rng.dtype, jax.dtypes.prng_key)
   pair = jnp.vectorize(jax.random.split, signature="()->(2)" if typed else "(2)->(2,2)")(rng)
   return (pair[..., 0], pair[..., 1]) if typed else (pair[..., 0, :], pair[..., 1, :])
 
 
 class AutoReset(Wrapper):
-  """Starts a new episode, with a fresh random key, as soon as one ends.
+  """Starts a new episode, with a fresh key, as soon as one ends.
 
-  Wraps one env, or a batch of them with leading axes on every state leaf (Brax's
-  VmapWrapper or DomainRandomizationVmapWrapper, whose models stay with their env across
-  episodes); `jax.vmap` over it works too. After a step that ended an episode, `state.obs` and
-  `state.pipeline_state` are the new episode's first ones, while `reward`, `done`, `metrics`
-  and `info["truncation"]` describe the step just taken and `info["final_obs"]` holds the true
-  last observation of the ended episode (it equals `obs` on every other step). Every other key
-  a wrapper keeps in `metrics` and `info` is passed on.
+  Wraps one env or a batch (Brax's VmapWrapper). After a step that ends an episode, `obs` and
+  `pipeline_state` are the next episode's first, while `reward`, `done`, `metrics` and
+  `info["truncation"]` describe the step taken and `info["final_obs"]` is its true last
+  observation.
   """
 
   def reset(self, rng: jax.Array) -> State:

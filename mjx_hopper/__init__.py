@@ -1,28 +1,30 @@
 """mjx_hopper: PyBullet's locomotion tasks on MuJoCo MJX, and JAX RL agents that learn them."""
 
-import contextlib
 import hashlib
 import os
 import platform
-import sys
-import tempfile
-import threading
 
-# Headless rendering: MuJoCo picks its OpenGL backend when it is first imported.
-os.environ.setdefault("MUJOCO_GL", "egl")
 
-# On a GPU, matrix products through cuBLAS instead of XLA's Triton GEMM fusions: the gpu
-# preset's training chunk then compiles in 15 s instead of 28 on an H100 (most of the rest was
-# autotuning Triton's kernels), and runs as fast (docs/benchmark-history.md, "Hopper's first
-# minute"). XLA reads XLA_FLAGS when JAX starts its
-# first backend, so this holds where mjx_hopper is imported before any JAX computation; a
-# setting of the flag in XLA_FLAGS wins.
-# CPUs ignore it.
-if "xla_gpu_enable_triton_gemm" not in os.environ.get("XLA_FLAGS", ""):
-  os.environ["XLA_FLAGS"] = " ".join(
-      [os.environ.get("XLA_FLAGS", ""), "--xla_gpu_enable_triton_gemm=false"]).strip()
+def _settings_before_start(system: str, environ) -> dict[str, str]:
+  """The environment variables the package sets on import, because MuJoCo and XLA read them
+  once, when they start: MuJoCo's EGL backend for headless rendering on Linux without a display
+  (`system` as `platform.system()` names it), and on a GPU, matrix products through cuBLAS
+  rather than XLA's Triton GEMMs, which compile much faster and run as fast. Set values win."""
+  if system != "Linux":
+    return {}
+  out = {}
+  if ("MUJOCO_GL" not in environ and not environ.get("DISPLAY")
+      and not environ.get("WAYLAND_DISPLAY")):
+    out["MUJOCO_GL"] = "egl"
+  flags = environ.get("XLA_FLAGS", "")
+  if "xla_gpu_enable_triton_gemm" not in flags:
+    out["XLA_FLAGS"] = f"{flags} --xla_gpu_enable_triton_gemm=false".strip()
+  return out
 
-__version__ = "0.1.0"
+
+os.environ.update(_settings_before_start(platform.system(), os.environ))
+
+__version__ = "0.2.0"
 
 
 def xla_flags_with_cpu_devices(count: int) -> str:
@@ -56,68 +58,18 @@ def cpu_key() -> str:
 
 
 def use_compile_cache(directory: str | None = None) -> str:
-  """Keeps JAX's compiled programs on disk, so that a rerun, or a new process with the same
-  programs, skips most of their compile time. The base directory is `directory`, else
-  $MJX_HOPPER_JAX_CACHE, else ~/.cache/mjx_hopper/jax; the programs go to its subfolder named
-  by `cpu_key()`, which is returned.
+  """Keeps JAX's compiled programs on disk, in `directory` (else $MJX_HOPPER_JAX_CACHE, else
+  ~/.cache/mjx_hopper/jax), in a subfolder per `cpu_key()`, which is returned.
 
-  Why the subfolder: JAX's own cache key leaves out the CPU's features, and XLA:CPU loads a
-  cached program compiled for another CPU with only a log line (a program using AVX-512 would
-  then stop with SIGILL on a CPU without it). One folder per feature set means a program is
-  only ever loaded on a CPU like the one that compiled it."""
+  JAX's cache key leaves out the CPU's features, and XLA:CPU would load a program compiled for
+  another CPU (one using AVX-512 then stops with SIGILL): one folder per feature set prevents
+  it."""
   import jax
   base = directory or os.environ.get(
       "MJX_HOPPER_JAX_CACHE", os.path.join(os.path.expanduser("~"), ".cache", "mjx_hopper", "jax"))
   keyed = os.path.join(base, cpu_key())
   jax.config.update("jax_compilation_cache_dir", keyed)
   jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
-  _quiet_cache_loads()
+  from mjx_hopper import jax_private
+  jax_private.quiet_cache_loads()
   return keyed
-
-
-# What XLA logs when it loads a cached program, that no user can act on: jaxlib 0.9's CPU loader
-# reports the tuning preferences it adds itself on AVX-512 hosts (+prefer-no-gather and
-# +prefer-no-scatter, which no host lists among its features) as missing CPU features, and PjRt
-# says that it does not version executables. Any other line, a real missing feature included,
-# is shown as it is.
-HARMLESS_LOAD_LINES = ("Target machine feature +prefer-no-",
-                       "Assume version compatibility. PjRt-IFRT does not track")
-_STDERR_LOCK = threading.Lock()
-
-
-@contextlib.contextmanager
-def _stderr_without(patterns: tuple[str, ...]):
-  """Runs the block with file descriptor 2 (C++ logs write there) captured, then writes back
-  what it got, less the lines that contain one of `patterns`. One block at a time."""
-  with _STDERR_LOCK, tempfile.TemporaryFile() as capture:
-    sys.stderr.flush()
-    saved = os.dup(2)
-    os.dup2(capture.fileno(), 2)
-    try:
-      yield
-    finally:
-      sys.stderr.flush()
-      os.dup2(saved, 2)
-      os.close(saved)
-      capture.seek(0)
-      lines = capture.read().splitlines(keepends=True)
-      os.write(2, b"".join(line for line in lines
-                           if not any(p.encode() in line for p in patterns)))
-
-
-def _quiet_cache_loads() -> None:
-  """Keeps HARMLESS_LOAD_LINES out of the output of JAX's persistent-cache loads (once)."""
-  try:
-    from jax._src import compilation_cache
-    load = compilation_cache.get_executable_and_time
-  except (ImportError, AttributeError):  # another JAX: its lines are shown
-    return
-  if getattr(load, "quiet", False):
-    return
-
-  def quiet_load(*args, **kwargs):
-    with _stderr_without(HARMLESS_LOAD_LINES):
-      return load(*args, **kwargs)
-
-  quiet_load.quiet = True
-  compilation_cache.get_executable_and_time = quiet_load

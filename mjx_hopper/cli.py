@@ -11,20 +11,26 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import sys
 import time
 
 
 def _setup_jax(cpu_devices: int) -> None:
-  """Splits the CPU into `cpu_devices` XLA devices and turns on the persistent compile cache.
-
-  Must run before JAX initialises its backends.
-  """
+  """Before JAX starts: the CPU split into `cpu_devices` XLA devices, the persistent compile
+  cache, and XLA's C++ log at errors only where this process may use XLA's GSPMD partitioner
+  (`parallel.SHARDY_CRASHES`): GSPMD warns at every compile that it is deprecated, and XLA
+  offers no way to silence that one line. TF_CPP_MIN_LOG_LEVEL, when set, wins."""
   if cpu_devices < 1:
     raise SystemExit(f"--cpu-devices must be >= 1, got {cpu_devices}")
+  import importlib.metadata
+
   import mjx_hopper
   os.environ["XLA_FLAGS"] = mjx_hopper.xla_flags_with_cpu_devices(cpu_devices)
+  version = tuple(int(p) for p in importlib.metadata.version("jax").split(".")[:2])
+  if version >= (0, 11):  # parallel.SHARDY_CRASHES, without importing JAX yet
+    os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "2")
   mjx_hopper.use_compile_cache()
 
 
@@ -84,14 +90,11 @@ def _overrides(pairs: list[str], flag: str = "--set") -> dict:
   return out
 
 
-def _sweep_settings(pairs: list[str], agent: str, preset: str) -> tuple[dict, dict]:
+def _sweep_settings(pairs: list[str], agent: str, agent_preset: str) -> tuple[dict, dict]:
   """(fixed settings, grid) of a sweep's --set pairs: a dynamic setting given several
   comma-separated values (name=v1,v2) is swept; any other is one value for every member."""
-  from mjx_hopper import sweep
-  try:
-    dynamic = set(sweep.dynamic_settings(agent, preset))
-  except ValueError as error:
-    raise SystemExit(f"mjx-hopper sweep: {error}")
+  from mjx_hopper import config
+  dynamic = set(config.dynamic_settings(agent, agent_preset))
   fixed, grid = {}, {}
   for name, value in _overrides(pairs).items():
     if isinstance(value, tuple) and (name in dynamic or any(isinstance(v, tuple) for v in value)):
@@ -101,36 +104,100 @@ def _sweep_settings(pairs: list[str], agent: str, preset: str) -> tuple[dict, di
   return fixed, grid
 
 
-def _run_config(args: argparse.Namespace, agent_overrides: dict, **sweep):
-  """The RunConfig of train's (and sweep's) flags: the robot's preset (`mjx_hopper.presets`)
-  when it has one of this --preset for this agent, else the agent's preset with the trainer's
-  defaults; then every flag given, and --set, replace its settings."""
-  import dataclasses
+def _run_flags():
+  """(owner, field) of every setting offered as a flag: RunConfig's, then TrainConfig's."""
+  from mjx_hopper.config import RunConfig
+  from mjx_hopper.train import TrainConfig
+  return [(owner, f) for owner in (RunConfig, TrainConfig) for f in dataclasses.fields(owner)
+          if f.metadata.get("flag")]
 
+
+def flag_name(field) -> str:
+  return "--" + field.name.replace("_", "-")
+
+
+def _parse_value(hint: str):
+  """The argparse type of a field's type hint (written as text under `from __future__`)."""
+  for name, parse in (("int", int), ("float", float)):
+    if hint.split(" |")[0] == name:
+      return parse
+  return str
+
+
+def _base_config(args: argparse.Namespace, command: str):
+  """The config a run starts from: a saved config (--config), else the robot's preset
+  (--preset) of the agent (--agent) on the task (--env)."""
   from mjx_hopper import presets
-  base = presets.agent_run_config(args.env, args.preset, args.agent or "d4pg")
-  env_settings = {**base.env_settings, **_overrides(args.env_set, "--env-set")}
-  flags = dict(num_envs=args.num_envs, unroll_length=args.unroll_length,
-               batch_size=args.batch_size, replay_ratio=args.replay_ratio,
-               replay_size=args.replay_size, min_replay=args.min_replay,
-               iterations_per_chunk=args.chunk)
-  trainer = dataclasses.replace(base.train, **{k: v for k, v in flags.items() if v is not None})
+  from mjx_hopper.config import RunConfig
+  if args.config is not None:
+    for flag in ("preset", "agent_preset"):
+      if getattr(args, flag, None) is not None:
+        raise ValueError(f"--{flag.replace('_', '-')} and --config both choose the settings: "
+                         "give one of them")
+    cfg = _read_config(args.config)
+    if command == "train" and (cfg.seeds or cfg.grid or cfg.pbt):
+      raise ValueError(f"{args.config} is a sweep's config: run it with mjx-hopper sweep "
+                       "--config")
+    return cfg
+  base = presets.agent_run_config(getattr(args, "env", "Hopper"), args.preset or "cpu",
+                                  getattr(args, "agent", "d4pg"))
+  return dataclasses.replace(base, out_dir="runs/sweep") if command == "sweep" else base
+
+
+def _read_config(path: str):
+  """The RunConfig saved in `path` (a run's config.json); anything else is a ValueError."""
+  import json
+
+  from mjx_hopper.config import RunConfig
+  try:
+    with open(path) as f:
+      saved = json.load(f)
+  except (OSError, json.JSONDecodeError) as error:
+    raise ValueError(f"--config {path}: cannot read it as JSON ({error})") from None
+  if not isinstance(saved, dict) or not {"env", "agent", "train"} <= set(saved):
+    raise ValueError(f"--config {path} is not a run's config.json (it lacks env, agent or "
+                     "train)")
+  known = {f.name for f in dataclasses.fields(RunConfig)} | {
+      "agent_config", "member_indices", "record", "versions", "preset", "time_delta",
+      "format_version"}
+  unknown = sorted(set(saved) - known)
+  if unknown:
+    raise ValueError(f"--config {path} names unknown settings {unknown}")
+  return RunConfig.from_json(saved)
+
+
+def _run_config(args: argparse.Namespace, command: str = "train"):
+  """The RunConfig of train's (and sweep's) flags: the base config (`_base_config`), then every
+  flag given explicitly, --set and --env-set."""
+  from mjx_hopper.train import TrainConfig
+  base = _base_config(args, command)
+  given = {f.name: getattr(args, f.name) for _, f in _run_flags() if hasattr(args, f.name)}
+  train_given = {k: v for k, v in given.items()
+                 if k in {f.name for f in dataclasses.fields(TrainConfig)}}
+  run_given = {k: v for k, v in given.items() if k not in train_given}
+  agent = run_given.get("agent", base.agent)
+  agent_preset = run_given.get("agent_preset", base.agent_preset)
+  fixed, grid = (_sweep_settings(args.set, agent, agent_preset) if command == "sweep"
+                 else (_overrides(args.set), {}))
+  if "replay_ratio" in fixed:
+    train_given["replay_ratio"] = fixed.pop("replay_ratio")
+  sweep = {}
+  if command == "sweep":
+    seed = run_given.get("seed", base.seed)
+    seeds = (tuple(range(seed, seed + args.seeds)) if args.seeds is not None
+             else base.seeds or (seed,))
+    sweep = dict(seeds=seeds, grid={**base.grid, **grid}, pbt=_pbt(args) or base.pbt)
   return dataclasses.replace(
-      base, env_settings=env_settings,
-      agent_overrides={**base.agent_overrides, **agent_overrides}, train=trainer,
-      total_env_steps=args.steps, max_minutes=args.max_minutes,
-      stop_at_return=args.stop_at_return, eval_every=args.eval_every or base.eval_every,
-      eval_episodes=args.eval_episodes, eval_on=args.eval_on, episode_steps=args.episode_steps,
-      seed=args.seed,
-      out_dir=args.out, tensorboard_dir=args.tensorboard, time_delta=args.log_every,
-      checkpoint_minutes=args.checkpoint_minutes, **sweep)
+      base, **run_given, **sweep, train=dataclasses.replace(base.train, **train_given),
+      env_settings={**base.env_settings, **_overrides(args.env_set, "--env-set")},
+      agent_overrides={**base.agent_overrides, **fixed})
 
 
 def train(args: argparse.Namespace) -> None:
   """Trains an agent, with progress, a CSV log, checkpoints and a final evaluation."""
   from mjx_hopper import loop
   try:
-    cfg = _run_config(args, _overrides(args.set))
+    cfg = _run_config(args, "train")
     loop.run(cfg, checkpoint_dir=args.checkpoint_dir, progress=not args.no_progress)
   except ValueError as error:
     raise SystemExit(f"mjx-hopper train: {error}")
@@ -138,20 +205,15 @@ def train(args: argparse.Namespace) -> None:
 
 def sweep(args: argparse.Namespace) -> None:
   """Trains a sweep's members at once: log.csv (a row per member per chunk and evaluation),
-  curves.png, a ranking, checkpoints; under jax.distributed, each process its share."""
-  from mjx_hopper import loop
-  if args.seeds < 1:
-    raise SystemExit(f"mjx-hopper sweep: --seeds must be >= 1, got {args.seeds}")
-  process = None
-  if args.distributed or args.coordinator or args.num_processes or args.process_id is not None:
-    process = loop.join_processes(args.coordinator, args.num_processes, args.process_id)
-  fixed, grid = _sweep_settings(args.set, args.agent or "d4pg", args.preset)
-  replay_ratio = fixed.pop("replay_ratio", None)
-  if replay_ratio is not None:
-    args.replay_ratio = replay_ratio
+  curves.png, a ranking, checkpoints; over several processes, each its share."""
+  from mjx_hopper import loop, parallel
   try:
-    cfg = _run_config(args, fixed, seeds=tuple(range(args.seed, args.seed + args.seeds)),
-                      grid=grid, pbt=_pbt(args))
+    if args.seeds is not None and args.seeds < 1:
+      raise ValueError(f"--seeds must be >= 1, got {args.seeds}")
+    process = None
+    if args.distributed or args.coordinator or args.num_processes or args.process_id is not None:
+      process = parallel.join_processes(args.coordinator, args.num_processes, args.process_id)
+    cfg = _run_config(args, "sweep")
     loop.run(cfg, checkpoint_dir=args.checkpoint_dir, progress=not args.no_progress,
              process=process)
   except ValueError as error:
@@ -159,8 +221,8 @@ def sweep(args: argparse.Namespace) -> None:
 
 
 def _pbt(args: argparse.Namespace):
-  """The sweep.PBT of sweep's --pbt flags (None without --pbt)."""
-  from mjx_hopper import sweep
+  """The PBT of sweep's --pbt flags (None without --pbt)."""
+  from mjx_hopper.pbt import PBT
   given = [flag for flag, value in (("--pbt-every", args.pbt_every),
                                     ("--pbt-fraction", args.pbt_fraction),
                                     ("--pbt-bounds", args.pbt_bounds)) if value]
@@ -170,7 +232,29 @@ def _pbt(args: argparse.Namespace):
     return None
   settings = dict(every=args.pbt_every, fraction=args.pbt_fraction,
                   bounds=_overrides(args.pbt_bounds, "--pbt-bounds"))
-  return sweep.PBT(**{k: v for k, v in settings.items() if v is not None})
+  return PBT(**{k: v for k, v in settings.items() if v is not None})
+
+
+def settings(args: argparse.Namespace) -> None:
+  """Prints every setting: its name, type, default, the preset's value, and whether a sweep can
+  vary it in one compiled program."""
+  from mjx_hopper import agents, config
+  base = _base_config(args, "train")
+  agent_cfg = base.agent_config()
+  dynamic = set(config.dynamic_settings(base.agent, base.agent_preset))
+  rows = [("setting", "type", "default", f"{base.task_id} {args.preset or 'cpu'}", "sweep")]
+  for owner, f in _run_flags():
+    now = getattr(base.train if owner is not type(base) else base, f.name)
+    rows.append((flag_name(f), str(f.type), repr(f.default), repr(now),
+                 "yes" if f.name in dynamic else "no"))
+  defaults = type(agent_cfg)()
+  for f in dataclasses.fields(agent_cfg):
+    rows.append((f"--set {f.name}=", str(f.type), repr(getattr(defaults, f.name)),
+                 repr(getattr(agent_cfg, f.name)), "yes" if f.name in dynamic else "no"))
+  widths = [max(len(r[i]) for r in rows) for i in range(5)]
+  print(f"{base.agent} ({base.agent_preset}); agents: {', '.join(agents.list_agents())}")
+  for row in rows:
+    print("  ".join(cell.ljust(w) for cell, w in zip(row, widths)).rstrip())
 
 
 def _member(text: str) -> int | str:
@@ -209,7 +293,7 @@ def evaluate(args: argparse.Namespace) -> None:
                                       record_qpos=True))(agent_state,
                                                          jax.random.PRNGKey(args.seed)))
   returns = np.asarray(result["return"])
-  print(f"{cfg.env} / {cfg.agent}: return {returns.mean():.1f} +- {returns.std():.1f}, length "
+  print(f"{cfg.task_id} / {cfg.agent}: return {returns.mean():.1f} +- {returns.std():.1f}, length "
         f"{np.mean(result['length']):.0f} over {args.episodes} episodes")
   length = int(result["length"][0])
   frames = render.render_frames(trainer.env.mj_model, np.asarray(result["qpos"][:length + 1]))
@@ -217,24 +301,29 @@ def evaluate(args: argparse.Namespace) -> None:
   print(f"video of episode 0 ({length} steps, return {returns[0]:.1f}): {path}")
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(bases: dict | None = None) -> argparse.ArgumentParser:
+  """The command line. `bases` ({"train": RunConfig, "sweep": RunConfig}) are the configs whose
+  values --help shows as the defaults a run would use."""
   parser = argparse.ArgumentParser(prog="mjx-hopper", description=__doc__,
                                    formatter_class=argparse.RawDescriptionHelpFormatter)
   parser.add_argument("--cpu-devices", type=int, default=os.cpu_count() or 1,
                       help="XLA CPU devices to split the env batch over (default: all cores)")
   sub = parser.add_subparsers(dest="command", required=True)
   t = sub.add_parser("train", help="train an agent (progress, CSV log, checkpoints, evaluation)")
-  _add_run_flags(t)
+  _add_run_flags(t, (bases or {}).get("train"))
   w = sub.add_parser("sweep", help="train many seeds and settings at once, in one program")
-  _add_run_flags(w, sweep=True)
-  w.add_argument("--seeds", type=int, default=1, help="members per setting: seeds SEED, ...")
+  _add_run_flags(w, (bases or {}).get("sweep"), sweep=True)
+  w.add_argument("--seeds", type=int, default=None,
+                 help="members per setting: seeds SEED to SEED+N-1 (becomes the config's "
+                      "seeds; default 1, or a --config's seeds)")
   w.add_argument("--distributed", action="store_true",
-                 help="run under jax.distributed (each process trains its share of the members)")
+                 help="a sweep over processes, each told its place by its launcher (SLURM, "
+                      "Open MPI): each trains its share of the members")
   w.add_argument("--coordinator", default=None, metavar="HOST:PORT",
-                 help="jax.distributed: process 0's address (with --num-processes, "
-                      "--process-id); each process trains its share of the members")
-  w.add_argument("--num-processes", type=int, default=None)
-  w.add_argument("--process-id", type=int, default=None)
+                 help="accepted for older command lines; not needed")
+  w.add_argument("--num-processes", type=int, default=None,
+                 help="a sweep over processes: how many (with --process-id)")
+  w.add_argument("--process-id", type=int, default=None, help="this process's index")
   w.add_argument("--pbt", action="store_true",
                  help="population-based training: the worst members copy the best and "
                       "perturb the swept settings (docs/pbt.md)")
@@ -245,6 +334,11 @@ def build_parser() -> argparse.ArgumentParser:
   w.add_argument("--pbt-bounds", action="append", default=[], metavar="NAME=LOW,HIGH",
                  help="bounds of a swept setting under PBT (default: the grid's smallest and "
                       "largest value)")
+  g = sub.add_parser("settings", help="list every setting, its default and the preset's value")
+  g.add_argument("--env", default="Hopper", help="a robot, or a task as module:Class")
+  g.add_argument("--agent", default="d4pg")
+  g.add_argument("--preset", default=None, help="the robot's cpu or gpu settings")
+  g.set_defaults(config=None)
   x = sub.add_parser("extract", help="write one member of a sweep as a single run's checkpoint")
   x.add_argument("--checkpoint", required=True, help="the sweep's checkpoint directory")
   x.add_argument("--member", type=_member, required=True,
@@ -267,71 +361,66 @@ def build_parser() -> argparse.ArgumentParser:
   return parser
 
 
-def _add_run_flags(t: argparse.ArgumentParser, sweep: bool = False) -> None:
-  """The flags of a training run, shared by train and sweep."""
-  t.add_argument("--env", default="Hopper",
-                 help="a robot (Hopper, Walker2D, HalfCheetah, Ant, Humanoid), or a task of your "
-                      "own as module:Class, a subclass of one (the module is looked for in the "
-                      "current directory and on sys.path)")
-  t.add_argument("--env-set", action="append", default=[], metavar="NAME=VALUE",
-                 help="a constructor setting of the task, e.g. --env-set height_weight=5.0 "
-                      "(repeatable); recorded in the checkpoint")
-  t.add_argument("--agent", default=None, help="d4pg (default), ddpg, mpo or dmpo")
-  t.add_argument("--preset", default="cpu",
-                 help="named settings: cpu or gpu (the robot's, mjx_hopper.presets, for its "
-                      "agent; the agent's own for another), or the agent's seed")
+def _add_run_flags(t: argparse.ArgumentParser, base, sweep: bool = False) -> None:
+  """train's and sweep's flags: one per setting of the config (its help, type and, as shown,
+  the value `base` holds), and the conveniences that become settings. Only flags given
+  explicitly replace the base config's values."""
+  for owner, f in _run_flags():
+    now = None if base is None else getattr(
+        base if owner is type(base) else base.train, f.name)
+    shown = "" if base is None else f" (default: {now})"
+    t.add_argument(flag_name(f), *f.metadata["aliases"], dest=f.name,
+                   type=_parse_value(str(f.type)), default=argparse.SUPPRESS,
+                   help=f.metadata["help"] + shown)
+  t.add_argument("--preset", default=None,
+                 help="the robot's settings: cpu or gpu (mjx_hopper.presets); default cpu")
+  t.add_argument("--config", default=None, metavar="FILE",
+                 help="start from a run's saved config.json instead of a preset")
   t.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
-                 help=("a setting for every member, or a dynamic one's values to sweep, e.g. "
-                       "--set learning_rate=1e-4,3e-4 (repeatable)") if sweep else
-                 "override one agent setting, e.g. --set sigma=0.2 (repeatable)")
-  t.add_argument("--steps", type=int, default=1_000_000, help="total env steps")
-  t.add_argument("--max-minutes", type=float, default=None,
-                 help="also stop (and save) after this much wall-clock time")
-  t.add_argument("--stop-at-return", type=float, default=None, metavar="RETURN",
-                 help="also stop once an evaluation (of every member) reaches RETURN")
-  # The trainer's layout: by default the preset's (for cpu, 512 envs, unroll 4, batch 256,
-  # replay ratio 4, replay 1M, 20k before learning, 25 iterations per chunk).
-  t.add_argument("--num-envs", type=int, default=None)
-  t.add_argument("--unroll-length", type=int, default=None,
-                 help="env steps per env per iteration")
-  t.add_argument("--batch-size", type=int, default=None)
-  t.add_argument("--replay-ratio", type=float, default=None,
-                 help="samples drawn per transition inserted")
-  t.add_argument("--replay-size", type=int, default=None)
-  t.add_argument("--min-replay", type=int, default=None)
-  t.add_argument("--chunk", type=int, default=None, help="iterations per compiled chunk")
-  t.add_argument("--eval-every", type=int, default=None,
-                 help="env steps between evaluations (cpu: 200,000)")
-  t.add_argument("--eval-episodes", type=int, default=16)
-  t.add_argument("--eval-on", choices=("auto", "host", "train"), default="auto",
-                 help="where evaluations run: host, on the CPU beside training; train, on the "
-                      "training's devices, which wait for them; auto (default): host for a "
-                      "single run on an accelerator (a GPU), else train")
-  t.add_argument("--episode-steps", type=int, default=None,
-                 help="steps before an episode is truncated (default: the task's; PyBullet's "
-                      "1000 for the robots)")
-  t.add_argument("--seed", type=int, default=0)
-  t.add_argument("--out", default="runs/sweep" if sweep else "runs/train",
-                 help="folder for log.csv and config.json")
+                 help=("an agent setting for every member, or a dynamic one's values to sweep "
+                       "(name=v1,v2 becomes the grid); `mjx-hopper settings` lists them")
+                 if sweep else "an agent setting (becomes agent_overrides), e.g. --set "
+                 "sigma=0.2; `mjx-hopper settings` lists them")
+  t.add_argument("--env-set", action="append", default=[], metavar="NAME=VALUE",
+                 help="a constructor setting of the task (becomes env_settings), e.g. "
+                      "--env-set height_weight=5.0")
   t.add_argument("--checkpoint-dir", default=None,
-                 help="checkpoints (default OUT/checkpoints); resumes when it holds one")
-  t.add_argument("--checkpoint-minutes", type=float, default=10.0)
-  t.add_argument("--log-every", type=float, default=10.0, help="seconds between log lines")
-  t.add_argument("--tensorboard", default=None, metavar="DIR",
-                 help="also write log.csv's scalars to DIR as TensorBoard events")
+                 help="checkpoints (default OUT_DIR/checkpoints); resumes when it holds one")
   t.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
+def _help_bases(argv: list[str]) -> dict | None:
+  """The configs --help describes: those of the --env, --agent, --preset and --config given."""
+  if "-h" not in argv and "--help" not in argv:
+    return None
+  pre = argparse.ArgumentParser(add_help=False)
+  for flag in ("--env", "--agent", "--preset", "--config"):
+    pre.add_argument(flag, default=None)
+  known, _ = pre.parse_known_args(argv)
+  args = argparse.Namespace(env=known.env or "Hopper", agent=known.agent or "d4pg",
+                            preset=known.preset, config=known.config)
+  try:
+    return {command: _base_config(args, command) for command in ("train", "sweep")}
+  except (ValueError, OSError):
+    return None
+
+
 def main(argv: list[str] | None = None) -> None:
-  parser = build_parser()
-  args = parser.parse_args(argv)
+  argv = sys.argv[1:] if argv is None else argv
   if os.getcwd() not in sys.path:  # as `python -m` does: --env my_events:Jump finds ./my_events.py
     sys.path.insert(0, os.getcwd())
+  parser = build_parser(_help_bases(argv))
+  args = parser.parse_args(argv)
   _setup_jax(args.cpu_devices)
-  if args.command == "train":
-    train(args)
-  elif args.command == "sweep":
-    sweep(args)
+  if args.command in ("train", "sweep"):
+    args.env = getattr(args, "env", "Hopper")
+    args.agent = getattr(args, "agent", "d4pg")
+    (train if args.command == "train" else sweep)(args)
+  elif args.command == "settings":
+    try:
+      settings(args)
+    except ValueError as error:
+      raise SystemExit(f"mjx-hopper settings: {error}")
   elif args.command == "extract":
     extract(args)
   elif args.command == "eval":

@@ -1,6 +1,4 @@
-"""Type checks for the settings dataclasses (agent configs, TrainConfig), so that a value of the
-wrong type (a string from the command line, say) is refused with a one-line error naming it,
-before any comparison trips over it."""
+"""Type checks for the settings dataclasses, refusing a wrong type in one line."""
 
 from __future__ import annotations
 
@@ -58,9 +56,8 @@ def convert(hint, value):
 
 
 def check_types(cfg) -> None:
-  """Checks every field of the frozen dataclass `cfg` against its type hint, converting in place
-  an int given for a float and a list for a tuple. Raises ValueError naming the first field of
-  the wrong type, its value and the type it takes."""
+  """Checks each field of the frozen dataclass `cfg` against its type hint, converting an int
+  for a float and a list for a tuple in place; a ValueError names the first bad field."""
   hints = typing.get_type_hints(type(cfg))
   for field in dataclasses.fields(cfg):
     value = getattr(cfg, field.name)
@@ -70,3 +67,12 @@ def check_types(cfg) -> None:
       raise ValueError(f"{field.name} takes a {_kind(hints[field.name])}, got {value!r}") from None
     if converted is not value:
       object.__setattr__(cfg, field.name, converted)
+
+
+def setting(default, help: str, flag: bool = True, aliases: tuple[str, ...] = ()):
+  """A dataclass field with its help text; the command line offers it as --name (and
+  `aliases`) when `flag`."""
+  meta = {"help": help, "flag": flag, "aliases": aliases}
+  if isinstance(default, dict):
+    return dataclasses.field(default_factory=dict, metadata=meta)
+  return dataclasses.field(default=default, metadata=meta)

@@ -3,7 +3,7 @@ TensorBoard), and a short terminal line every `time_delta` seconds (like acme's 
 
 A row is a dict with a "kind" ("train" or "eval"), "env_steps" and numbers. The CSV and
 TensorBoard get every field; the terminal line shows a few (`TRAIN_FIELDS` plus the agent's
-`LEARNER_FIELDS`, or `EVAL_FIELDS`), each with its latest value, and leaves out what is not
+learner fields, or `EVAL_FIELDS`), each with its latest value, and leaves out what is not
 known yet (no evaluation so far, no episode ended so far).
 """
 
@@ -14,20 +14,34 @@ import logging
 import math
 import os
 import time
+from collections.abc import Mapping
 from typing import Callable, Sequence
+
+from mjx_hopper import agents
 
 # (row field, terminal text with {} for its value) pairs.
 RETURNS = (("episode_return", "train return {}"), ("eval_return", "eval return {}"))
 TRAIN_FIELDS = (("env_steps", "{} env steps"), ("steps_per_s", "{} steps/s")) + RETURNS
 EVAL_FIELDS = (("env_steps", "{} env steps"), ("eval_return", "eval return {}"),
                ("eval_return_std", "std {}"), ("eval_length", "episode length {}"))
-# The learner figures that tell a user an agent is healthy, from what its `update` reports
-# (agents/dpg.py, agents/mpo.py): the critic's loss should stay bounded; D4PG's and DDPG's
-# mean Q (over the batch) should follow the returns' scale rather than run away; MPO's
-# temperature should settle, not collapse to its floor or keep growing.
-_DPG = (("critic_loss", "critic loss {}"), ("q_mean", "Q {}"))
-_MPO = (("critic_loss", "critic loss {}"), ("temperature", "temperature {}"))
-LEARNER_FIELDS = {"d4pg": _DPG, "ddpg": _DPG, "mpo": _MPO, "dmpo": _MPO}
+
+
+class _LearnerFields(Mapping):
+  """{agent: its terminal line's learner fields}, as the agents declare them."""
+
+  def __getitem__(self, name):
+    if name not in agents.list_agents():
+      raise KeyError(name)
+    return agents.learner_fields(name)
+
+  def __iter__(self):
+    return iter(agents.list_agents())
+
+  def __len__(self):
+    return len(agents.list_agents())
+
+
+LEARNER_FIELDS = _LearnerFields()
 # Fields whose NaN means "none this time" (no episode ended in the chunk): the latest value
 # stands. Any other NaN (a diverged critic, say) is shown as nan.
 KEEP_LATEST = ("episode_return",)
@@ -49,7 +63,8 @@ class Logger:
   def __init__(self, csv_path: str | None, time_delta: float = 10.0,
                print_fn: Callable[[str], None] = print, learner_fields: Fields = (),
                tensorboard_dir: str | None = None, start_step: int = 0,
-               id_fields: Sequence[str] = ()):
+               id_fields: Sequence[str] = (), wandb_project: str | None = None,
+               wandb_config: dict | None = None):
     self.csv_path, self.time_delta, self.print_fn = csv_path, time_delta, print_fn
     self.learner_fields, self.id_fields = tuple(learner_fields), tuple(id_fields)
     self.rows: list[dict] = []
@@ -64,6 +79,8 @@ class Logger:
           self.columns = list(reader.fieldnames or [])
           self.rows = list(reader)
     self.tensorboard = _tensorboard_writer(tensorboard_dir, start_step)
+    if wandb_project is not None:
+      raise ValueError("wandb is not available yet")
 
   def write(self, row: dict, force: bool = False) -> None:
     row = {k: _plain(v) for k, v in row.items()}

@@ -1,5 +1,5 @@
 """What the Robolympics notebook shows, each in one call: a recorded evaluation of a trained
-policy, inline videos (side by side, too), the seed's per-step reward plot, a run's learning
+policy, inline videos (side by side, too), the NMA notebook's per-step reward plot, a run's learning
 curve, and the tiny settings the tests run the notebook with.
 
     from mjx_hopper import loop, notebook
@@ -20,27 +20,20 @@ import html
 import jax
 import numpy as np
 
-from mjx_hopper import loop, rollout, train
+from mjx_hopper import agents, loop, rollout, train
 from mjx_hopper.envs import render
 
-# The tiny runs of the notebook's short mode, which tests/test_train.py's TINY run (and its
-# TINY_ARGS on the command line) also use, so that they share compiled programs through the
-# persistent compile cache.
 TINY_TRAIN = train.TrainConfig(num_envs=4, unroll_length=2, batch_size=8, replay_ratio=2.0,
                                replay_size=64, min_replay=24, iterations_per_chunk=5)
-TINY_AGENT = {"policy_layers": (16,), "critic_layers": (16,), "n_step": 3}
-TINY_AGENT_EXTRA = {"d4pg": {"num_atoms": 11}, "mpo": {"num_samples": 4},
-                    "dmpo": {"num_samples": 4, "num_atoms": 11}}
 
 
 def tiny(cfg: loop.RunConfig) -> loop.RunConfig:
-  """`cfg` shrunk to a few seconds of training: 16-unit networks, 4 envs, 80 env steps of
-  30-step episodes, an evaluation of 2 episodes every 40 env steps. Its env, agent, seed and
-  files stay."""
-  overrides = {**TINY_AGENT, **TINY_AGENT_EXTRA.get(cfg.agent, {})}
-  return dataclasses.replace(cfg, agent_overrides=overrides, train=TINY_TRAIN, episode_steps=30,
-                             total_env_steps=80, max_minutes=None, eval_every=40,
-                             eval_episodes=2)
+  """`cfg` shrunk to seconds of training: the agent's tiny settings, 4 envs, 80 env steps of
+  30-step episodes, an evaluation of 2 episodes every 40 env steps. Tests share its programs
+  through the compile cache."""
+  return dataclasses.replace(cfg, agent_overrides=agents.spec(cfg.agent).tiny, train=TINY_TRAIN,
+                             episode_steps=30, total_env_steps=80, max_minutes=None,
+                             eval_every=40, eval_episodes=2)
 
 
 def evaluate(result: loop.Result, num_episodes: int, seed: int = 0, which: str = "best",
@@ -93,7 +86,7 @@ def side_by_side(videos: dict[str, str], width: int = 320):
 
 
 def plot_episode_rewards(episodes: dict, ax=None):
-  """The reward of every step, the episodes one after another, a colour each (the seed's
+  """The reward of every step, the episodes one after another, a colour each (the NMA notebook's
   plot). Returns the matplotlib Axes."""
   ax = ax or _axes()
   start = 0
@@ -149,3 +142,52 @@ def _number(text) -> float:
     return float(text)
   except (TypeError, ValueError):
     return float("nan")
+
+
+class LiveCurve:
+  """A `progress_fn` for `loop.run` that draws the learning curve while training: one figure,
+  redrawn in place at most every `every` seconds and at each evaluation.
+
+      loop.run(cfg, progress_fn=notebook.LiveCurve())
+  """
+
+  def __init__(self, every: float = 5.0):
+    self.every, self.last = every, -float("inf")
+    self.train: list[tuple[int, float]] = []
+    self.eval: list[tuple[int, float]] = []
+    self.handle = None
+
+  def __call__(self, env_steps: int, metrics: dict) -> None:
+    import time
+    if metrics["kind"] == "eval":
+      self.eval.append((env_steps, float(np.mean(metrics["eval_return"]))))
+    elif np.isfinite(np.mean(metrics["episode_return"])):
+      self.train.append((env_steps, float(np.nanmean(metrics["episode_return"]))))
+    if metrics["kind"] == "eval" or time.monotonic() - self.last >= self.every:
+      self.last = time.monotonic()
+      self.draw()
+
+  def draw(self):
+    """Draws the curve so far into the notebook's output, replacing the last drawing."""
+    import io
+
+    from IPython.display import Image, display
+    from matplotlib.figure import Figure
+    fig = Figure(figsize=(8, 3))
+    ax = fig.subplots()
+    for points, style, label in ((self.train, "-", "training episodes (exploring)"),
+                                 (self.eval, "o-", "evaluation (deterministic policy)")):
+      if points:
+        ax.plot(*zip(*points), style, label=label)
+    ax.set(xlabel="env steps", ylabel="episode return")
+    ax.grid(True)
+    if self.train or self.eval:
+      ax.legend(fontsize="small", loc="upper left")
+    png = io.BytesIO()
+    fig.savefig(png, format="png", dpi=80, bbox_inches="tight")
+    image = Image(png.getvalue())
+    if self.handle is None:
+      self.handle = display(image, display_id=True)
+    else:
+      self.handle.update(image)
+    return fig

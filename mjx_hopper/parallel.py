@@ -5,18 +5,10 @@ with `per_device`: the physics then runs with no traffic between devices. (Leavi
 XLA's automatic partitioner instead puts collectives inside MJX's solver loops, which hung on two
 CPU devices for a batch of 128 Humanoids.)
 
-On jax 0.11.2 (the newest jax for Python 3.12, so Colab's), XLA segfaults compiling any of our
-programs that run shard_map over 2 devices, be they XLA:CPU devices or GPUs: the env stepper,
-the training chunk, and Brax's pmap over our envs (in Shardy's
-ManualComputationUnusedInputsPattern; seen 2026-11-26). XLA's older GSPMD partitioner compiles
-and runs them (printing, at each compile, a warning that GSPMD will be deprecated), and jax 0.9.2
-compiles them with Shardy. So `avoid_shardy_crash` switches such a jax to GSPMD in a process
-that has several devices, unless the user chose a partitioner with JAX_USE_SHARDY_PARTITIONER;
-every env (envs/base.py) and every mesh of mjx_hopper (`mesh`) calls it. `gspmd_in_this_thread`
-does the same for one thread's compiles only.
+On some JAX versions XLA's Shardy partitioner crashes compiling our programs over several devices
+(`SHARDY_CRASHES`); `avoid_shardy_crash` then switches the process to the GSPMD partitioner.
 """
 
-import contextlib
 import logging
 import os
 
@@ -29,32 +21,18 @@ SHARDY_CRASHES = (0, 11)  # the first jax whose Shardy crashes on our programs o
 
 
 def _shardy_would_crash(num_devices: int) -> bool:
-  """Whether this thread's partitioner is a Shardy that crashes on our programs over
-  `num_devices`, and the user left the choice to us."""
+  """Whether the partitioner is a Shardy that crashes on our programs over `num_devices`, and
+  the user left the choice to us."""
   return (num_devices > 1 and jax.__version_info__ >= SHARDY_CRASHES
           and "JAX_USE_SHARDY_PARTITIONER" not in os.environ
-          and jax.config.jax_use_shardy_partitioner)  # this thread's value
-
-
-@contextlib.contextmanager
-def gspmd_in_this_thread(num_devices: int):
-  """A context in which this thread traces and compiles with GSPMD where Shardy would crash on
-  programs over `num_devices`, and the rest of the process keeps its partitioner: the host's
-  evaluation over several CPU devices compiles beside a training chunk on one GPU."""
-  if not _shardy_would_crash(num_devices):
-    yield
-    return
-  from jax._src import config  # jax_use_shardy_partitioner's thread-local form
-  with config.use_shardy_partitioner(False):
-    yield
+          and jax.config.jax_use_shardy_partitioner)
 
 
 def avoid_shardy_crash(num_devices: int) -> None:
-  """With several devices, on a jax whose Shardy partitioner crashes on our programs, switches
-  this process to the GSPMD partitioner and says so once (module docstring); otherwise, or where
-  JAX_USE_SHARDY_PARTITIONER is set, changes nothing."""
+  """Switches the process to GSPMD where Shardy would crash over `num_devices` (logged at info
+  level); changes nothing where JAX_USE_SHARDY_PARTITIONER is set."""
   if _shardy_would_crash(num_devices):
-    logging.getLogger(__name__).warning(
+    logging.getLogger(__name__).info(
         "mjx_hopper: jax %s's Shardy partitioner crashes compiling programs over %d devices; "
         "this process now uses XLA's GSPMD partitioner (set JAX_USE_SHARDY_PARTITIONER to "
         "choose)", jax.__version__, num_devices)
@@ -112,3 +90,36 @@ def per_device(fn, batch_size: int, devices=None):
     return jax.shard_map(fn, mesh=mesh, in_specs=(BATCH,) * len(args), out_specs=BATCH,
                          check_vma=False)(*args)
   return wrapped
+
+
+# Where a launcher tells a process its place: (index variable, count variable).
+LAUNCHERS = (("SLURM_PROCID", "SLURM_NTASKS"), ("OMPI_COMM_WORLD_RANK", "OMPI_COMM_WORLD_SIZE"),
+             ("PMI_RANK", "PMI_SIZE"))
+
+
+def join_processes(coordinator: str | None = None, num_processes: int | None = None,
+                   process_id: int | None = None) -> tuple[int, int]:
+  """(this process's index, the number of processes) of a sweep spread over processes: from the
+  arguments, else from the launcher's environment (SLURM, Open MPI, MPICH). The members never
+  exchange data, so each process trains its share alone; `coordinator` is not needed."""
+  del coordinator  # accepted for the command lines that name one
+  if num_processes is None or process_id is None:
+    found = [(int(os.environ[i]), int(os.environ[n])) for i, n in LAUNCHERS
+             if i in os.environ and n in os.environ]
+    if not found:
+      raise ValueError("a sweep over processes needs --num-processes and --process-id, or a "
+                       f"launcher that sets one of {[i for i, _ in LAUNCHERS]}")
+    process_id, num_processes = found[0]
+  if not 0 <= process_id < num_processes:
+    raise ValueError(f"process id {process_id} is not in 0 to {num_processes - 1}")
+  return process_id, num_processes
+
+
+def process_share(total: int, process: tuple[int, int] | None = None) -> list[int]:
+  """The indices of the members this process trains, of `total`: all of them, or for `process`
+  = (index, count), an even, contiguous share."""
+  index, count = process or (0, 1)
+  if total % count:
+    raise ValueError(f"{total} members do not split evenly over {count} processes")
+  share = total // count
+  return list(range(index * share, (index + 1) * share))

@@ -1,16 +1,8 @@
-"""A jittable uniform replay of env steps that samples n-step transitions.
+"""A jittable uniform replay: a ring of rows (rows, num_envs, ...) of env steps, from which
+n-step transitions are built as they are sampled.
 
-The buffer is a ring of rows, one row per collected time step, each holding one `Step` per env:
-leaves have shape (rows, num_envs, ...). Sampling picks a start (row, env) uniformly and builds
-the n-step transition from that env's next n steps on the fly, so:
-
-- the n-step return stops at the step that ended the episode: transitions never straddle an
-  auto-reset;
-- its discount is gamma^m times the product of the env discounts over the m steps taken, so a
-  time limit (env discount 1) bootstraps from the true last observation and a termination
-  (env discount 0) does not.
-
-Starts are drawn only from rows that already have n - 1 later rows written.
+A transition stops at the step that ended its episode, and its discount is gamma^m times the
+env discounts, so time limits bootstrap and terminations do not.
 """
 
 from __future__ import annotations
@@ -58,8 +50,7 @@ def init(rows: int, num_envs: int, obs_size: int, action_size: int) -> ReplaySta
 
 
 def insert(state: ReplayState, steps: Step) -> ReplayState:
-  """Writes T rows of steps (leaves (T, num_envs, ...)); the ring's rows must be a multiple
-  of T, so a block never wraps."""
+  """Writes T rows of steps (T, num_envs, ...); the ring's rows are a multiple of T."""
   rows = state.steps.obs.shape[0]
   t = steps.obs.shape[0]
   if rows % t:
@@ -76,11 +67,10 @@ def can_sample(state: ReplayState, n_step: int) -> jax.Array:
 
 def sample(state: ReplayState, key: jax.Array, batch_size: int, n_step, gamma,
            window: int | None = None) -> Transition:
-  """`batch_size` n-step transitions, uniformly over the valid starts. Needs
-  `can_sample(state, n_step)`.
+  """`batch_size` n-step transitions from uniform starts; needs `can_sample(state, n_step)`.
 
-  `n_step` and `gamma` may be arrays (a sweep member's own); `window` (default: `n_step`, then
-  an int) is the static number of rows read per transition, at least any n_step used.
+  `n_step` and `gamma` may be arrays; `window` (default `n_step`) is the static number of rows
+  read, at least any n_step.
   """
   window = n_step if window is None else window
   rows, num_envs = state.steps.obs.shape[:2]
@@ -94,8 +84,7 @@ def sample(state: ReplayState, key: jax.Array, batch_size: int, n_step, gamma,
 
 
 def n_step_transition(window: Step, gamma, n_step=None) -> Transition:
-  """The transition from windows of consecutive steps of one env (leaves (B, W, ...)), of
-  their first `n_step` steps (default: all W; may be an array)."""
+  """Transitions from the first `n_step` (default W) of windows of steps (B, W, ...)."""
   w = window.reward.shape[-1]
   not_done = 1.0 - window.done
   # live[k]: no episode ended in steps 0..k-1, so step k belongs to the transition.

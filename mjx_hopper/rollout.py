@@ -25,18 +25,12 @@ def zero_policy(action_size: int) -> Policy:
 def episodes(env: LocomotionEnv, policy: Policy, key: jax.Array, num_episodes: int,
              record_qpos: bool = False, record_rewards: bool = False,
              devices=None) -> dict[str, jax.Array]:
-  """Runs `num_episodes` episodes in parallel, each to its end (at most env.episode_steps).
-  Jit it with `env`, `policy`, `num_episodes` and `devices` static.
+  """Runs `num_episodes` episodes to their end, spread over `devices`; jit with all but `key`
+  static. Results do not depend on the number of devices.
 
-  The episodes are spread over `devices` (default: the local devices), and each device stops
-  once all of its own episodes have ended. Episode i's randomness depends only on `key` and i,
-  so the results do not depend on the number of devices.
-
-  Returns per-episode arrays of shape (num_episodes,): "length", "return", and the mean per
-  step of each reward term, by name. With `record_qpos`, also "qpos" of episode 0, shape
-  (env.episode_steps + 1, nq), holding its last pose after it ends. With `record_rewards`, also
-  "rewards", the reward of every step of every episode, shape (num_episodes, env.episode_steps),
-  0 after an episode's end.
+  Returns "length", "return" and each reward term's mean per step, all (num_episodes,); with
+  `record_qpos`, episode 0's "qpos" (episode_steps + 1, nq); with `record_rewards`, "rewards"
+  (num_episodes, episode_steps), 0 after an episode ends.
   """
   reset_key, policy_key = jax.random.split(key)
   keys = (jax.random.split(reset_key, num_episodes), jax.random.split(policy_key, num_episodes))
@@ -49,7 +43,7 @@ def episodes(env: LocomotionEnv, policy: Policy, key: jax.Array, num_episodes: i
 
 
 def _local_episodes(env, policy, keys, record_qpos, record_rewards):
-  """`episodes` on one device's share, given (reset keys, policy keys), one pair per episode."""
+  """`episodes` on one device's share of (reset keys, policy keys)."""
   reset_keys, policy_keys = keys
   state = jax.vmap(env.reset)(reset_keys)
   zeros = jnp.zeros(reset_keys.shape[0])
@@ -94,12 +88,8 @@ def _where_rows(rows: jax.Array, new: jax.Array, old: jax.Array) -> jax.Array:
 
 
 def make_stepper(env: LocomotionEnv, num_envs: int, steps: int):
-  """Compiled functions that step `num_envs` auto-resetting envs with random actions, spread
-  over the local devices.
-
-  Returns `init(key) -> state` and `run(state, key) -> (state, summed reward)`, where `run`
-  advances every env by `steps` steps in one call.
-  """
+  """Compiled `init(key) -> state` and `run(state, key) -> (state, summed reward)`, which steps
+  `num_envs` auto-resetting envs `steps` times with random actions over the local devices."""
   env = AutoReset(env)
   policy = random_policy(env.action_size)
 

@@ -24,177 +24,17 @@ last finite agent, or under PBT, the first to be replaced.
 
 from __future__ import annotations
 
-import dataclasses
-import itertools
-import json
 import math
 import os
 import time
-from typing import Any
 
-import jax
 import numpy as np
 
-from mjx_hopper import agents, checkpoint, train
-from mjx_hopper.fields import check_types
+from mjx_hopper.config import (TRAINER_DYNAMIC, check_grid, check_value,  # noqa: F401
+                               dynamic_settings, members)
 from mjx_hopper.logger import RETURNS
-
-TRAINER_DYNAMIC = ("replay_ratio",)
-
-
-@dataclasses.dataclass(frozen=True)
-class PBT:
-  """Population-based training's choices (docs/pbt.md says why each default).
-
-  every: evaluations (their env steps) between two exploit-and-explore steps.
-  fraction: the worst `fraction` of the members (at least one), and every diverged member, each
-    take a copy of the agent of a healthy member drawn from the best `fraction` (parameters,
-    optimizer state, target networks, dynamic settings); each keeps its own replay, envs and
-    key, but for a diverged member, whose replay and envs hold non-finite steps: it takes its
-    source's too.
-  factors: each of the grid's settings of a copy is multiplied by one of these, drawn at random
-    (an integer setting moves at least by 1), then clipped to its bounds.
-  bounds: {setting: (low, high)}; a setting not given is bounded by the grid's smallest and
-    largest value.
-  """
-
-  every: int = 2
-  fraction: float = 0.25
-  factors: tuple[float, ...] = (0.8, 1.25)
-  bounds: dict = dataclasses.field(default_factory=dict)
-
-  def __post_init__(self):
-    check_types(self)
-    if not isinstance(self.every, int) or self.every < 1:
-      raise ValueError(f"PBT's every must be an integer >= 1 (evaluations), got {self.every!r}")
-    if not 0 < self.fraction <= 0.5:
-      raise ValueError(f"PBT's fraction must be in (0, 0.5], got {self.fraction}")
-    if not self.factors or any(f <= 0 for f in self.factors):
-      raise ValueError(f"PBT's factors must be positive numbers, got {self.factors}")
-    bounds = {}
-    for name, pair in self.bounds.items():
-      if (not isinstance(pair, (tuple, list)) or len(pair) != 2
-          or not all(isinstance(v, (int, float)) for v in pair) or not pair[0] < pair[1]):
-        raise ValueError(f"PBT's bounds for {name!r} must be (low, high) with low < high, got "
-                         f"{pair!r}")
-      bounds[name] = tuple(float(v) for v in pair)
-    object.__setattr__(self, "bounds", bounds)
-
-  def check(self, grid: dict, num_members: int, config_of) -> None:
-    """Raises ValueError when this PBT cannot run on `grid`'s `num_members` members (per
-    process): fewer than 2, nothing to perturb, a bound on an unswept setting, a bound that
-    `config_of(name, value)` (which raises ValueError) refuses."""
-    if num_members < 2:
-      raise ValueError(f"PBT needs at least 2 members (per process), got {num_members}")
-    if not grid:
-      raise ValueError("PBT perturbs the grid's settings: give it at least one, such as "
-                       "grid={'learning_rate': (1e-4, 1e-3)}")
-    for name in self.bounds:
-      if name not in grid:
-        raise ValueError(f"PBT's bounds name {name!r}, which the grid does not sweep; it "
-                         f"sweeps {sorted(grid)}")
-    for name, (low, high) in self.ranges(grid).items():
-      if low == high:
-        raise ValueError(f"PBT cannot perturb {name!r}: the grid has one value, {low:g}; give "
-                         "two or more, or bounds={name: (low, high)}")
-      for value in (low, high):
-        config_of(name, int(value) if isinstance(grid[name][0], int) else value)
-
-  def ranges(self, grid: dict) -> dict[str, tuple[float, float]]:
-    """Each swept setting's (low, high)."""
-    return {name: self.bounds.get(name, (min(values), max(values)))
-            for name, values in grid.items()}
-
-
-def exploit_explore(pbt: PBT, returns, diverged, values: dict, ranges: dict, quanta: dict,
-                    rng):
-  """One PBT step over a population: (sources, new values). `returns` (S,) are the members'
-  evaluations, `diverged` (S,) their marks, `values` {setting: (S,) array} their settings now.
-  sources[m] is the member whose agent m takes (m itself when kept); the new values are the
-  sources' perturbed (times one of `pbt.factors`, then clipped to `ranges`), the kept members'
-  unchanged. A setting with a quantum ({setting: q}: 1 for an integer setting) takes multiples
-  of it, and a perturbation moves it by one quantum at least.
-
-  The members rank by return, diverged ones (and those without a finite return) last, ties to
-  the lower index. Sources are drawn from the best `count` = max(1, S * fraction) that are
-  healthy; the worst `count` are replaced, and every diverged member too. With no healthy
-  member, nothing changes."""
-  score = np.where(np.asarray(diverged) | ~np.isfinite(returns), -np.inf, returns)
-  order = np.argsort(-score, kind="stable")
-  count = max(1, int(len(order) * pbt.fraction))
-  pool = [m for m in order[:count] if np.isfinite(score[m])]
-  lost = int(np.sum(~np.isfinite(score)))
-  sources = np.arange(len(order))
-  new = {name: np.array(v, copy=True) for name, v in values.items()}
-  for member in order[len(order) - max(count, lost) if pool else len(order):]:
-    if member in pool:
-      continue
-    source = int(pool[rng.integers(len(pool))])
-    sources[member] = source
-    for name, v in values.items():
-      now = float(v[source])
-      moved = now * pbt.factors[rng.integers(len(pbt.factors))]
-      quantum = quanta.get(name)
-      if quantum:
-        steps = round(moved / quantum)
-        moved = quantum * (steps if steps * quantum != now else steps + np.sign(moved - now))
-      new[name][member] = np.clip(moved, *ranges[name])
-  return sources, new
-
-
-def dynamic_settings(agent: str, preset: str = "cpu") -> list[str]:
-  """The names a sweep's grid may vary for this agent."""
-  return sorted(type(agents.config(agent, preset)).DYNAMIC + TRAINER_DYNAMIC)
-
-
-def check_grid(agent: str, preset: str, grid: dict, train_cfg: train.TrainConfig,
-               overrides: dict | None = None) -> None:
-  """Raises ValueError naming the first bad entry of `grid` ({name: sequence of values}): an
-  unknown or structural name, an empty or repeated list, or a value the config refuses."""
-  cfg = agents.config(agent, preset, **(overrides or {}))
-  fields = {f.name for f in dataclasses.fields(cfg)} | {
-      f.name for f in dataclasses.fields(train.TrainConfig)}
-  allowed = dynamic_settings(agent, preset)
-  for name, values in grid.items():
-    if name not in fields:
-      raise ValueError(f"unknown setting {name!r} in the sweep; settings that can be swept are "
-                       f"{allowed}")
-    if name not in allowed:
-      raise ValueError(f"{name!r} is structural (it shapes the compiled program) and cannot be "
-                       f"swept in one program: run one sweep per value; settings that can be "
-                       f"swept are {allowed}")
-    if not isinstance(values, (list, tuple)) or not values:
-      raise ValueError(f"the sweep's {name!r} needs a non-empty list of values, got {values!r}")
-    if len(set(values)) != len(values):
-      raise ValueError(f"the sweep's {name!r} repeats a value: {list(values)}")
-    for value in values:
-      check_value(agent, preset, name, value, train_cfg, overrides)
-
-
-def check_value(agent: str, preset: str, name: str, value, train_cfg: train.TrainConfig,
-                overrides: dict | None = None) -> None:
-  """Raises ValueError when the dynamic setting `name` cannot take `value`."""
-  if name in TRAINER_DYNAMIC:
-    dataclasses.replace(train_cfg, **{name: value}).check()
-  else:
-    agents.config(agent, preset, **{**(overrides or {}), name: value})
-
-
-def members(seeds: tuple[int, ...], grid: dict) -> list[dict[str, Any]]:
-  """Every member's seed and swept values, in member order: the grid's combinations in the
-  order given (the last name varying fastest), each with every seed."""
-  names = list(grid)
-  out = []
-  for combo in itertools.product(*(grid[n] for n in names)):
-    for seed in seeds:
-      out.append({"seed": seed, **dict(zip(names, combo))})
-  return out
-
-
-def check_which(which: str) -> None:
-  """Raises ValueError unless `which` names the best evaluation's agent or the latest."""
-  if which not in ("best", "latest"):
-    raise ValueError(f"which must be 'best' or 'latest', got {which!r}")
+from mjx_hopper.pbt import PBT, exploit_explore  # noqa: F401
+from mjx_hopper.runs import check_which
 
 
 def member_evaluations(rows: list[dict], which: str = "best") -> dict[int, float]:
@@ -331,58 +171,20 @@ def plot_population(rows: list[dict], grid: dict, path: str) -> str:
 
 
 class Report:
-  """What a run shows and keeps of its members. A single run (`single`) prints the logger's own
-  lines; a sweep's rows (one per member) go to the files only, its terminal lines sum them up
-  (the best member and the mean), and at the end it prints the ranking and draws the curves
-  (under PBT, the population's ranking and lineage).
+  """What a run shows of its members. A single run prints the logger's own lines; a sweep's
+  terminal lines sum its members up (the best and the mean), and at its end it prints the
+  ranking and draws the curves (under PBT, the population's ranking and lineage)."""
 
-  It also holds each member's record, which a checkpoint keeps (`record`, `restore`): its
-  settings now (a sweep's values, changed by PBT), the member it last copied from (`parents`),
-  whether it diverged, and its best evaluation's return and env steps."""
-
-  def __init__(self, grid: dict, members: list[dict], indices: list[int], say,
-               single: bool, pbt: bool = False):
-    self.grid, self.members, self.indices, self.say = grid, members, indices, say
-    self.single, self.pbt = single, pbt
+  def __init__(self, grid: dict, members, say):
+    self.grid, self.members, self.say = grid, members, say
+    self.single = members.single
     self.last_line = -float("inf")
-    self.logger_print = say if single else (lambda line: None)
-    self.id_fields = () if single else ("member", *members[0])
-    self.values = [dict(m) for m in members]
-    self.parents = np.array(indices)
-    self.diverged = np.zeros(len(members), bool)
-    self.best_return = np.full(len(members), -np.inf)
-    self.best_steps = np.full(len(members), -1)
+    self.logger_print = say if self.single else (lambda line: None)
+    self.id_fields = () if self.single else ("member", *members.values[0])
 
-  def record(self) -> dict:
-    """The members' record, as JSON."""
-    return {"values": self.values, "parents": self.parents.tolist(),
-            "diverged": self.diverged.tolist(),
-            "best_return": [None if np.isinf(v) else float(v) for v in self.best_return],
-            "best_env_steps": self.best_steps.tolist()}
-
-  def restore(self, record: dict) -> None:
-    """Takes back a record that a checkpoint kept (an older checkpoint's has fewer parts). A
-    single run's divergence mark is not: a run that diverges stops unsaved, so a checkpoint it
-    resumes from (or a sweep's frozen member, extracted) holds a finite agent to go on from."""
-    self.values = record.get("values", self.values)
-    self.parents = np.array(record.get("parents", self.parents))
-    if not self.single:
-      self.diverged = np.array(record.get("diverged", self.diverged), bool)
-    self.best_return = np.array([-np.inf if v is None else v for v in
-                                 record.get("best_return", self.best_return)], np.float64)
-    self.best_steps = np.array(record.get("best_env_steps", self.best_steps))
-
-  def tags(self, m: int) -> dict:
-    """The columns that name member m of this process and its state (none in a single run)."""
-    if self.single:
-      return {}
-    parent = {"parent": int(self.parents[m])} if self.pbt else {}
-    return {"member": self.indices[m], **self.values[m], **parent,
-            "diverged": int(self.diverged[m])}
-
-  def trained(self, env_steps: int, rate: float, returns, time_delta: float) -> None:
-    """A sweep's train line, every `time_delta` seconds."""
-    if not self.single and time.monotonic() - self.last_line >= time_delta:
+  def trained(self, env_steps: int, rate: float, returns, every: float) -> None:
+    """A sweep's train line, every `every` seconds."""
+    if not self.single and time.monotonic() - self.last_line >= every:
       self.last_line = time.monotonic()
       self.say(f"[train] {env_steps:,} env steps | {rate:,.0f} steps/s (all members) | train "
                "return " + self.members_line(returns))
@@ -399,56 +201,24 @@ class Report:
   def members_line(self, values) -> str:
     """'best 2,480 (seed=1 learning_rate=0.0003), mean 1,920' over the finite values of the
     members that have not diverged, and how many have."""
-    values = np.where(self.diverged, np.nan, np.asarray(values, np.float64))
-    lost = f", {self.diverged.sum()} diverged" if self.diverged.any() else ""
+    diverged = self.members.diverged
+    values = np.where(diverged, np.nan, np.asarray(values, np.float64))
+    lost = f", {diverged.sum()} diverged" if diverged.any() else ""
     if not np.isfinite(values).any():
       return "none yet" + lost
     best = int(np.nanargmax(np.where(np.isfinite(values), values, -np.inf)))
     name = " ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}"
-                    for k, v in self.values[best].items() if k == "seed" or k in self.grid)
+                    for k, v in self.members.values[best].items()
+                    if k == "seed" or k in self.grid)
     return f"best {values[best]:,.1f} ({name}), mean {np.nanmean(values):,.1f}{lost}"
 
   def finish(self, rows: list[dict], out_dir: str) -> None:
     """A sweep's ranking and learning curves; a PBT run's ranking and lineage."""
     if self.single:
       return
-    if self.pbt:
+    if self.members.pbt:
       self.say("ranking by the best evaluation:\n" + population_ranking(rows, self.grid))
       self.say(f"lineage: {plot_population(rows, self.grid, os.path.join(out_dir, 'pbt.png'))}")
     else:
       self.say("ranking by the best evaluation (mean over seeds):\n" + ranking(rows, self.grid))
       self.say(f"learning curves: {plot(rows, self.grid, os.path.join(out_dir, 'curves.png'))}")
-
-
-def write_member(cfg, state, best, record: dict, indices: list[int], member: int,
-                 out_dir: str) -> tuple[str, dict]:
-  """Writes member `member` of a sweep's restored `state` (which holds the members `indices` of
-  the RunConfig `cfg`; `best` is their agent at their best evaluations, or None; `record` their
-  `Report.record()`) as the checkpoint of a single run, its seed and swept values now as plain
-  settings, in `out_dir`/checkpoints, with its config.json. Returns (the checkpoint directory,
-  the member's seed and swept values); `loop.extract` is the call that reads the sweep's
-  checkpoint first."""
-  if member not in indices:
-    raise ValueError(f"member {member} is not in the sweep: it holds members {indices}")
-  position = indices.index(member)
-  chosen = record.get("values", [cfg.members()[i] for i in indices])[position]
-  agent_values = {k: v for k, v in chosen.items() if k not in ("seed", *TRAINER_DYNAMIC)}
-  single = dataclasses.replace(
-      cfg, seed=chosen["seed"], seeds=(), grid={}, pbt=None, out_dir=out_dir,
-      agent_overrides={**cfg.agent_overrides, **agent_values},
-      train=dataclasses.replace(cfg.train, **{k: chosen[k] for k in TRAINER_DYNAMIC
-                                              if k in chosen}))
-  one = jax.tree.map(lambda x: x[position:position + 1], jax.device_get((state, best)))
-  target = os.path.join(out_dir, "checkpoints")
-  mngr = checkpoint.manager(target)
-  if mngr.all_steps():
-    raise ValueError(f"{target} already holds a checkpoint; nothing was overwritten: choose "
-                     "another out_dir")
-  mine = {k: v[position:position + 1] for k, v in record.items()}
-  config = {**single.to_json(), "member_indices": [0]}
-  record = {**mine, "values": [{"seed": chosen["seed"]}], "parents": [0], "diverged": [False]}
-  checkpoint.save(mngr, one[0], {**config, "record": record}, best=one[1])
-  checkpoint.finish(mngr)
-  with open(os.path.join(out_dir, "config.json"), "w") as f:
-    json.dump(config, f, indent=1)
-  return target, chosen

@@ -1,22 +1,8 @@
 """The compiled trainer: one TrainState pytree, and `train_chunk`, a single jitted scan.
 
-Each iteration of a chunk collects `unroll_length` steps from each of `num_envs` auto-resetting
-envs with the agent's exploring policy, inserts them into the replay, and runs K learner
-updates on batches of n-step transitions, where K = replay_ratio * num_envs * unroll_length /
-batch_size (the replay ratio is samples drawn per transition inserted).
-
-Members: a trainer trains S members at once (a sweep: seeds and hyperparameters; a single run
-is a sweep of one). Every leaf of the TrainState has a leading member axis of S, and the
-agent's dynamic settings (`agents.base.CommonConfig.DYNAMIC`) and the replay ratio are arrays
-in it, so one compiled program serves every member's values.
-
-Devices: the whole iteration runs under `shard_map` over every local device, laid out as a
-(members, devices) mesh: the members are split over gcd(S, D) groups of devices, and within a
-group each device steps its share of each member's envs, keeps their steps in its share of the
-replay, and samples its share of each batch from it; the learner is data-parallel (gradients
-averaged over the group, parameters replicated in it). A device holding several members runs
-them under vmap; one holding one member runs plain code, the same program as a single run on
-one device.
+An iteration collects `unroll_length` steps of `num_envs` envs, inserts them into the replay and
+runs replay_ratio * num_envs * unroll_length / batch_size updates. Every leaf has a leading axis
+of S members (a sweep; a single run is one), laid out over the local devices by `layout`.
 """
 
 from __future__ import annotations
@@ -32,7 +18,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
 
 from mjx_hopper import parallel, replay, rollout
-from mjx_hopper.fields import check_types
+from mjx_hopper.fields import check_types, setting
 from mjx_hopper.agents.base import Agent
 from mjx_hopper.envs import AutoReset, LocomotionEnv
 
@@ -42,21 +28,19 @@ MEMBERS = "members"
 
 @dataclasses.dataclass(frozen=True)
 class TrainConfig:
-  """How to train. Sizes count transitions (one env step of one env).
+  """How to train; sizes count transitions (one env step of one env).
 
-  The defaults are the settings that reached 2,000 on Hopper in the fewest CPU-affordable
-  env steps and updates with D4PG's cpu preset (docs/benchmark-history.md, "Choosing the CPU
-  settings"). `replay_ratio` is dynamic (a sweep's members may each have their own, at most
-  the trainer's); the others are structural.
+  The defaults suit D4PG's cpu preset on a CPU. `replay_ratio` may differ per member, up to the
+  trainer's; the others shape the program.
   """
 
-  num_envs: int = 512
-  unroll_length: int = 4         # env steps per env per iteration
-  batch_size: int = 256
-  replay_ratio: float = 4.0      # samples drawn per transition inserted
-  replay_size: int = 1_000_000   # transitions kept
-  min_replay: int = 20_000       # transitions collected before learning starts
-  iterations_per_chunk: int = 25
+  num_envs: int = setting(512, "envs stepped at once")
+  unroll_length: int = setting(4, "env steps per env per iteration")
+  batch_size: int = setting(256, "transitions per update")
+  replay_ratio: float = setting(4.0, "samples drawn per transition inserted")
+  replay_size: int = setting(1_000_000, "transitions kept in the replay")
+  min_replay: int = setting(20_000, "transitions collected before learning starts")
+  iterations_per_chunk: int = setting(25, "iterations per compiled chunk", aliases=("--chunk",))
 
   @property
   def steps_per_iteration(self) -> int:
@@ -97,8 +81,7 @@ class TrainConfig:
 
 
 class TrainState(NamedTuple):
-  """Everything a run needs to continue: orbax saves it whole. Every leaf has a leading axis
-  of S members (shapes below are per member)."""
+  """Everything a run needs to continue; every leaf has a leading axis of S members."""
 
   agent: Any                     # the agent's own pytree (params, ..., hparams)
   replay: replay.ReplayState     # leaves (rows, num_envs, ...)
@@ -111,18 +94,14 @@ class TrainState(NamedTuple):
 
 
 class Trainer(NamedTuple):
-  """Compiled functions of one (env, agent, config, number of members).
+  """Compiled functions of one (env, agent, config, number of members S).
 
-  init(keys, hparams=None) -> TrainState: keys (S, 2), one PRNGKey per member (a single key
-    is taken as S = 1); hparams: {name: (S,) values} of the agent's dynamic settings and
-    "replay_ratio", each defaulting to the config's.
-  train_chunk(state) -> (state, metrics): `iterations_per_chunk` iterations; metrics, each
-    (S,), are the agent's, averaged over the chunk's updates, plus "episodes" (count ended in
-    the chunk), "episode_return" (their mean return; NaN if none ended) and "learning" (1
-    once updating).
-  evaluate(agent_states, keys) -> per-member, per-episode "return", "length" (S, episodes).
-  shardings: where a TrainState's parts live (a NamedSharding per part), for compiling from
-    shapes.
+  init(keys (S, 2), hparams=None) -> TrainState; hparams: {name: (S,)} of the agent's dynamic
+    settings and "replay_ratio", defaulting to the config's.
+  train_chunk(state) -> (state, metrics (S,)): the agent's metrics averaged over the chunk,
+    "episodes" ended, their mean "episode_return" (NaN if none) and "learning".
+  evaluate(agent_states, keys) -> "return", "length" (S, episodes).
+  shardings: each TrainState part's NamedSharding.
   """
 
   init: Any
@@ -142,9 +121,8 @@ def mesh_shape(num_members: int, num_devices: int) -> tuple[int, int]:
 
 
 class Layout(NamedTuple):
-  """Where a trainer's members live: a (members, devices) mesh of gcd(S, D) groups of devices,
-  each group holding `local_members` members, and each member's envs, replay and batches split
-  over its group's `group_size` devices."""
+  """gcd(S, D) groups of `group_size` devices, each holding `local_members` members, whose
+  envs, replay and batches split over the group."""
 
   mesh: Mesh
   local_members: int
@@ -154,8 +132,7 @@ class Layout(NamedTuple):
 
   @property
   def axis(self) -> str | None:
-    """The mapped axis of a member's devices; None for a member on one device, which then
-    needs no collectives (its program is the same whether other devices run other members)."""
+    """The mapped axis of a member's devices; None for a member on one device."""
     return AXIS if self.group_size > 1 else None
 
   def device_index(self):
@@ -192,11 +169,10 @@ def layout(num_members: int, devices: list) -> Layout:
 def make_trainer(env: LocomotionEnv, agent: Agent, cfg: TrainConfig, eval_episodes: int = 16,
                  num_members: int = 1, dynamic_updates: bool = False,
                  devices: list | None = None) -> Trainer:
-  """The compiled trainer of `num_members` members on `devices` (default: every local one).
+  """The compiled trainer of `num_members` members on `devices` (default: the local ones).
 
-  With `dynamic_updates`, each member runs round(its replay_ratio * num_envs * unroll_length /
-  batch_size) updates per iteration, at most `cfg`'s (the rest are skipped); without, every
-  member runs `cfg`'s count, whatever its replay_ratio.
+  With `dynamic_updates` each member's update count follows its own replay_ratio, up to `cfg`'s;
+  without, all run `cfg`'s.
   """
   where = layout(num_members, list(jax.local_devices() if devices is None else devices))
   cfg.check(where.group_size)
@@ -208,8 +184,7 @@ def make_trainer(env: LocomotionEnv, agent: Agent, cfg: TrainConfig, eval_episod
 
 def make_evaluate(env: LocomotionEnv, agent: Agent, eval_episodes: int, num_members: int,
                   devices: list | None = None):
-  """Trainer.evaluate: the members' evaluation, jitted, each member's `eval_episodes` spread
-  over `devices` (default: the local ones)."""
+  """Trainer.evaluate: each member's `eval_episodes` episodes, jitted, over `devices`."""
   # One member's evaluation as plain code (vmap of one traces much slower), several under vmap.
   return jax.jit(per_member(
       lambda s, k: evaluate(env, agent, s, k, eval_episodes, devices=devices), num_members))
@@ -253,8 +228,7 @@ def _make_init(env: LocomotionEnv, agent: Agent, cfg: TrainConfig, where: Layout
 
 def _collect(agent: Agent, train_env: AutoReset, unroll_length: int, agent_state, env_state,
              episode_return, key):
-  """unroll_length steps of one member's envs on this device: (env, return, steps (T, n,
-  ...), ended episodes' (count, return sum))."""
+  """One member's envs' steps: (env, return, steps (T, n, ...), ended (count, return sum))."""
   def one(carry, step_key):
     env_state, ep_return = carry
     action = agent.act(agent_state, env_state.obs, step_key)
@@ -273,8 +247,8 @@ def _collect(agent: Agent, train_env: AutoReset, unroll_length: int, agent_state
 
 def _learn(agent: Agent, cfg: TrainConfig, where: Layout, dynamic_updates: bool, agent_state,
            buffer, key, n_updates):
-  """cfg's updates per iteration of one member, of which the first `n_updates` count (all,
-  unless dynamic_updates): (agent state, metrics averaged over the updates that counted)."""
+  """One member's updates of an iteration, of which the first `n_updates` count: (agent state,
+  their mean metrics)."""
   hp = agent_state.hparams
   max_updates = cfg.updates_per_iteration
 
@@ -306,8 +280,7 @@ def _metric_shapes(env: LocomotionEnv, agent: Agent):
 
 def _make_chunk(env: LocomotionEnv, agent: Agent, cfg: TrainConfig, where: Layout,
                 dynamic_updates: bool):
-  """Trainer.train_chunk: `iterations_per_chunk` iterations of every member, compiled under
-  shard_map over the mesh."""
+  """Trainer.train_chunk: `iterations_per_chunk` iterations, under shard_map over the mesh."""
   members = where.members
   collect = functools.partial(_collect, agent, AutoReset(env), cfg.unroll_length)
   learn = functools.partial(_learn, agent, cfg, where, dynamic_updates)
@@ -316,8 +289,7 @@ def _make_chunk(env: LocomotionEnv, agent: Agent, cfg: TrainConfig, where: Layou
   metric_shapes = _metric_shapes(env, agent)
 
   def iteration(state: TrainState, _):
-    """One iteration of the local members (every leaf with their leading axis): each one's
-    collection and insert, then their updates."""
+    """The local members' collection and insert, then their updates."""
     key, act_key, learn_key = members(lambda k: tuple(jax.random.split(k, 3)))(state.key)
     act_key = members(lambda k: jax.random.fold_in(k, where.device_index()))(act_key)
     env_state, ep_return, steps, (ended, ended_return) = members(collect)(
@@ -369,8 +341,8 @@ def iterations(state: TrainState) -> int:
 
 
 def per_member(fn, local_members: int):
-  """`fn` of one member's pytrees, applied to pytrees with a leading axis of `local_members`:
-  plain code on the one member when there is one (a single run's program), else vmap."""
+  """`fn` over a leading axis of `local_members`: vmap, or plain code for one member (a single
+  run's program)."""
   if local_members > 1:
     return jax.vmap(fn)
 
@@ -383,9 +355,9 @@ def per_member(fn, local_members: int):
 def evaluate(env: LocomotionEnv, agent: Agent, agent_state, key: jax.Array,
              num_episodes: int, record_qpos: bool = False,
              devices: list | None = None) -> dict[str, jax.Array]:
-  """Runs `num_episodes` episodes in parallel, spread over `devices` (default: the local ones),
-  with the deterministic policy of one member's `agent_state` (jit it with env, agent and
-  num_episodes static). Returns per-episode "return" and "length" (num_episodes,), the mean of
-  each reward term, and with `record_qpos` the "qpos" of episode 0."""
+  """`num_episodes` episodes of one member's deterministic policy, over `devices`.
+
+  Returns "return" and "length" (num_episodes,), each reward term's mean, and with `record_qpos`
+  episode 0's "qpos"."""
   return rollout.episodes(env, lambda obs, _: agent.policy(agent_state, obs), key, num_episodes,
                           record_qpos=record_qpos, devices=devices)

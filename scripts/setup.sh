@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Installs what mjx_hopper needs on a fresh Debian/Ubuntu machine: Mesa's EGL for headless
-# rendering, and a virtual environment in .venv with the project (and, with "test", its test
-# dependencies). Safe to run again: it skips what is already there.
+# rendering, and a virtual environment in .venv with the project (and, with an argument, that
+# extra of pyproject's: test, cuda, cuda12). Safe to run again: it skips what is already there.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -23,6 +23,6 @@ pip_install() {  # quiet on success, the whole log on failure
   rm -f "$log"
 }
 [ -x .venv/bin/python ] || python3 -m venv .venv
-extra=""; [ "${1:-}" = "test" ] && extra="[test]"
+extra=""; [ -n "${1:-}" ] && extra="[$1]"
 pip_install --upgrade pip
 pip_install -e ".${extra}"

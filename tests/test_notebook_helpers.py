@@ -91,3 +91,15 @@ def test_tiny_is_the_tests_tiny_run(agent):
   assert cfg.train == TINY.train and cfg.episode_steps == TINY.episode_steps
   assert cfg.out_dir == "runs/x" and cfg.max_minutes is None and cfg.total_env_steps == 80
   assert cfg.eval_episodes == int(TINY_ARGS[TINY_ARGS.index("--eval-episodes") + 1])
+
+
+def test_live_curve_draws_one_figure_in_place(capsys):
+  curve = notebook.LiveCurve(every=0.0)
+  curve(40, {"kind": "train", "episode_return": float("nan")})  # no episode ended yet
+  curve(80, {"kind": "train", "episode_return": 12.0})
+  curve(80, {"kind": "eval", "eval_return": 30.0})
+  assert (curve.train, curve.eval) == ([(80, 12.0)], [(80, 30.0)])
+  handle = curve.handle
+  fig = curve.draw()
+  assert curve.handle is handle  # the same output, updated
+  assert [len(line.get_xdata()) for line in fig.axes[0].lines] == [1, 1]

@@ -48,7 +48,7 @@ def test_bad_preset_names(env, kind, message):
 def run_config(*flags):
   """The RunConfig that `mjx-hopper train FLAGS` trains."""
   args = cli.build_parser().parse_args(["train", *flags])
-  return cli._run_config(args, cli._overrides(args.set))
+  return cli._run_config(args)
 
 
 def test_cli_starts_from_the_robot_preset():
@@ -61,11 +61,11 @@ def test_cli_starts_from_the_robot_preset():
   assert cfg.train == dataclasses.replace(walker.train, num_envs=1024)
   # Another agent than the preset's gets its own preset and the trainer's defaults.
   cfg = run_config("--env", "Walker2D", "--preset", "gpu", "--agent", "ddpg")
-  assert (cfg.agent, cfg.preset, cfg.train, cfg.agent_overrides) == (
+  assert (cfg.agent, cfg.agent_preset, cfg.train, cfg.agent_overrides) == (
       "ddpg", "gpu", train.TrainConfig(), {})
   # ... and the robot's own settings for that agent where it has them; --set wins.
   cfg = run_config("--env", "Hopper", "--agent", "ddpg", "--set", "sigma=0.3")
-  assert (cfg.agent, cfg.preset, cfg.train) == ("ddpg", "cpu", train.TrainConfig())
+  assert (cfg.agent, cfg.agent_preset, cfg.train) == ("ddpg", "cpu", train.TrainConfig())
   assert cfg.agent_overrides == {**presets.AGENT_OVERRIDES["Hopper", "cpu", "ddpg"], "sigma": 0.3}
   # D4PG's Hopper networks are 128-128 on the CPU; DDPG keeps its preset's 256-256.
   d4pg = run_config("--env", "Hopper").agent_config()
@@ -84,7 +84,7 @@ def test_cli_starts_from_the_robot_preset():
   assert run_config("--env", "Hopper", "--agent", "mpo").agent_overrides == {}
   # With no flags: D4PG's cpu preset and the trainer's defaults (the README's main job).
   cfg = run_config()
-  assert (cfg.agent, cfg.preset, cfg.train, cfg.eval_every) == (
+  assert (cfg.agent, cfg.agent_preset, cfg.train, cfg.eval_every) == (
       "d4pg", "cpu", train.TrainConfig(), 200_000)
 
 

@@ -41,12 +41,15 @@ def test_a_task_is_named_by_class_instance_path_or_registered_name():
 
 
 def test_settings_are_recorded_with_their_defaults():
-  assert JUMP.env == "mjx_hopper.envs.events:HighJump"
-  assert (JUMP.env_settings, JUMP.episode_steps) == ({"height_weight": 10.0}, 30)
-  # An instance's own settings count as given; episode_steps stays the config's field.
+  assert JUMP.task_id == "mjx_hopper.envs.events:HighJump"
+  assert JUMP.task_settings() == {"height_weight": 10.0, "episode_steps": 30}
+  # An instance's own settings count as given; the fields stay as they were given.
   cfg = loop.RunConfig(env=HighJump(height_weight=2, episode_steps=300))
-  assert (cfg.env_settings, cfg.episode_steps) == ({"height_weight": 2.0}, 300)
-  assert loop.RunConfig(env="Ant").env_settings == {}
+  assert cfg.task_settings() == {"height_weight": 2.0, "episode_steps": 300}
+  assert (cfg.env_settings, cfg.episode_steps) == ({}, None)
+  saved = cfg.to_json()
+  assert (saved["env_settings"], saved["episode_steps"]) == ({"height_weight": 2.0}, 300)
+  assert loop.RunConfig(env="Ant").task_settings() == {"episode_steps": 1000}
   back = loop.RunConfig.from_json(json.loads(json.dumps(JUMP.to_json())))
   assert (back.env, back.env_settings, back.episode_steps) == (
       "mjx_hopper.envs.events:HighJump", {"height_weight": 10.0}, 30)
@@ -61,7 +64,7 @@ def test_an_event_on_every_robot_gets_its_robots_preset(robot):
   for kind in ("cpu", "gpu"):
     cfg = presets.agent_run_config(Event, kind, "d4pg")
     assert cfg.train == presets.get(robot, kind).train
-    assert cfg.env.endswith("Event") and cfg.make_env().episode_steps == 1000
+    assert cfg.task_id.endswith("Event") and cfg.make_env().episode_steps == 1000
   env = cfg.make_env()
   envs.check_task(env)
   state = jax.eval_shape(env.step, jax.eval_shape(env.reset, jax.random.PRNGKey(0)),
@@ -165,7 +168,7 @@ def test_a_notebook_class_is_passed_again_in_a_new_process(jump_run, tmp_path, m
     pass
   NotebookJump.__module__, NotebookJump.__qualname__ = "__main__", "NotebookJump"
   cfg = dataclasses.replace(JUMP, env=NotebookJump, out_dir=str(tmp_path))
-  assert cfg.env == "__main__:NotebookJump"
+  assert cfg.task_id == "__main__:NotebookJump"
   loop.run(cfg, progress=False)
   monkeypatch.delitem(envs.tasks._SEEN, "__main__:NotebookJump")  # as in a new process
   with pytest.raises(ValueError, match="cannot import; pass the class itself again"):

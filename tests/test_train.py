@@ -9,7 +9,7 @@ import jax
 import numpy as np
 import pytest
 
-from mjx_hopper import checkpoint, cli, envs, logger, loop, notebook, parallel, train
+from mjx_hopper import checkpoint, cli, envs, evaluator, logger, loop, notebook, parallel, train
 
 # The notebook's short mode (notebook.tiny): the run of the notebook's own cells and of
 # test_notebook_helpers, so that they share its compiled programs (and, in one test worker,
@@ -239,7 +239,7 @@ def test_a_run_that_diverges_stops_and_keeps_its_last_finite_checkpoint(tmp_path
                                                                         capsys):
   """The third chunk's critic loss goes NaN: the run stops there, says so, and never saves
   that state; the checkpoint of the chunk before stays the newest, and resumes."""
-  chunk, calls = loop._Session._chunk, []
+  chunk, calls = loop._Chunk.__call__, []
 
   def poisoned(self, state):
     state, metrics = chunk(self, state)
@@ -247,7 +247,7 @@ def test_a_run_that_diverges_stops_and_keeps_its_last_finite_checkpoint(tmp_path
     if len(calls) == 3:
       metrics = {**metrics, "critic_loss": np.full_like(metrics["critic_loss"], np.nan)}
     return state, metrics
-  monkeypatch.setattr(loop._Session, "_chunk", poisoned)
+  monkeypatch.setattr(loop._Chunk, "__call__", poisoned)
   cfg = dataclasses.replace(TINY, out_dir=str(tmp_path), total_env_steps=400,
                             checkpoint_minutes=0.0)
   result = loop.run(cfg, progress=False)
@@ -260,7 +260,7 @@ def test_a_run_that_diverges_stops_and_keeps_its_last_finite_checkpoint(tmp_path
   assert np.isnan(last["critic_loss"])  # the diverged chunk's row is logged
   # The evaluations due at 40 and 80 env steps ran, however long their compile took.
   assert [int(r["env_steps"]) for r in result.history if r["kind"] == "eval"] == [40, 80]
-  monkeypatch.setattr(loop._Session, "_chunk", chunk)
+  monkeypatch.setattr(loop._Chunk, "__call__", chunk)
   resumed = loop.resume(str(tmp_path / "checkpoints"), progress=False, total_env_steps=160)
   assert train.iterations(resumed.state) == 20
 
@@ -270,7 +270,7 @@ def test_evaluations_due_while_the_evaluation_compiles_are_kept_and_done_later(t
   """An evaluation due before its program is compiled does not hold up training: the agents of
   that moment are kept and evaluated once it is, with the same results as evaluated on time."""
   cfg = dataclasses.replace(TINY, total_env_steps=160)  # an evaluation due after every chunk
-  start_compiling = loop._Session._start_compiling
+  compile_in = evaluator.Evaluator.compile_in
 
   class Compiling:
     """The evaluation's future, reported unfinished for the first `late` chunks, and finished
@@ -287,8 +287,10 @@ def test_evaluations_due_while_the_evaluation_compiles_are_kept_and_done_later(t
       return self.future.result()
 
   def run(late):
-    monkeypatch.setattr(loop._Session, "_start_compiling", lambda self: (
-        lambda chunk, evaluation: (chunk, Compiling(evaluation, late)))(*start_compiling(self)))
+    def slow_compile(self, pool, shapes):
+      compile_in(self, pool, shapes)
+      self.program = Compiling(self.program, late)
+    monkeypatch.setattr(evaluator.Evaluator, "compile_in", slow_compile)
     return loop.run(dataclasses.replace(cfg, out_dir=str(tmp_path / str(late))), progress=False)
   on_time, deferred = run(0), run(2)
   order = [(r["kind"], int(r["env_steps"])) for r in deferred.history]
@@ -305,12 +307,13 @@ def test_evaluations_due_while_the_evaluation_compiles_are_kept_and_done_later(t
 def _evaluations_compiled_first_and_never_finished(monkeypatch):
   """The evaluation compiled before training starts, and every poll of a host evaluation's
   result saying unfinished (after asking JAX), so that only waiting logs one."""
-  start_compiling, finished = loop._Session._start_compiling, loop._Session._finished
-  monkeypatch.setattr(loop._Session, "_start_compiling", lambda self: (
-      lambda chunk, evaluation: (chunk, evaluation.result() and evaluation))(
-          *start_compiling(self)))
-  monkeypatch.setattr(loop._Session, "_finished",
-                      staticmethod(lambda started: finished(started) and False))
+  compile_in, finished = evaluator.Evaluator.compile_in, evaluator._finished
+
+  def compiled_first(self, pool, shapes):
+    compile_in(self, pool, shapes)
+    self.program.result()
+  monkeypatch.setattr(evaluator.Evaluator, "compile_in", compiled_first)
+  monkeypatch.setattr(evaluator, "_finished", lambda started: finished(started) and False)
 
 
 def test_evaluations_on_the_host_run_beside_training(tmp_path, monkeypatch):
@@ -349,7 +352,7 @@ def test_host_evaluations_pending_at_a_divergence_or_a_checkpoint_still_count(tm
   """Evaluations still on the host when the run diverges are logged, and their agents (taken
   before it diverged) can be its best; a checkpoint waits for those due before it, so that
   its record holds them."""
-  chunk, calls = loop._Session._chunk, []
+  chunk, calls = loop._Chunk.__call__, []
 
   def poisoned(self, state):  # the third chunk's critic loss goes NaN
     state, metrics = chunk(self, state)
@@ -358,7 +361,7 @@ def test_host_evaluations_pending_at_a_divergence_or_a_checkpoint_still_count(tm
       metrics = {**metrics, "critic_loss": np.full_like(metrics["critic_loss"], np.nan)}
     return state, metrics
   _evaluations_compiled_first_and_never_finished(monkeypatch)
-  monkeypatch.setattr(loop._Session, "_chunk", poisoned)
+  monkeypatch.setattr(loop._Chunk, "__call__", poisoned)
   cfg = dataclasses.replace(TINY, eval_on="host", out_dir=str(tmp_path / "diverges"),
                             total_env_steps=400)
   result = loop.run(cfg, progress=False)
@@ -366,7 +369,7 @@ def test_host_evaluations_pending_at_a_divergence_or_a_checkpoint_still_count(tm
   assert [s for s, _ in evals] == [40, 80] and len(calls) == 3
   assert result.best_return[0] == pytest.approx(max(r for _, r in evals))
   calls.clear()
-  monkeypatch.setattr(loop._Session, "_chunk", chunk)
+  monkeypatch.setattr(loop._Chunk, "__call__", chunk)
   saved = loop.run(dataclasses.replace(cfg, out_dir=str(tmp_path / "saves"),
                                        total_env_steps=80, checkpoint_minutes=0.0),
                    progress=False)
@@ -376,3 +379,23 @@ def test_host_evaluations_pending_at_a_divergence_or_a_checkpoint_still_count(tm
                                   5)["record"]
   assert record["best_return"] == [pytest.approx(first["eval_return"])]
   assert record["best_env_steps"] == [40]
+
+
+def test_progress_fn_sees_every_row_and_its_false_ends_the_run_cleanly(tmp_path):
+  """progress_fn gets what log.csv gets, after each chunk and each evaluation; returning False
+  ends the run as max_minutes does: that chunk is evaluated, saved and logged."""
+  calls = []
+
+  def progress_fn(env_steps, metrics):
+    calls.append((env_steps, metrics["kind"], metrics.get("eval_return")))
+    return not (metrics["kind"] == "train" and env_steps >= 80)
+  cfg = dataclasses.replace(TINY, total_env_steps=400, eval_every=80,
+                            out_dir=str(tmp_path))
+  result = loop.run(cfg, progress=False, progress_fn=progress_fn)
+  assert [(s, k) for s, k, _ in calls] == [(40, "train"), (80, "train"), (80, "eval")]
+  with open(tmp_path / "log.csv") as f:
+    rows = list(csv.DictReader(f))
+  assert [(int(r["env_steps"]), r["kind"]) for r in rows] == [(s, k) for s, k, _ in calls]
+  assert calls[-1][2] == pytest.approx(float(rows[-1]["eval_return"]))
+  assert checkpoint.manager(str(tmp_path / "checkpoints")).all_steps() == [
+      train.iterations(result.state)] == [10]

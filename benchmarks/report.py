@@ -1,0 +1,317 @@
+"""BENCHMARKS.md, the README's results table and the notebook's expected times, made from the
+results files in benchmarks/results/ (each: command, machine, date, commit and figures), so that
+a page and its data cannot drift apart. Standard library only, and deterministic.
+
+    python benchmarks/report.py            # write the pages
+    python benchmarks/report.py --check    # exit 1 where a committed page differs
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import pathlib
+import re
+import statistics
+import sys
+
+ROOT = pathlib.Path(__file__).resolve().parent.parent
+RESULTS = ROOT / "benchmarks" / "results"
+ROBOTS = ("Hopper", "Walker2D", "HalfCheetah", "Ant", "Humanoid")
+TTS = "time_to_score_{}.json"
+GPU = {"Hopper": [TTS.format("Hopper_h100_cold_bf16"),
+                  TTS.format("Hopper_h100_cold_bf16_seeds5-9")],
+       "Walker2D": [TTS.format("Walker2D_h100_cold5_2026-11-26")],
+       "HalfCheetah": [TTS.format("HalfCheetah_h100_small_batch")],
+       "Ant": [TTS.format("Ant_h100_cold5_2026-11-26")],
+       "Humanoid": [TTS.format("Humanoid_h100_cold5_2026-11-26")],
+       "AntLongJump (an event)": [TTS.format("AntLongJump_h100")]}
+CPU = {"Hopper": [TTS.format("Hopper_cpu_128_2026-11-26")],
+       "Walker2D": [TTS.format("Walker2D_cpu_tuned_2026-11-26")],
+       "HalfCheetah": [TTS.format("HalfCheetah_cpu60")],
+       "Ant": [TTS.format("Ant_cpu_tuned_2026-11-26")],
+       "Humanoid": [TTS.format("Humanoid_cpu_tuned_2026-11-26")],
+       "Hopper, DDPG": [TTS.format("Hopper_ddpg_cpu")],
+       "Hopper, DMPO": [TTS.format("Hopper_dmpo128_cpu_2026-11-26")],
+       "HighJump (an event)": [TTS.format("HighJump_cpu")]}
+ENV = {"Hopper": "env_throughput_hopper_cpu.json", "Humanoid": "env_throughput_humanoid_cpu.json"}
+ENV_OTHERS = "env_throughput_cpu_4robots.json"
+PEERS = ("peers_h100.json", "peers_cpu.json")
+RL_ZOO = "rl_zoo.json"
+LEARNER = ("learner_robots_h100.json", "learner_robots_bf16_h100.json")
+SWEEPS = ("sweep_throughput_h100.json", "sweep_throughput_2gpu_h200.json",
+          "sweep_throughput_cpu.json")
+PBT = "pbt_quality_halfcheetah_h100x2.json"
+NOTEBOOK = "notebook_time_cpu_2026-11-26.json"
+SUITE = "suite_time_cpu.json"
+TRAINERS = {"ours": "our D4PG", "sac": "Brax SAC", "ppo": "Brax PPO", "sb3": "SB3 SAC on PyBullet"}
+MARK = "<!-- report.py: {} -->"
+
+
+def load(name: str) -> dict:
+  with open(RESULTS / name) as f:
+    return json.load(f)
+
+
+def table(head: list[str], rows: list[list]) -> str:
+  lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+  return "\n".join(lines + ["| " + " | ".join(str(c) for c in row) + " |" for row in rows])
+
+
+def num(x, digits: int = 0) -> str:
+  return "-" if x is None or x == math.inf else f"{x:,.{digits}f}"
+
+
+def machine(name: str) -> str:
+  """A results file's machine in a few words: "1 H100", "2 H200", "2 CPU cores"."""
+  text = load(name)["machine"]
+  chip = next((c for c in ("H100", "H200") if c in text), None)
+  if chip:
+    return f"{text.split(' x ')[0]} {chip}"
+  return "2 CPU cores" if "2-core" in text or text.endswith(" 2 cores") else text
+
+
+def time_to_score(names: list[str], scale: float = 1.0) -> dict:
+  """The seeds of `names`: how many reached the target, and the median, fastest and slowest
+  time to it (divided by `scale`: 60 for minutes), a seed that missed counting as slowest."""
+  figures = [load(n)["figures"] for n in names]
+  runs = [s for f in figures for s in f["seeds"].values()]
+  times = [math.inf if s["target_wall_s"] is None else s["target_wall_s"] / scale for s in runs]
+  hit = [t for t in times if t < math.inf] or [math.inf]
+  steps = [s["target_env_steps"] / 1e6 for s in runs if s["target_env_steps"]]
+  return {"target": figures[0]["target"], "agent": figures[0]["agent"].upper(),
+          "seeds": len(runs), "reached": sum(t < math.inf for t in times),
+          "median": statistics.median(times), "fastest": min(hit), "slowest": max(hit),
+          "env_steps": statistics.median(steps) if steps else None}
+
+
+def time_rows(runs: dict, scale: float, digits: int) -> list[list]:
+  rows = []
+  for label, names in runs.items():
+    t = time_to_score(names, scale)
+    rows.append([label, num(t["target"]), t["agent"], t["seeds"], t["reached"],
+                 num(t["median"], digits), num(t["fastest"], digits), num(t["slowest"], digits),
+                 num(t["env_steps"], 2)])
+  return rows
+
+
+def env_rates(robot: str) -> dict:
+  """PyBullet's, MuJoCo C's and MJX's best (on 2 devices) env steps/s of one robot."""
+  rows = [r for r in load(ENV.get(robot, ENV_OTHERS))["figures"]["rows"] if r["env"] == robot]
+  best = lambda engine, devices: max(r["env_steps_per_s"] for r in rows if r["engine"].startswith(
+      engine) and r["devices"] in devices)
+  return {"pybullet": best("PyBullet", (1,)), "mujoco": best("MuJoCo C", (2,)),
+          "mjx": best("MJX", (2,))}
+
+
+def reach(run: dict, score: int) -> float:
+  return run[f"to_{score}"]["wall_s"] if run.get(f"to_{score}") else math.inf
+
+
+def peer_rows(best_only: bool = False) -> list[list]:
+  """A row per peers run; with `best_only`, each trainer's soonest to 2,000 (then 1,000) on each
+  machine."""
+  runs = [(name, run) for name in PEERS for run in load(name)["figures"]["runs"]]
+  if best_only:
+    rank = lambda item: (reach(item[1], 2000), reach(item[1], 1000), -item[1]["best_return"])
+    best = {}
+    for item in sorted(runs, key=rank, reverse=True):
+      best[item[0], item[1]["trainer"]] = item
+    runs = sorted(best.values(), key=runs.index)
+  rows = []
+  for name, run in runs:
+    s = run["settings"]
+    what = (f"reward scaling {s['reward_scaling']}, discount {s['discounting']}"
+            if run["trainer"] in ("sac", "ppo") else
+            "rl-zoo's" if run["trainer"] == "sb3" else "its preset")
+    rows.append([machine(name), TRAINERS[run["trainer"]], what, num(reach(run, 1000)),
+                 num(reach(run, 2000)), num(run["best_return"]),
+                 num(run["env_steps"] / (60 * run["minutes"]))])
+  return rows
+
+
+PEER_HEAD = ["machine", "trainer", "settings", "to 1,000 (s)", "to 2,000 (s)", "best return",
+             "env steps/s"]
+
+
+def summary() -> str:
+  zoo = load(RL_ZOO)["figures"]
+  rows = []
+  for robot in ROBOTS:
+    g, c, e = time_to_score(GPU[robot]), time_to_score(CPU[robot], 60), env_rates(robot)
+    rows.append([robot, num(g["target"]), num(g["median"]), f"{g['reached']}/{g['seeds']}",
+                 num(c["target"]), num(c["median"], 1), f"{c['reached']}/{c['seeds']}",
+                 num(e["mjx"] / e["pybullet"], 1), num(zoo.get(robot, {}).get("sac")),
+                 num(zoo.get(robot, {}).get("tqc"))])
+  return "\n\n".join([
+      "Each robot's median time to its score over its seeds, compile included, from process "
+      "start: on one GPU with its gpu preset, and on 2 CPU cores with its cpu preset (a preset "
+      "is a robot's measured settings: agent, networks and trainer layout; "
+      "`mjx_hopper/presets.py`). Seeds: those that reached the score, of those run. Env steps/s "
+      "× PyBullet: MJX against PyBullet on the same 2 cores. rl-baselines3-zoo's SAC and TQC "
+      "scores are PyBullet's robots after 1M env steps (published, other physics: "
+      f"`benchmarks/results/{RL_ZOO}`).",
+      table(["robot", "GPU: score", "GPU: median (s)", "GPU: seeds", "2 cores: score",
+             "2 cores: median (min)", "2 cores: seeds", "env steps/s × PyBullet",
+             "rl-zoo SAC", "rl-zoo TQC"], rows),
+      "Hopper beside its peers, each trainer's best settings ([all runs](#peers)):",
+      table(PEER_HEAD, peer_rows(best_only=True))])
+
+
+def sections() -> list[tuple[str, str, str, list[str]]]:
+  """(title, method, table, results files) of each question after the summary."""
+  out = [("Time to score on one GPU", "Each robot's gpu preset alone on the GPU, seeds one "
+          "after another, each compiled afresh (`--no-compile-cache`) and timed until an "
+          "evaluation (20 episodes) reaches the score: a process's first seed from the "
+          "process's start, a later seed of the same process from its own run's start.",
+          table(["task", "score", "agent", "seeds", "seeds reaching it", "median (s)",
+                 "fastest (s)", "slowest (s)", "median env steps to it (M)"],
+                time_rows(GPU, 1, 0)), [n for v in GPU.values() for n in v]),
+         ("Time to score on 2 CPU cores", "Each robot's cpu preset (another agent: its own "
+          "preset, with the robot's settings for it where measured), seeds one after another, "
+          "compiled afresh and timed from process start, as on a Colab CPU runtime.",
+          table(["task", "score", "agent", "seeds", "seeds reaching it", "median (min)",
+                 "fastest (min)", "slowest (min)", "median env steps to it (M)"],
+                time_rows(CPU, 60, 1)), [n for v in CPU.values() for n in v]),
+         ("Peers", "Our D4PG beside Brax's own SAC and PPO on our Hopper, nine runs sharing one "
+          "GPU for 7.5 minutes each; and Stable-Baselines3's SAC on PyBullet's Hopper (the stack "
+          "of the NMA Robolympics notebook) beside our D4PG, 4 minutes each on 2 cores. Times "
+          "from process start; evaluations of 16 episodes.",
+          table(PEER_HEAD, peer_rows()), list(PEERS))]
+  rates = {robot: env_rates(robot) for robot in ROBOTS}
+  out.append(("Env throughput on 2 CPU cores", "Auto-resetting envs with random actions "
+              "(observations, reward terms and resets included): MJX's best of 64, 256 and "
+              "4,096 envs on 2 XLA devices; MuJoCo C rolling out the same model on 2 threads "
+              "(physics only); PyBullet's own env on one core.",
+              table(["robot", "PyBullet", "MuJoCo C", "MJX", "MJX × PyBullet",
+                     "MJX ÷ MuJoCo C"],
+                    [[robot, num(e["pybullet"]), num(e["mujoco"]), num(e["mjx"]),
+                      num(e["mjx"] / e["pybullet"], 1), num(e["mjx"] / e["mujoco"], 2)]
+                     for robot, e in rates.items()]),
+              sorted({ENV.get(robot, ENV_OTHERS) for robot in ROBOTS})))
+  f32, bf16 = (load(n)["figures"] for n in LEARNER)
+  half = {r["robot"]: r["updates_per_s"] for r in bf16["rows"]}
+  rows = []
+  for r in f32["rows"]:
+    dtype = r["overrides"].get("compute_dtype", "float32")
+    peak = f32["peaks_bf16_gflops" if dtype == "bfloat16" else "peaks_gflops"]["1"]
+    rows.append([r["robot"], num(r["batch"]), dtype, num(r["updates_per_s"]),
+                 num(r["gflop_per_update"], 1), num(100 * r["gflops"] / peak, 1),
+                 num(half.get(r["robot"]))])
+  out.append(("Learner throughput on one GPU", "Each robot's gpu preset's update (its "
+              "networks, batch and sizes) on random batches, 100 to a compiled scan; FLOPs as "
+              "XLA counts them, against the GPU's measured matmul peak.",
+              table(["robot", "batch", "precision", "updates/s", "GFLOP/update", "% of peak",
+                     "bfloat16 updates/s"], rows), list(LEARNER)))
+  rows = []
+  for name in SWEEPS:
+    found = load(name)["figures"]["rows"]
+    base = min((r for r in found if r["members"] == 1), key=lambda r: r["devices"])
+    rows += [[machine(name), r["devices"], r["members"], num(r["env_steps_per_s"]),
+              num(r["updates_per_s"]), num(r["env_steps_per_s"] / base["env_steps_per_s"], 2)]
+             for r in found]
+  out.append(("Sweeps", "S seeds of D4PG on Hopper as one compiled program (`mjx-hopper "
+              "sweep`), each S in a fresh process; × one run: their env steps/s over one "
+              "member's on one device of the same machine.",
+              table(["machine", "devices", "members", "env steps/s", "updates/s", "× one run"],
+                    rows), list(SWEEPS)))
+  out.append(("Population-based training", "HalfCheetah, 16 members (4 learning rates × 4 "
+              "noise scales), a grid and PBT side by side on each GPU for the same 15.6 "
+              "minutes; PBT steps at every second evaluation.",
+              table(["seed", "run", "3,000 first at (s)", "best return", "members' median best",
+                     "env steps per member", "env steps/s"], load(PBT)["figures"]["rows"]),
+              [PBT]))
+  nb = load(NOTEBOOK)["figures"]
+  out.append(("The notebook on 2 CPU cores", "`notebooks/robolympics.ipynb` in its full mode, "
+              "top to bottom, from an empty compile cache; sections under half a minute left out.",
+              table(["section", "minutes"], [[t, num(s / 60, 1)] for t, s in
+                                             nb["sections_s"].items() if s >= 30]
+                    + [["all", num(nb["total_s"] / 60, 1)]]), [NOTEBOOK]))
+  suite = load(SUITE)["figures"]
+  out.append(("Test suite", "`bash scripts/test.sh` on a fresh clone, as CI runs it, on 2 CPU "
+              "cores from an empty compile cache.",
+              table(["tests passed", "failed", "pytest (min)", "with set-up (min)"],
+                    [[suite["passed"], suite["failed"], num(suite["pytest_s"] / 60, 1),
+                      num(suite["with_setup_s"] / 60, 1)]]), [SUITE]))
+  return out
+
+
+def benchmarks_page() -> str:
+  parts = ["# Benchmarks", "Made by `python benchmarks/report.py` from `benchmarks/results/`, "
+           "whose files each hold their command, machine, date, code commit and figures; do not "
+           "edit by hand. The machines are shared and noisy: compare rows of one run.",
+           "## Summary", summary()]
+  for title, method, text, names in sections():
+    sources = [f"- `benchmarks/results/{n}` ({r['date']}, {machine(n)}, commit {r['commit']}): "
+               f"`{r['command']}`" for n, r in ((n, load(n)) for n in dict.fromkeys(names))]
+    parts += [f"## {title}", method, text, "Results, and the commands that made them:\n\n"
+              + "\n".join(sources)]
+  return "\n\n".join(parts) + "\n"
+
+
+def readme_table() -> str:
+  rows = []
+  for robot in ROBOTS:
+    g, c = time_to_score(GPU[robot]), time_to_score(CPU[robot], 60)
+    rows.append([f'<img src="docs/media/{robot}.gif" width="160">', robot, num(g["target"]),
+                 num(g["median"]), g["seeds"], num(c["target"]), num(c["median"], 1), c["seeds"]])
+  return table(["", "robot", "score (GPU)", f"median on {machine(GPU['Hopper'][0])} (s)", "seeds",
+                "score (2 cores)", "median on 2 CPU cores (min)", "seeds"], rows)
+
+
+def notebook_times() -> str:
+  nb = load(NOTEBOOK)["figures"]
+  rows = [[t, f"{s / 60:.0f}"] for t, s in nb["sections_s"].items() if s >= 60]
+  return (f"**How long.** On a 2-core machine the whole notebook ran in "
+          f"{nb['total_s'] / 60:.0f} minutes, compile included, most of it in these sections:\n\n"
+          + table(["section", "minutes"], rows) + "\n\nColab's CPUs may be slower: each "
+          "training cell stops at its time budget.")
+
+
+def splice(text: str, key: str, block: str) -> str:
+  """`text` with what lies between its pair of `key` markers replaced by `block`."""
+  begin, end = MARK.format(key), MARK.replace("<!-- ", "<!-- /").format(key)
+  pattern = re.compile(re.escape(begin) + ".*?" + re.escape(end), re.S)
+  if not pattern.search(text):
+    raise SystemExit(f"report.py: no {begin} ... {end} markers to write between")
+  return pattern.sub(lambda _: f"{begin}\n{block}\n{end}", text)
+
+
+def pages() -> dict[pathlib.Path, str]:
+  """Each page's path and the text the results make of it."""
+  readme, notebook_path = ROOT / "README.md", ROOT / "notebooks" / "robolympics.ipynb"
+  notebook = json.loads(notebook_path.read_text())
+  cells = [c for c in notebook["cells"] if MARK.format("times") in "".join(c["source"])]
+  if len(cells) != 1:
+    raise SystemExit(f"report.py: want one notebook cell with {MARK.format('times')}")
+  cells[0]["source"] = splice("".join(cells[0]["source"]), "times",
+                              notebook_times()).splitlines(keepends=True)
+  return {ROOT / "BENCHMARKS.md": benchmarks_page(),
+          readme: splice(readme.read_text(), "results", readme_table()),
+          notebook_path: json.dumps(notebook, indent=1, ensure_ascii=False) + "\n"}
+
+
+def used_files() -> set[str]:
+  """Every results file the pages are made from."""
+  return {n for *_, names in sections() for n in names} | {RL_ZOO}
+
+
+def main() -> None:
+  p = argparse.ArgumentParser(description=__doc__,
+                              formatter_class=argparse.RawDescriptionHelpFormatter)
+  p.add_argument("--check", action="store_true",
+                 help="write nothing; exit 1 if a page differs from what the results make")
+  args = p.parse_args()
+  stale = [path for path, text in pages().items() if path.read_text() != text]
+  if args.check and stale:
+    sys.exit(f"report.py --check: {', '.join(str(p.relative_to(ROOT)) for p in stale)} differ "
+             "from what benchmarks/results/ makes; run python benchmarks/report.py")
+  for path, text in pages().items():
+    if path in stale:
+      path.write_text(text)
+  print(f"wrote {len(stale)} page(s)" if stale and not args.check else "up to date")
+
+
+if __name__ == "__main__":
+  main()

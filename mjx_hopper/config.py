@@ -1,0 +1,243 @@
+"""A run's settings in one frozen dataclass. Each field carries its default, type and help, and
+the command line is made from them (`mjx_hopper.cli`).
+
+    from mjx_hopper import config
+    cfg = config.RunConfig(env="Hopper", agent="d4pg", total_env_steps=200_000)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import itertools
+import json
+from typing import Any
+
+import jax
+
+from mjx_hopper import agents, envs
+from mjx_hopper.fields import setting
+from mjx_hopper.pbt import PBT
+from mjx_hopper.train import TrainConfig
+
+EVAL_ON = ("auto", "host", "train")
+TRAINER_DYNAMIC = ("replay_ratio",)  # the trainer's settings a sweep may vary
+# Old keyword names, still accepted: {old: new}.
+RENAMED = {"preset": "agent_preset", "time_delta": "log_every"}
+
+
+@dataclasses.dataclass(frozen=True)
+class RunConfig:
+  """A whole training run: what to train, how, for how long, and where its files go.
+
+  A sweep is a run of several members: `seeds` times the combinations of `grid`'s values,
+  trained at once in one program; `pbt` makes them a population (docs/pbt.md). `env` is a
+  robot's name, a registered name, a `module:Class` path, or a task class or instance.
+  """
+
+  env: Any = setting("Hopper", "a robot (Hopper, Walker2D, HalfCheetah, Ant, Humanoid), or a "
+                    "task of your own as module:Class")
+  env_settings: dict = setting({}, "the task's constructor settings", flag=False)
+  agent: str = setting("d4pg", "the agent: d4pg, ddpg, mpo, dmpo, or one registered with "
+                      "agents.register")
+  agent_preset: str = setting("cpu", "the agent's named settings: cpu, gpu or acme (the NMA "
+                             "notebook's acme settings)")
+  agent_overrides: dict = setting({}, "agent settings that replace the preset's", flag=False)
+  train: TrainConfig = setting(TrainConfig(), "the trainer's layout", flag=False)
+  total_env_steps: int = setting(1_000_000, "env steps to train for", aliases=("--steps",))
+  max_minutes: float | None = setting(None, "also stop (and save) after this much wall-clock "
+                                     "time")
+  stop_at_return: float | None = setting(None, "also stop once an evaluation of every member "
+                                        "reaches this return")
+  episode_steps: int | None = setting(None, "the task's time limit (default: its own, 1000 for "
+                                     "the robots)")
+  eval_every: int = setting(200_000, "env steps between evaluations")
+  eval_episodes: int = setting(16, "episodes per evaluation")
+  eval_on: str = setting("auto", "where evaluations run: host (the host's CPU, beside "
+                        "training), train (the training's devices, which wait), or auto (host "
+                        "for a single run on an accelerator)")
+  seed: int = setting(0, "the random seed (a sweep's first seed)")
+  seeds: tuple = setting((), "a sweep's seeds (default: just seed)", flag=False)
+  grid: dict = setting({}, "a sweep's {dynamic setting: values}", flag=False)
+  pbt: PBT | None = setting(None, "population-based training of a sweep's members", flag=False)
+  out_dir: str = setting("runs/train", "folder for log.csv, config.json and checkpoints/",
+                        aliases=("--out",))
+  tensorboard_dir: str | None = setting(None, "also write log.csv's scalars here as "
+                                       "TensorBoard events", aliases=("--tensorboard",))
+  wandb: str | None = setting(None, "also log to this Weights & Biases project (pip install "
+                             "'mjx_hopper[wandb]')")
+  log_every: float = setting(10.0, "seconds between terminal lines")
+  checkpoint_minutes: float = setting(10.0, "minutes between checkpoints")
+  keep_checkpoints: int = setting(3, "checkpoints kept")
+
+  def __post_init__(self):
+    settings = self.task_settings()  # raises on an unknown task or setting
+    if not isinstance(self.agent, str):
+      raise ValueError(f"agent takes an agent's name, got {self.agent!r}")
+    agents.config(self.agent, self.agent_preset, **self.agent_overrides)
+    for name in ("total_env_steps", "eval_every", "eval_episodes"):
+      if getattr(self, name) < 1:
+        raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+    if settings["episode_steps"] < 1:
+      raise ValueError(f"episode_steps must be >= 1, got {settings['episode_steps']}")
+    if self.eval_on not in EVAL_ON:
+      raise ValueError(f"eval_on must be one of {', '.join(EVAL_ON)}, got {self.eval_on!r}")
+    if len(set(self.seeds)) != len(self.seeds) or not all(
+        isinstance(s, int) for s in self.seeds):
+      raise ValueError(f"seeds must be distinct integers, got {list(self.seeds)}")
+    self.train.check()
+    check_grid(self.agent, self.agent_preset, self.grid, self.train, self.agent_overrides)
+    if self.pbt is not None:
+      if not isinstance(self.pbt, PBT):
+        raise ValueError(f"pbt takes a pbt.PBT or None, got {self.pbt!r}")
+      self.pbt.check(self.grid, len(self.members()), lambda name, value: check_value(
+          self.agent, self.agent_preset, name, value, self.train, self.agent_overrides))
+
+  def task(self) -> type[envs.LocomotionEnv]:
+    return envs.task_class(self.env)
+
+  @property
+  def task_id(self) -> str:
+    """The task's id (`envs.task_id`): what a checkpoint records."""
+    return envs.task_id(self.task())
+
+  def task_settings(self) -> dict:
+    """Every constructor setting of the task, defaults and `episode_steps` included. An
+    instance's own settings count as given; `env_settings` wins over `episode_steps`."""
+    given = {**(envs.settings_of(self.env) if isinstance(self.env, envs.LocomotionEnv) else {}),
+             **({} if self.episode_steps is None else {"episode_steps": self.episode_steps}),
+             **self.env_settings}
+    return envs.task_settings(self.task(), given)
+
+  def make_env(self) -> envs.LocomotionEnv:
+    """The task's env, built with its settings."""
+    return envs.make(self.task(), **self.task_settings())
+
+  def evaluates_on_host(self) -> bool:
+    """Whether evaluations run on the host's CPU, beside training (`eval_on`)."""
+    if self.eval_on == "auto":
+      return len(self.members()) == 1 and jax.default_backend() != "cpu"
+    return self.eval_on == "host"
+
+  def members(self) -> list[dict]:
+    """Each member's seed and swept values, in member order (one member for a single run)."""
+    return members(tuple(self.seeds) or (self.seed,), self.grid)
+
+  def agent_config(self):
+    """The agent's config; in a sweep of n-step values, n_step is the largest a member may have
+    (the window the replay reads), each member using its own."""
+    window = {"n_step": int(self._largest("n_step"))} if "n_step" in self.grid else {}
+    return agents.config(self.agent, self.agent_preset, **{**self.agent_overrides, **window})
+
+  def train_config(self) -> TrainConfig:
+    """The trainer's config; in a sweep of replay ratios, the largest a member may have."""
+    if "replay_ratio" not in self.grid:
+      return self.train
+    return dataclasses.replace(self.train, replay_ratio=self._largest("replay_ratio"))
+
+  def _largest(self, name: str):
+    return self.pbt.ranges(self.grid)[name][1] if self.pbt else max(self.grid[name])
+
+  def to_json(self) -> dict:
+    """The config as a checkpoint and config.json record it: the task by id, with every
+    setting resolved."""
+    out = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+    settings = self.task_settings()
+    out.update(env=self.task_id, episode_steps=settings.pop("episode_steps"),
+               env_settings=settings, train=dataclasses.asdict(self.train),
+               pbt=None if self.pbt is None else dataclasses.asdict(self.pbt),
+               agent_config=dataclasses.asdict(self.agent_config()))
+    return json.loads(json.dumps(out))
+
+  @classmethod
+  def from_json(cls, saved: dict, env: Any = None) -> "RunConfig":
+    """The RunConfig that `to_json` saved (old field names included). `env`, when given, is
+    its task (a class defined in a notebook cannot be imported by another process), which
+    must be the saved one: another is a ValueError saying which."""
+    saved = {RENAMED.get(k, k): v for k, v in saved.items()}
+    if saved.get("agent_preset") == "seed":
+      saved["agent_preset"] = "acme"
+    fields = {f.name for f in dataclasses.fields(cls)}
+    kwargs = {k: v for k, v in saved.items() if k in fields}
+    if env is not None:
+      task = envs.task_class(env)
+      mine = envs.task_id(task)
+      saved_settings = {"episode_steps": saved["episode_steps"], **saved.get("env_settings", {})}
+      settings = (json.loads(json.dumps(envs.settings_of(env)))
+                  if isinstance(env, envs.LocomotionEnv) else saved_settings)
+      if (mine, settings) != (saved["env"], saved_settings):
+        given = mine + (f" {settings_text(settings)}" if mine == saved["env"] else "")
+        raise ValueError(f"the checkpoint was trained on the task {saved['env']} "
+                         f"{settings_text(saved_settings)}, not {given}")
+      kwargs["env"] = task
+    kwargs["train"] = TrainConfig(**saved["train"])
+    kwargs["seeds"] = tuple(saved.get("seeds", ()))
+    kwargs["grid"] = {k: tuple(v) for k, v in saved.get("grid", {}).items()}
+    if saved.get("pbt") is not None:
+      kwargs["pbt"] = PBT(**{**saved["pbt"], "factors": tuple(saved["pbt"]["factors"])})
+    return cls(**kwargs)
+
+
+def _accept_old_names(init):
+  """RunConfig's constructor, taking the old keyword names too (`RENAMED`)."""
+  @functools.wraps(init)
+  def wrapped(self, *args, **kwargs):
+    for old, new in RENAMED.items():
+      if old in kwargs:
+        kwargs[new] = kwargs.pop(old)
+    return init(self, *args, **kwargs)
+  return wrapped
+
+
+RunConfig.__init__ = _accept_old_names(RunConfig.__init__)
+
+
+def settings_text(settings: dict) -> str:
+  """A task's settings, as '(episode_steps=300, height_weight=10.0)'."""
+  return "(" + ", ".join(f"{k}={v!r}" for k, v in sorted(settings.items())) + ")"
+
+
+def dynamic_settings(agent: str, agent_preset: str = "cpu") -> list[str]:
+  """The names a sweep's grid may vary for this agent."""
+  return sorted(type(agents.config(agent, agent_preset)).DYNAMIC + TRAINER_DYNAMIC)
+
+
+def check_grid(agent: str, agent_preset: str, grid: dict, train_cfg: TrainConfig,
+               overrides: dict | None = None) -> None:
+  """Raises ValueError naming the first bad entry of `grid` ({name: values}): an unknown or
+  structural name, an empty or repeated list, or a value the config refuses."""
+  cfg = agents.config(agent, agent_preset, **(overrides or {}))
+  fields = {f.name for f in dataclasses.fields(cfg)} | {
+      f.name for f in dataclasses.fields(TrainConfig)}
+  allowed = dynamic_settings(agent, agent_preset)
+  for name, values in grid.items():
+    if name not in fields:
+      raise ValueError(f"unknown setting {name!r} in the sweep; settings that can be swept are "
+                       f"{allowed}")
+    if name not in allowed:
+      raise ValueError(f"{name!r} is structural (it shapes the compiled program) and cannot be "
+                       f"swept in one program: run one sweep per value; settings that can be "
+                       f"swept are {allowed}")
+    if not isinstance(values, (list, tuple)) or not values:
+      raise ValueError(f"the sweep's {name!r} needs a non-empty list of values, got {values!r}")
+    if len(set(values)) != len(values):
+      raise ValueError(f"the sweep's {name!r} repeats a value: {list(values)}")
+    for value in values:
+      check_value(agent, agent_preset, name, value, train_cfg, overrides)
+
+
+def check_value(agent: str, agent_preset: str, name: str, value, train_cfg: TrainConfig,
+                overrides: dict | None = None) -> None:
+  """Raises ValueError when the dynamic setting `name` cannot take `value`."""
+  if name in TRAINER_DYNAMIC:
+    dataclasses.replace(train_cfg, **{name: value}).check()
+  else:
+    agents.config(agent, agent_preset, **{**(overrides or {}), name: value})
+
+
+def members(seeds: tuple[int, ...], grid: dict) -> list[dict[str, Any]]:
+  """Every member's seed and swept values, in member order: the grid's combinations in the
+  order given (the last name varying fastest), each with every seed."""
+  names = list(grid)
+  return [{"seed": seed, **dict(zip(names, combo))}
+          for combo in itertools.product(*(grid[n] for n in names)) for seed in seeds]

@@ -1,0 +1,112 @@
+"""The run's evaluations: the compiled evaluation, the queue of those due, evaluation on the host's
+CPU beside training on an accelerator, and each member's best agent."""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
+
+from mjx_hopper import parallel, train
+
+MAX_PENDING = 3  # evaluations running on the host beyond which training waits for the oldest
+
+
+class Pending(NamedTuple):
+  """An evaluation due and not yet taken."""
+  env_steps: int
+  agent: Any             # the members' agents then (a copy: a chunk consumes the state's)
+  diverged: np.ndarray   # the members diverged then, whose evaluation cannot be their best
+  started: Any = None    # the result's arrays, once started (JAX computes them asynchronously)
+
+
+class Evaluator:
+  """Evaluates every member's deterministic policy when asked, on the training's devices or,
+  with `on_host`, on the host's CPU devices beside training."""
+
+  def __init__(self, trainer: train.Trainer, members: list[dict], episodes: int,
+               on_host: bool):
+    self.trainer, self.seeds = trainer, [m["seed"] for m in members]
+    self.host = None
+    if on_host:  # the episodes spread evenly over as many CPU devices as they allow
+      cpus = jax.devices("cpu")
+      count = max(k for k in range(1, len(cpus) + 1) if episodes % k == 0)
+      parallel.avoid_shardy_crash(count)
+      self.host = NamedSharding(Mesh(np.array(cpus[:count]), ("host",)), P())
+    self.episodes = episodes
+    self.best = None         # each member's agent at its best evaluation
+    self.latest = None       # the latest evaluation taken: per-episode arrays per member
+    self.pending: list[Pending] = []
+    self._copy = jax.jit(lambda tree: jax.tree.map(jnp.copy, tree),
+                         out_shardings=trainer.shardings.agent)
+    self._select = jax.jit(select_members, out_shardings=trainer.shardings.agent)
+    self.program = None
+
+  def compile_in(self, pool, agent_shapes) -> None:
+    """Compiles the evaluation in the thread pool `pool`, after what it holds already."""
+    self.program = pool.submit(self._compile, agent_shapes)
+
+  def _compile(self, agent):
+    keys = jax.ShapeDtypeStruct((len(self.seeds), 2), jnp.uint32)
+    if self.host is None:
+      return self.trainer.evaluate.lower(agent, keys).compile()
+    devices = list(self.host.mesh.devices.flat)
+    evaluate = train.make_evaluate(self.trainer.env, self.trainer.agent, self.episodes,
+                                   len(self.seeds), devices)
+    agent, keys = jax.tree.map(
+        lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=self.host), (agent, keys))
+    return evaluate.lower(agent, keys).compile()
+
+  def submit(self, env_steps: int, agent, diverged: np.ndarray) -> None:
+    """Queues an evaluation of `agent` (every member's) at `env_steps`."""
+    self.pending.append(Pending(env_steps, self._copy(agent), diverged.copy()))
+
+  def collect(self, members, wait: bool) -> list[tuple[int, dict]]:
+    """The queued evaluations that are done, oldest first, as (env_steps, per-episode results
+    per member); with `wait`, all of them. Their returns go to `members`' record, and the
+    agents that beat a member's best are kept. On the training's devices every evaluation
+    waits; on the host, only those beyond MAX_PENDING do. None start before the program is
+    compiled, unless `wait`."""
+    if not self.pending or not (wait or self.program.done()):
+      return []
+    self.pending = [p if p.started is not None else p._replace(started=self._start(p))
+                    for p in self.pending]
+    wait = wait or self.host is None
+    out = []
+    while self.pending and (wait or len(self.pending) > MAX_PENDING
+                            or _finished(self.pending[0].started)):
+      done = self.pending.pop(0)
+      result = jax.device_get(done.started)
+      better = members.evaluated(done.env_steps, result["return"].mean(-1), done.diverged)
+      self._keep_best(done.agent, better)
+      self.latest = result
+      out.append((done.env_steps, result))
+    return out
+
+  def _start(self, pending: Pending):
+    keys = jnp.stack([jax.random.fold_in(jax.random.PRNGKey(seed), pending.env_steps)
+                      for seed in self.seeds])
+    agent = pending.agent
+    if self.host is not None:
+      agent, keys = jax.device_put((agent, keys), self.host)
+    return self.program.result()(agent, keys)
+
+  def _keep_best(self, agent, better: np.ndarray) -> None:
+    if self.best is None:
+      self.best = self._copy(agent)  # members with no best yet hold this one meanwhile
+    elif better.any():
+      self.best = self._select(better, agent, self.best)
+
+
+def _finished(started) -> bool:
+  """Whether a started evaluation's arrays are computed."""
+  return all(x.is_ready() for x in jax.tree.leaves(started))
+
+
+def select_members(mask, a, b):
+  """Member m of pytree `a` where mask[m], else of `b`."""
+  return jax.tree.map(
+      lambda x, y: jnp.where(mask.reshape((-1,) + (1,) * (x.ndim - 1)), x, y), a, b)

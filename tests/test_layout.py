@@ -1,0 +1,161 @@
+"""The source layout's rules, read from the code itself: imports point one way, and no comment
+or docstring carries history (dates, machine names, links to the benchmark pages)."""
+
+import ast
+import io
+import pathlib
+import re
+import tokenize
+
+import pytest
+
+ROOT = pathlib.Path(__file__).resolve().parent.parent
+LEAVES = ("agents", "envs")  # installed as mjx_hopper.agents, mjx_hopper.envs
+# What agents/ and envs/ may import from mjx_hopper/; everything else there is the host layer
+# (loop, config, evaluator, members, pbt, runs, sweep, checkpoint, logger, cli, notebook,
+# presets, export, ...), which uses the leaves and never the reverse.
+SHARED = {"agents", "envs", "fields", "parallel"}
+
+HISTORY = re.compile(r"\b\d{4}-\d{2}-\d{2}\b|H100|H200|\b2 cores\b|\b2-core\b|BENCHMARKS\.md"
+                     r"|history\.md", re.IGNORECASE)
+
+
+def _python_files(*folders: str) -> list[pathlib.Path]:
+  return sorted(p for folder in folders for p in (ROOT / folder).rglob("*.py"))
+
+
+def _package(path: pathlib.Path) -> list[str]:
+  """The dotted package a file of agents/ or envs/ belongs to, as its parts."""
+  folder = path.relative_to(ROOT).parent.parts
+  return ["mjx_hopper", *folder]
+
+
+def imported_modules(source: str, package: list[str]) -> list[tuple[int, str, str]]:
+  """(line, absolute module, the import as written) for every module an import in `source`
+  names, with relative imports resolved against `package`; `from a import b` yields both
+  `a` and `a.b`, since `b` may be a module."""
+  found = []
+  for node in ast.walk(ast.parse(source)):
+    text = ast.get_source_segment(source, node) or ""
+    if isinstance(node, ast.Import):
+      found += [(node.lineno, alias.name, text) for alias in node.names]
+    elif isinstance(node, ast.ImportFrom):
+      if node.level:
+        base = package[:len(package) - node.level + 1]
+        module = ".".join(base + ([node.module] if node.module else []))
+      else:
+        module = node.module
+      found.append((node.lineno, module, text))
+      found += [(node.lineno, f"{module}.{alias.name}", text) for alias in node.names]
+    elif (isinstance(node, ast.Call) and node.args and isinstance(node.args[0], ast.Constant)
+          and isinstance(node.args[0].value, str)
+          and ast.unparse(node.func) in ("importlib.import_module", "import_module",
+                                         "__import__")):
+      found.append((node.lineno, node.args[0].value, text))
+  return found
+
+
+def host_imports(source: str, package: list[str]) -> list[tuple[int, str, str]]:
+  """(line, host module, the import as written) for each import in `source` of a mjx_hopper
+  module outside SHARED."""
+  bad = {}
+  for line, module, text in imported_modules(source, package):
+    parts = module.split(".")
+    if parts[0] == "mjx_hopper" and len(parts) > 1 and parts[1] not in SHARED:
+      bad[line, parts[1]] = text
+  return [(line, name, text) for (line, name), text in sorted(bad.items())]
+
+
+@pytest.mark.parametrize("source", [
+    "import mjx_hopper.loop",
+    "import mjx_hopper.sweep as sweep",
+    "from mjx_hopper import checkpoint",
+    "from mjx_hopper import fields, logger",
+    "from mjx_hopper.presets import ROBOT_PRESETS",
+    "from mjx_hopper.runs.sub import x",
+    "from .. import cli",
+    "from ..notebook import tiny",
+    "from .. import config",
+    "import importlib\nimportlib.import_module('mjx_hopper.evaluator')",
+    "def f():\n  from mjx_hopper import pbt",
+])
+def test_a_host_import_is_found_in_every_form(source):
+  assert len(host_imports(source, ["mjx_hopper", "agents"])) == 1, source
+
+
+@pytest.mark.parametrize("source", [
+    "import mjx_hopper",
+    "from mjx_hopper import parallel",
+    "from mjx_hopper.fields import check_types",
+    "from mjx_hopper.agents import distributional, networks",
+    "from mjx_hopper.envs.base import LocomotionEnv",
+    "from . import critics",
+    "from .base import Agent",
+    "from .. import envs",
+    "import jax.numpy as jnp",
+])
+def test_a_shared_import_passes(source):
+  assert host_imports(source, ["mjx_hopper", "agents"]) == [], source
+
+
+def test_a_host_import_reports_its_line_and_text():
+  source = "import jax\nfrom mjx_hopper import checkpoint, fields, logger\n"
+  text = "from mjx_hopper import checkpoint, fields, logger"
+  assert host_imports(source, ["mjx_hopper", "envs"]) == [(2, "checkpoint", text),
+                                                          (2, "logger", text)]
+
+
+def test_agents_and_envs_import_nothing_of_the_host_layer():
+  files = _python_files(*LEAVES)
+  assert len(files) > 10, files
+  bad = [f"{path.relative_to(ROOT)}:{line}: {text}  (mjx_hopper.{name})"
+         for path in files for line, name, text in host_imports(path.read_text(), _package(path))]
+  assert not bad, ("agents/ and envs/ may import only mjx_hopper."
+                   f"{{{', '.join(sorted(SHARED))}}} of the package, not the host layer:\n"
+                   + "\n".join(bad))
+
+
+def history_in(source: str) -> list[tuple[int, str]]:
+  """(line, text) of each comment or docstring line of `source` that HISTORY matches."""
+  hits = []
+  for token in tokenize.generate_tokens(io.StringIO(source).readline):
+    if token.type == tokenize.COMMENT and HISTORY.search(token.string):
+      hits.append((token.start[0], token.string.strip()))
+  for node in ast.walk(ast.parse(source)):
+    if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)):
+      if ast.get_docstring(node, clean=False) is None:
+        continue
+      first = node.body[0].value
+      for offset, text in enumerate(first.value.splitlines()):
+        if HISTORY.search(text):
+          hits.append((first.lineno + offset, text.strip()))
+  return sorted(hits)
+
+
+@pytest.mark.parametrize("source", [
+    "x = 1  # seen 2026-11-26",
+    "# on an H100\n",
+    "def f():\n  '''Fast on h200s.'''",
+    "class A:\n  '''Sized for 2 cores.'''",
+    "'''Module.\n\nThe 2-core runner (BENCHMARKS.md).'''",
+    "# docs/benchmark-history.md, 'Choosing'\n",
+])
+def test_history_is_found_in_comments_and_docstrings(source):
+  assert history_in(source), source
+
+
+def test_history_reports_the_docstring_line():
+  assert history_in("'''One.\n\nTwo, on an H100.'''\nx = 1\n") == [(3, "Two, on an H100.")]
+
+
+def test_strings_and_names_are_not_history():
+  assert history_in("KIND = 'nvidia-h100-x1'\nwhy = f(date='2026-11-26')\n") == []
+
+
+@pytest.mark.parametrize("path", _python_files("mjx_hopper", *LEAVES),
+                         ids=lambda p: str(p.relative_to(ROOT)))
+def test_no_history_in_comments_or_docstrings(path):
+  hits = history_in(path.read_text())
+  assert not hits, (f"{path.relative_to(ROOT)} has history (dates, machine names, benchmark-page "
+                    "links) in comments or docstrings; figures belong in benchmarks/results/:\n"
+                    + "\n".join(f"  line {line}: {text}" for line, text in hits))

@@ -1,0 +1,106 @@
+"""A new agent is one file and one line: an agent defined here, outside agents/, registered
+through `agents.register`, trains with `loop.run` as a sweep, checkpoints, resumes and is
+evaluated, and its learner metrics reach log.csv. No file of the package names it."""
+
+import csv
+import dataclasses
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import optax
+import pytest
+
+from mjx_hopper import agents, loop, notebook
+from mjx_hopper.agents.base import Agent, CommonConfig, hparams
+
+
+@dataclasses.dataclass(frozen=True)
+class LinearConfig(CommonConfig):
+  """A linear policy fitted to a linear critic's greedy step: small, but it learns."""
+  DYNAMIC = CommonConfig.DYNAMIC + ("sigma",)
+  sigma: float = 0.3
+
+
+class LinearState(NamedTuple):
+  policy: jax.Array   # (O, A)
+  critic: jax.Array   # (O + A,)
+  opt: optax.OptState
+  hparams: dict
+
+
+def make_linear(obs_size: int, action_size: int, cfg: LinearConfig) -> Agent:
+  opt = optax.sgd(cfg.learning_rate)
+
+  def init(key, hp=None):
+    policy = 0.01 * jax.random.normal(key, (obs_size, action_size))
+    critic = jnp.zeros(obs_size + action_size)
+    return LinearState(policy, critic, opt.init((policy, critic)),
+                       hparams(cfg) if hp is None else hp)
+
+  def policy(state, obs):
+    return jnp.tanh(obs @ state.policy)
+
+  def act(state, obs, key):
+    noise = state.hparams["sigma"] * jax.random.normal(key, obs.shape[:-1] + (action_size,))
+    return jnp.clip(policy(state, obs) + noise, -1.0, 1.0)
+
+  def update(state, batch, key, axis_name=None):
+    def loss(params):
+      w_policy, w_critic = params
+      q = jnp.concatenate([batch.obs, batch.action], -1) @ w_critic
+      target = batch.reward + batch.discount * jax.lax.stop_gradient(
+          jnp.concatenate([batch.next_obs, jnp.tanh(batch.next_obs @ w_policy)], -1) @ w_critic)
+      greedy = jnp.concatenate([batch.obs, jnp.tanh(batch.obs @ w_policy)], -1)
+      return jnp.mean((q - target) ** 2) - jnp.mean(greedy @ jax.lax.stop_gradient(w_critic))
+    value, grads = jax.value_and_grad(loss)((state.policy, state.critic))
+    if axis_name is not None:
+      grads = jax.lax.pmean(grads, axis_name)
+    updates, opt_state = opt.update(grads, state.opt)
+    policy_w, critic_w = optax.apply_updates((state.policy, state.critic), updates)
+    return state._replace(policy=policy_w, critic=critic_w, opt=opt_state), {"linear_loss": value}
+
+  return Agent(init, act, policy, update, cfg.n_step, hparams(cfg))
+
+
+PRESETS = {"cpu": LinearConfig(learning_rate=1e-3), "gpu": LinearConfig(learning_rate=1e-3)}
+
+
+@pytest.fixture(scope="module")
+def linear():
+  agents.register("linear", make_linear, PRESETS, (("linear_loss", "linear loss {}"),),
+                  tiny={"n_step": 2})
+  yield "linear"
+  agents._AGENTS.pop("linear")
+
+
+def test_a_registered_agent_trains_sweeps_checkpoints_and_resumes(linear, tmp_path, capsys):
+  cfg = dataclasses.replace(
+      notebook.tiny(loop.RunConfig(env="Hopper", agent=linear)), seeds=(0, 1),
+      grid={"sigma": (0.2, 0.4)}, log_every=0.0, out_dir=str(tmp_path))
+  result = loop.run(cfg, progress=False)
+  assert result.best_return.shape == (4,)
+  with open(tmp_path / "log.csv") as f:
+    rows = list(csv.DictReader(f))
+  trained = [r for r in rows if r["kind"] == "train"]
+  assert len({r["member"] for r in trained}) == 4
+  assert all(r["linear_loss"] not in ("", "nan") for r in trained)
+  assert [r["kind"] for r in rows].count("eval") == 8  # 4 members at 40 and 80 env steps
+  resumed = loop.resume(str(tmp_path / "checkpoints"), progress=False, total_env_steps=120)
+  assert "resumed from" in capsys.readouterr().out
+  assert resumed.history[-1]["env_steps"] == 120
+
+
+def test_the_terminal_line_shows_its_learner_metrics(linear, tmp_path, capsys):
+  cfg = dataclasses.replace(notebook.tiny(loop.RunConfig(env="Hopper", agent=linear)),
+                            log_every=0.0, out_dir=str(tmp_path))
+  loop.run(cfg, progress=False)
+  last = [l for l in capsys.readouterr().out.splitlines() if l.startswith("[train]")][-1]
+  assert "| linear loss " in last
+
+
+def test_an_agent_without_its_presets_is_refused():
+  with pytest.raises(ValueError, match=r"must declare the presets \['cpu', 'gpu'\]; it lacks "
+                                       r"\['gpu'\]"):
+    agents.register("half", make_linear, {"cpu": LinearConfig()})
+  assert "half" not in agents.list_agents()

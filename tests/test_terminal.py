@@ -1,0 +1,28 @@
+"""A run's terminal output holds only the project's own lines: no XLA, absl or import warnings."""
+
+import re
+import subprocess
+import sys
+
+from test_train import TINY_ARGS
+
+# The project's lines: its header, its train, eval and summary lines, and resuming notes.
+OWN = re.compile(r"^(no checkpoint in .*: starting a fresh run|Hopper with d4pg \(cpu\): .*"
+                 r"|\[(train|eval)\] .*|done: .*)$")
+
+
+def test_a_cpu_run_prints_only_the_projects_lines(tmp_path):
+  done = subprocess.run(
+      [sys.executable, "-m", "mjx_hopper.cli", *TINY_ARGS, "--set", "num_atoms=11",
+       "--steps", "80", "--out", str(tmp_path)],
+      capture_output=True, text=True, timeout=600, env={**_env(), "JAX_PLATFORMS": "cpu"})
+  assert done.returncode == 0, done.stderr[-3000:]
+  assert done.stderr == "", done.stderr
+  lines = done.stdout.splitlines()
+  assert [line for line in lines if not OWN.match(line)] == []
+  assert lines[-1].startswith("done: 80 env steps")
+
+
+def _env():
+  import os
+  return {k: v for k, v in os.environ.items() if k != "TF_CPP_MIN_LOG_LEVEL"}
