@@ -17,7 +17,7 @@ PATHS = ("auto", "fused", "xla")
 ENV_VAR = "MJX_HOPPER_LEARNER"
 
 # What "auto" picks. The fused kernels were measured no faster than XLA's update on the GPU
-# presets (benchmarks/fused_learner.py), so it is XLA's, on every platform.
+# presets (benchmarks/learner_throughput.py --learners xla,fused): XLA's, on every platform.
 _AUTO = "xla"
 
 
