@@ -40,9 +40,11 @@ PRESETS = {
 State = dpg.State
 
 
-def make(obs_size: int, action_size: int, cfg: Config = Config()) -> Agent:
+def make(obs_size: int, action_size: int, cfg: Config = Config(),
+         learner: str | None = None) -> Agent:
+  """`learner`: how the update runs its networks (dpg.make's)."""
   return dpg.make(obs_size, action_size, cfg,
-                  lambda hp: critics.categorical(hp["vmin"], hp["vmax"], cfg.num_atoms))
+                  lambda hp: critics.categorical(hp["vmin"], hp["vmax"], cfg.num_atoms), learner)
 
 
 # The learner figures on the terminal line (log.csv has all of them): a bounded critic loss, and a

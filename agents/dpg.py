@@ -6,6 +6,7 @@ learner semantics. `ddpg.py` and `d4pg.py` choose the head and the presets.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from typing import Callable, ClassVar, NamedTuple
 
 import jax
@@ -13,7 +14,7 @@ import jax.numpy as jnp
 import optax
 
 from mjx_hopper.agents import networks
-from mjx_hopper.agents import critics
+from mjx_hopper.agents import critics, fused
 from mjx_hopper.agents.base import (COMPUTE_DTYPES, Agent, CommonConfig, hparams, optimizer,
                                     pmean, update_targets)
 
@@ -75,20 +76,26 @@ class State(NamedTuple):
 
 
 def make(obs_size: int, action_size: int, cfg: Config,
-         head_of: Callable[[dict], critics.Head]) -> Agent:
-  """`head_of(hparams)` is the critic's head for these dynamic settings."""
+         head_of: Callable[[dict], critics.Head], learner: str | None = None) -> Agent:
+  """`head_of(hparams)` is the critic's head for these dynamic settings. `learner` chooses how
+  the update runs its networks (`fused.path`: "auto", "fused" or "xla"); the results are the
+  same, so it is no part of the config or the state."""
   defaults = hparams(cfg)
   dtype = COMPUTE_DTYPES[cfg.compute_dtype]
   policy_net = networks.TanhPolicy(cfg.policy_layers, action_size, dtype)
   critic_net = networks.Critic(cfg.critic_layers, head_of(defaults).num_outputs, dtype)
+  if fused.path(learner) == "fused":
+    pre_tanh, critic_out = fused.policy(policy_net), fused.critic(critic_net)
+  else:
+    pre_tanh, critic_out = functools.partial(policy_net.apply, squash=False), critic_net.apply
 
   ensemble = cfg.num_critics > 1
 
   def critic_apply(params, obs, action):
     """Every critic's outputs: (num_critics, ..., outputs), or (..., outputs) for one."""
     if not ensemble:
-      return critic_net.apply(params, obs, action)
-    return jax.vmap(lambda p: critic_net.apply(p, obs, action))(params)
+      return critic_out(params, obs, action)
+    return jax.vmap(lambda p: critic_out(p, obs, action))(params)
 
   def lowest(head, outputs):
     """(..., outputs) of the critic whose value is lowest, sample by sample."""
@@ -128,7 +135,7 @@ def make(obs_size: int, action_size: int, cfg: Config,
     return jnp.clip(action + noise, -1.0, 1.0)
 
   def critic_loss(critic_params, state, batch, head):
-    next_action = policy_net.apply(state.target_policy, batch.next_obs)
+    next_action = jnp.tanh(pre_tanh(state.target_policy, batch.next_obs))
     next_out = lowest(head, critic_apply(state.target_critic, batch.next_obs, next_action))
     target = jax.lax.stop_gradient(head.target(next_out[None], batch.reward, batch.discount))
     out = critic_apply(critic_params, batch.obs, batch.action)
@@ -138,7 +145,7 @@ def make(obs_size: int, action_size: int, cfg: Config,
 
   def policy_loss(policy_params, state, batch, head):
     # As acme's learners, the deterministic policy gradient is taken at the next observations.
-    pre = policy_net.apply(policy_params, batch.next_obs, squash=False)
+    pre = pre_tanh(policy_params, batch.next_obs)
     value = lowest_value(head, critic_apply(state.critic, batch.next_obs, jnp.tanh(pre)))
     loss = -value.mean() + state.hparams["action_penalty"] * jnp.mean(pre ** 2)
     return loss, jnp.mean(jnp.abs(pre) > _SATURATED)

@@ -43,6 +43,8 @@ LEARNER = ("learner_robots_h100.json", "learner_robots_bf16_h100.json")
 SWEEPS = ("sweep_throughput_h100.json", "sweep_throughput_2gpu_h200.json",
           "sweep_throughput_cpu.json")
 PBT = "pbt_quality_halfcheetah_h100x2.json"
+FUSED = ("fused_learner_h100.json", "sweep_fused_vs_xla_h100.json")
+START = "start_time_h100.json"
 NOTEBOOK = "notebook_time_cpu_2026-11-26.json"
 SUITE = "suite_time_cpu.json"
 TRAINERS = {"ours": "our D4PG", "sac": "Brax SAC", "ppo": "Brax PPO", "sb3": "SB3 SAC on PyBullet"}
@@ -204,6 +206,8 @@ def sections() -> list[tuple[str, str, str, list[str]]]:
               "XLA counts them, against the GPU's measured matmul peak.",
               table(["robot", "batch", "precision", "updates/s", "GFLOP/update", "% of peak",
                      "bfloat16 updates/s"], rows), list(LEARNER)))
+  out.append(fused_section())
+  out.append(start_section())
   rows = []
   for name in SWEEPS:
     found = load(name)["figures"]["rows"]
@@ -235,6 +239,47 @@ def sections() -> list[tuple[str, str, str, list[str]]]:
                     [[suite["passed"], suite["failed"], num(suite["pytest_s"] / 60, 1),
                       num(suite["with_setup_s"] / 60, 1)]]), [SUITE]))
   return out
+
+
+def fused_section() -> tuple[str, str, str, list[str]]:
+  """The Pallas-fused D4PG update against XLA's, and both in a 16-member sweep."""
+  learner, sweep = (load(n)["figures"] for n in FUSED)
+  rows = []
+  for r in learner["results"]:
+    xla, fused = (max((row for row in r["rows"] if row["learner"] == name),
+                      key=lambda row: row["updates_per_s"]) for name in ("xla", "fused"))
+    rows.append([r["case"]["robot"], r["case"]["overrides"].get("compute_dtype", "float32"),
+                 num(r["case"]["batch"]), num(xla["updates_per_s"]),
+                 num(100 * xla["fraction_of_peak"], 1), num(fused["updates_per_s"]),
+                 num(100 * fused["fraction_of_peak"], 1),
+                 num(fused["updates_per_s"] / xla["updates_per_s"], 2),
+                 f"{xla['kernels']} → {fused['kernels']}"])
+  single = {name: next(r for r in sweep[name] if r["members"] == 1) for name in ("xla", "fused")}
+  many = {name: next(r for r in sweep[name] if r["members"] == 16) for name in ("xla", "fused")}
+  rows.append(["16-member sweep (Hopper, batch 1,024)", "float32", "", num(many["xla"][
+      "env_steps_per_s"]), "", num(many["fused"]["env_steps_per_s"]), "",
+      num(many["fused"]["env_steps_per_s"] / many["xla"]["env_steps_per_s"], 2),
+      f"× one XLA run: {many['xla']['env_steps_per_s'] / single['xla']['env_steps_per_s']:.2f}"
+      f" → {many['fused']['env_steps_per_s'] / single['xla']['env_steps_per_s']:.2f}"])
+  return ("The fused learner", "D4PG's update with each LayerNormMLP's forward and backward "
+          "pass as Pallas (Triton) kernels, beside XLA's update in the same process, each "
+          "robot's gpu preset on random batches; the fastest tiles of each; a sweep's row in "
+          "env steps/s. Training uses XLA's update unless MJX_HOPPER_LEARNER=fused. Regenerate the "
+          "first rows with `learner_throughput.py --learners xla,fused`.",
+          table(["preset", "precision", "batch", "XLA updates/s", "XLA % of peak",
+                 "fused updates/s", "fused % of peak", "fused ÷ XLA", "kernels"], rows),
+          list(FUSED))
+
+
+def start_section() -> tuple[str, str, str, list[str]]:
+  """Seconds from process start to the first training row on one GPU."""
+  runs = load(START)["figures"]["runs"]
+  rows = [[name, num(r[0]["first_chunk_done"], 1), num(r[0]["first_eval"], 1)]
+          for name, r in runs.items()]
+  return ("The start on one GPU", "Hopper's gpu preset on a fresh machine, from process start: "
+          "with XLA's autotuning results of an earlier run loaded, and without; each from an "
+          "empty compile cache, then from the cache it left.",
+          table(["run", "first training row (s)", "first evaluation (s)"], rows), [START])
 
 
 def benchmarks_page() -> str:

@@ -32,27 +32,6 @@ def summarise(rows: list[dict], target: float, offset_s: float = 0.0) -> dict:
           "curve": [{**r, "wall_s": r["wall_s"] + offset_s} for r in rows]}
 
 
-def plot(seeds: dict, robot: str, target: float, title: str, path: str) -> None:
-  import matplotlib
-  matplotlib.use("Agg")
-  import matplotlib.pyplot as plt
-  fig, axes = plt.subplots(1, 2, figsize=(11, 4))
-  for seed, s in seeds.items():
-    for ax, x in zip(axes, ("wall_s", "env_steps")):
-      ax.plot([p[x] for p in s["curve"]], [p["eval_return"] for p in s["curve"]], marker=".",
-              label=f"seed {seed}")
-  for ax, label in zip(axes, ("wall-clock seconds (compile included)", "env steps")):
-    ax.axhline(target, color="grey", ls="--", lw=1)
-    ax.set_xlabel(label)
-    ax.set_ylabel("evaluation return")
-    ax.grid(alpha=0.3)
-  axes[0].legend()
-  fig.suptitle(f"{robot}: {title}")
-  fig.tight_layout()
-  fig.savefig(path, dpi=100)
-  plt.close(fig)
-
-
 def record_episode(checkpoint_dir: str, member: int, path: str) -> dict:
   """Runs one deterministic episode of `member`'s final policy and saves its qpos."""
   import jax
@@ -62,7 +41,7 @@ def record_episode(checkpoint_dir: str, member: int, path: str) -> dict:
   result = jax.device_get(jax.jit(lambda s, k: train.evaluate(
       trainer.env, trainer.agent, s, k, 1, record_qpos=True))(agent_state, jax.random.PRNGKey(7)))
   length = int(result["length"][0])
-  np.savez(path, qpos=np.asarray(result["qpos"][:length + 1]), env=cfg.env,
+  np.savez(path, qpos=np.asarray(result["qpos"][:length + 1]), env=cfg.task_id,
            episode_return=float(result["return"][0]))
   return {"episode_return": float(result["return"][0]), "episode_length": length}
 
@@ -181,10 +160,6 @@ def main() -> None:
              "best_seed_episode": episode, "seeds": results}
   label = f"_{args.label}" if args.label else ""
   common.write_results(f"time_to_score_{name}_{args.kind}{label}", summary)
-  how = "at once" if args.at_once else "one after another"
-  plot(results, name, target,
-       f"{cfg.agent} {args.kind} preset, {len(seeds)} seed{'s' if len(seeds) > 1 else ''} {how}",
-       os.path.join(out, "score_curves.png"))
   try:
     rendered = render(out)
   except Exception as error:  # no renderer here: episode.npz keeps the episode for later
