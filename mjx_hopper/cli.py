@@ -17,20 +17,24 @@ import sys
 import time
 
 
-def _setup_jax(cpu_devices: int) -> None:
-  """Before JAX starts: the CPU split into `cpu_devices` XLA devices, the persistent compile
-  cache, and XLA's C++ log at errors only where this process may use XLA's GSPMD partitioner
+def _quiet_xla() -> None:
+  """XLA's C++ log at errors only, where this process may use XLA's GSPMD partitioner
   (`parallel.SHARDY_CRASHES`): GSPMD warns at every compile that it is deprecated, and XLA
-  offers no way to silence that one line. TF_CPP_MIN_LOG_LEVEL, when set, wins."""
+  offers no way to silence that one line. XLA reads it when JAX is first imported, so this
+  runs before; a TF_CPP_MIN_LOG_LEVEL already set wins."""
+  import importlib.metadata
+  version = tuple(int(p) for p in importlib.metadata.version("jax").split(".")[:2])
+  if version >= (0, 11):  # parallel.SHARDY_CRASHES, read without importing JAX
+    os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "2")
+
+
+def _setup_jax(cpu_devices: int) -> None:
+  """Splits the CPU into `cpu_devices` XLA devices and turns on the persistent compile cache,
+  before JAX starts its backends."""
   if cpu_devices < 1:
     raise SystemExit(f"--cpu-devices must be >= 1, got {cpu_devices}")
-  import importlib.metadata
-
   import mjx_hopper
   os.environ["XLA_FLAGS"] = mjx_hopper.xla_flags_with_cpu_devices(cpu_devices)
-  version = tuple(int(p) for p in importlib.metadata.version("jax").split(".")[:2])
-  if version >= (0, 11):  # parallel.SHARDY_CRASHES, without importing JAX yet
-    os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "2")
   mjx_hopper.use_compile_cache()
 
 
@@ -407,6 +411,7 @@ def _help_bases(argv: list[str]) -> dict | None:
 
 def main(argv: list[str] | None = None) -> None:
   argv = sys.argv[1:] if argv is None else argv
+  _quiet_xla()
   if os.getcwd() not in sys.path:  # as `python -m` does: --env my_events:Jump finds ./my_events.py
     sys.path.insert(0, os.getcwd())
   parser = build_parser(_help_bases(argv))

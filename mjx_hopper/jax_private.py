@@ -15,7 +15,7 @@ import threading
 # other line, a real missing feature included, is shown.
 HARMLESS_LOAD_LINES = ("Target machine feature +prefer-no-",
                        "Assume version compatibility. PjRt-IFRT does not track")
-CHECKED = ("0.9.2", "0.11.2")  # the JAX versions whose compilation_cache this hook was read in
+CHECKED = ("0.9.2", "0.11.2")  # the JAX versions each use here was read and tested in
 _STDERR_LOCK = threading.Lock()
 
 
@@ -23,6 +23,17 @@ def cache_loader():
   """`jax._src.compilation_cache`, whose `get_executable_and_time` loads a cached program."""
   from jax._src import compilation_cache
   return compilation_cache
+
+
+@contextlib.contextmanager
+def gspmd_in_this_thread():
+  """This thread traces and compiles with XLA's GSPMD partitioner while the rest of the process
+  keeps its own: `jax._src.config.use_shardy_partitioner` is the thread-local form of the public
+  `jax_use_shardy_partitioner`. Switching the whole process instead slows the training chunk's
+  compile on a GPU (benchmarks/results/start_time_h100_global_gspmd.json)."""
+  from jax._src import config
+  with config.use_shardy_partitioner(False):
+    yield
 
 
 def quiet_cache_loads() -> None:
