@@ -22,7 +22,7 @@ if "xla_gpu_enable_triton_gemm" not in os.environ.get("XLA_FLAGS", ""):
   os.environ["XLA_FLAGS"] = " ".join(
       [os.environ.get("XLA_FLAGS", ""), "--xla_gpu_enable_triton_gemm=false"]).strip()
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
 
 def xla_flags_with_cpu_devices(count: int) -> str:
