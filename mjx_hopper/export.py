@@ -51,15 +51,13 @@ def forward(arrays, meta: dict, obs, xp=np, rounding: Callable | None = None):
   x = xp.asarray(obs, xp.float32)
   for i, layer in enumerate(layers):
     r = low if layer["dtype"] == "bfloat16" else (lambda v: v)
-    x = r(x) @ r(arrays[f"w{i}"])
-    x = r(x) + r(arrays[f"b{i}"])
+    x = r(r(x) @ r(arrays[f"w{i}"])) + r(arrays[f"b{i}"])
     if layer["norm"]:
       mean = x.mean(-1, keepdims=True)
       var = xp.maximum((x * x).mean(-1, keepdims=True) - mean * mean, 0.0)
-      x = r((x - mean) / xp.sqrt(var + LAYER_NORM_EPSILON) * arrays[f"ln{i}_scale"]
-            + arrays[f"ln{i}_bias"])
-    else:
-      x = r(x)
+      x = ((x - mean) / xp.sqrt(var + LAYER_NORM_EPSILON) * arrays[f"ln{i}_scale"]
+           + arrays[f"ln{i}_bias"])
+    x = r(x)
     if layer["activation"] == "tanh":
       x = xp.tanh(x)
     elif layer["activation"] == "elu":

@@ -78,6 +78,18 @@ def test_load_needs_no_jax(tmp_path):
   assert out.stdout.splitlines() == [f"({A},) (4, {A})", "[]"]
 
 
+@pytest.mark.parametrize("name, dtype", [("d4pg", "bfloat16"), ("mpo", "float32")])
+def test_the_docs_numpy_lines_run_the_file(tmp_path, name, dtype):
+  path, _, _ = saved_policy(tmp_path, name, dtype)
+  with open(os.path.join(os.path.dirname(__file__), "..", "docs", "export.md")) as f:
+    blocks = f.read().split("```python\n")
+  code = next(block.split("```")[0] for block in blocks if "def act(" in block)
+  scope = {}
+  exec(code.replace('"policy.npz"', repr(path)), scope)  # noqa: S102 - the docs' own lines
+  obs = observations()
+  np.testing.assert_array_equal(scope["act"](obs), export.load(path)(obs))
+
+
 def test_bad_files_and_observations_are_one_line_errors(tmp_path):
   path, _, _ = saved_policy(tmp_path)
   with np.load(path) as f:
