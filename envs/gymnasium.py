@@ -23,7 +23,7 @@ try:
   from gymnasium.vector import AutoresetMode
   from gymnasium.vector.utils import batch_space
 except ImportError:
-  raise ImportError("mjx_hopper.envs.to_gymnasium needs Gymnasium (>= 1.0): pip install "
+  raise ImportError("mjx_hopper.envs.to_gymnasium needs Gymnasium (>= 1.1): pip install "
                     "'mjx_hopper[gymnasium]'") from None
 import jax
 import numpy as np
