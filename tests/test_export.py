@@ -67,6 +67,26 @@ def test_actions_equal_the_jax_policy(tmp_path, name, overrides, dtype):
   np.testing.assert_allclose(policy(obs[0]), got[0], rtol=0, atol=1e-6)  # one observation
 
 
+@pytest.mark.parametrize("dtype", ["float32", "bfloat16"])
+@pytest.mark.parametrize("name, overrides", [("d4pg", {}), ("mpo", {"action_bounds": "squash"}),
+                                             ("dmpo", {})])
+def test_the_onnx_model_acts_as_the_file(tmp_path, name, overrides, dtype):
+  onnxruntime = pytest.importorskip("onnxruntime")
+  from mjx_hopper import export_onnx
+  path, _, _ = saved_policy(tmp_path, name, dtype, **overrides)
+  onnx_path = export_onnx.write(path, str(tmp_path / "policy.onnx"))
+  session = onnxruntime.InferenceSession(onnx_path, providers=["CPUExecutionProvider"])
+  obs = observations()
+  got = session.run(["action"], {"obs": obs})[0]
+  want = export.load(path)(obs)
+  diff = np.abs(got - want)
+  # As the file against JAX (test_actions_equal_the_jax_policy): float32 sums in another order
+  # may flip a bfloat16 rounding.
+  assert diff.max() <= (1e-5 if dtype == "float32" else 4e-3)
+  assert np.mean(diff <= 1e-5) >= 0.98
+  assert session.run(["action"], {"obs": obs[:1]})[0].shape == (1, A)
+
+
 def test_load_needs_no_jax(tmp_path):
   path, _, _ = saved_policy(tmp_path)
   code = ("import sys, numpy as np\n"
