@@ -11,6 +11,8 @@ bfloat16 layer rounds where `export.forward` does, with a Cast to bfloat16 and b
 
 from __future__ import annotations
 
+import itertools
+import json
 import os
 
 import numpy as np
@@ -29,7 +31,7 @@ def model(policy: export.Policy):
     raise ImportError("writing ONNX needs onnx: pip install 'mjx_hopper[onnx]'") from None
 
   nodes, weights = [], []
-  names = iter(range(1_000_000))
+  names = itertools.count()
 
   def node(op, *inputs, **attributes):
     out = f"t{next(names)}"
@@ -77,10 +79,8 @@ def model(policy: export.Policy):
   out = helper.make_model(graph, opset_imports=[helper.make_opsetid("", OPSET)],
                           producer_name="mjx_hopper")
   out.ir_version = 8  # read by ONNX Runtime 1.14 and newer
-  for key in ("agent", "task", "evaluation", "format"):
-    if key in policy.meta:
-      helper.set_model_props(out, {**{p.key: p.value for p in out.metadata_props},
-                                   key: str(policy.meta[key])})
+  helper.set_model_props(out, {key: json.dumps(policy.meta[key]) for key in
+                               ("agent", "task", "evaluation", "format") if key in policy.meta})
   onnx.checker.check_model(out)
   return out
 
