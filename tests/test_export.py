@@ -202,7 +202,7 @@ def test_export_without_a_checkpoint_writes_nothing(tmp_path):
   (tmp_path / "empty").mkdir()
   with pytest.raises(FileNotFoundError, match="no checkpoint in"):
     export.export_checkpoint(str(tmp_path / "empty"), str(out))
-  assert sorted(os.listdir(tmp_path)) == ["empty"]
+  assert sorted(os.listdir(tmp_path)) == ["empty"] and os.listdir(tmp_path / "empty") == []
 
 
 def test_export_of_a_sweep_needs_a_member_it_holds(tmp_path):
