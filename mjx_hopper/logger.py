@@ -1,10 +1,11 @@
 """Host-side logging between compiled chunks: every row to a CSV (and, when asked, to
-TensorBoard), and a short terminal line every `time_delta` seconds (like acme's TerminalLogger).
+TensorBoard and Weights & Biases), and a short terminal line every `time_delta` seconds (like
+acme's TerminalLogger).
 
 A row is a dict with a "kind" ("train" or "eval"), "env_steps" and numbers. The CSV,
-TensorBoard and Weights & Biases get every field; the terminal line shows a few (`TRAIN_FIELDS` plus the agent's
-`LEARNER_FIELDS`, or `EVAL_FIELDS`), each with its latest value, and leaves out what is not
-known yet (no evaluation so far, no episode ended so far).
+TensorBoard and W&B get every field; the terminal line shows a few (`TRAIN_FIELDS` plus the
+agent's `LEARNER_FIELDS`, or `EVAL_FIELDS`), each with its latest value, and leaves out what is
+not known yet (no evaluation so far, no episode ended so far).
 """
 
 from __future__ import annotations
