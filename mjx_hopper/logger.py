@@ -56,6 +56,7 @@ class Logger:
                tensorboard_dir: str | None = None, start_step: int = 0,
                id_fields: Sequence[str] = (), wandb_project: str | None = None,
                wandb_config: dict | None = None):
+    self.wandb = _wandb_run(wandb_project, wandb_config, csv_path, print_fn)  # first: it may fail
     self.csv_path, self.time_delta, self.print_fn = csv_path, time_delta, print_fn
     self.learner_fields, self.id_fields = tuple(learner_fields), tuple(id_fields)
     self.rows: list[dict] = []
@@ -70,7 +71,6 @@ class Logger:
           self.columns = list(reader.fieldnames or [])
           self.rows = list(reader)
     self.tensorboard = _tensorboard_writer(tensorboard_dir, start_step)
-    self.wandb = _wandb_run(wandb_project, wandb_config, csv_path, print_fn)
 
   def write(self, row: dict, force: bool = False) -> None:
     row = {k: _plain(v) for k, v in row.items()}
