@@ -3,9 +3,9 @@
 A checkpoint step holds up to four items: "agent" (the agent's pytree: params, targets,
 optimizer states), "trainer" (replay, env states, keys, counters), "best" (the agent's pytree
 at each member's best evaluation so far, once there is one) and "config" (JSON: the RunConfig,
-env, agent, package versions, and the run's `record` of its members: their best evaluations,
-divergence and, under PBT, lineage). Keeping the agent apart lets `restore_agent` load a policy
-without reading the replay.
+env, agent, package versions, the checkpoint's format version, and the run's `record` of its
+members: their best evaluations, divergence and, under PBT, lineage). Keeping the agent apart lets
+`restore_agent` load a policy without reading the replay.
 """
 
 from __future__ import annotations
@@ -21,15 +21,33 @@ import jax
 import jax.numpy as jnp
 import orbax.checkpoint as ocp
 
+import mjx_hopper
 from mjx_hopper import parallel, train
+
+# The layout of the saved items. Every change to it raises FORMAT (CHANGELOG.md says so), and
+# OLDEST_FORMAT is the oldest layout this version still reads. Checkpoints saved before formats
+# were recorded have today's layout: they count as format 1.
+FORMAT = 1
+OLDEST_FORMAT = 1
+
+
+class ConfigMismatch(ValueError):
+  """A checkpoint saved by another config."""
+
+
+class FormatMismatch(ConfigMismatch):
+  """A checkpoint whose layout this version cannot read (an older or a newer format)."""
+
 
 PACKAGES = ("mjx_hopper", "jax", "jaxlib", "mujoco", "mujoco-mjx", "flax", "optax",
             "orbax-checkpoint", "brax")
 
 
 def versions() -> dict[str, str]:
-  out = {}
-  for name in PACKAGES:
+  """The versions of mjx_hopper (its own, not an editable install's metadata) and of the
+  packages it runs on."""
+  out = {"mjx_hopper": mjx_hopper.__version__}
+  for name in PACKAGES[1:]:
     try:
       out[name] = importlib.metadata.version(name)
     except importlib.metadata.PackageNotFoundError:
@@ -129,7 +147,8 @@ def save(mngr: ocp.CheckpointManager, state: train.TrainState, config: dict,
   agent, trainer = _split(state)
   items = dict(agent=ocp.args.StandardSave(_nonempty(agent)),
                trainer=ocp.args.StandardSave(_nonempty(trainer)),
-               config=ocp.args.JsonSave({**config, "versions": versions()}))
+               config=ocp.args.JsonSave({**config, "versions": versions(),
+                                         "checkpoint_format": FORMAT}))
   if best is not None:
     items["best"] = ocp.args.StandardSave(_nonempty(best))
   mngr.save(step, args=ocp.args.Composite(**items))
@@ -157,7 +176,27 @@ def restore(mngr: ocp.CheckpointManager, step: int, like: train.TrainState) -> t
 
 
 def read_config(mngr: ocp.CheckpointManager, step: int) -> dict:
-  return mngr.restore(step, args=ocp.args.Composite(config=ocp.args.JsonRestore())).config
+  """The config item saved at `step`; a FormatMismatch when this version cannot read its
+  layout."""
+  saved = mngr.restore(step, args=ocp.args.Composite(config=ocp.args.JsonRestore())).config
+  check_format(saved, mngr.directory)
+  return saved
+
+
+def check_format(saved: dict, directory: str) -> None:
+  """Raises a FormatMismatch naming both format versions when the checkpoint format recorded in
+  `saved` (a config item; 1 where none is) is not one this version reads."""
+  found = saved.get("checkpoint_format", 1)
+  if OLDEST_FORMAT <= found <= FORMAT:
+    return
+  by = saved.get("versions", {}).get("mjx_hopper", "another version")
+  reads = (f"format {FORMAT}" if OLDEST_FORMAT == FORMAT
+           else f"formats {OLDEST_FORMAT} to {FORMAT}")
+  todo = (f"use mjx_hopper {by} or newer" if found > FORMAT else
+          f"use mjx_hopper {by} to resume or evaluate it, or to export its policy")
+  raise FormatMismatch(f"the checkpoint in {directory} has format {found} (saved by mjx_hopper "
+                       f"{by}), and mjx_hopper {mjx_hopper.__version__} reads {reads}: {todo}; "
+                       "nothing was written")
 
 
 def has_best(mngr: ocp.CheckpointManager, step: int) -> bool:
@@ -184,10 +223,6 @@ def restore_best(mngr: ocp.CheckpointManager, step: int, like_agent):
 # may change between a run and its resumption.
 MUST_MATCH = ("env", "env_settings", "agent", "agent_config", "train", "episode_steps", "seed",
               "seeds", "grid", "pbt", "member_indices")
-
-
-class ConfigMismatch(ValueError):
-  """A checkpoint saved by another config."""
 
 
 def load_newest(mngr: ocp.CheckpointManager, load, print_fn=print):

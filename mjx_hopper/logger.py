@@ -1,10 +1,11 @@
 """Host-side logging between compiled chunks: every row to a CSV (and, when asked, to
-TensorBoard), and a short terminal line every `time_delta` seconds (like acme's TerminalLogger).
+TensorBoard and Weights & Biases), and a short terminal line every `time_delta` seconds (like
+acme's TerminalLogger).
 
-A row is a dict with a "kind" ("train" or "eval"), "env_steps" and numbers. The CSV and
-TensorBoard get every field; the terminal line shows a few (`TRAIN_FIELDS` plus the agent's
-learner fields, or `EVAL_FIELDS`), each with its latest value, and leaves out what is not
-known yet (no evaluation so far, no episode ended so far).
+A row is a dict with a "kind" ("train" or "eval"), "env_steps" and numbers. The CSV,
+TensorBoard and W&B get every field; the terminal line shows a few (`TRAIN_FIELDS` plus the
+agent's learner fields, or `EVAL_FIELDS`), each with its latest value, and leaves out what is
+not known yet (no evaluation so far, no episode ended so far).
 """
 
 from __future__ import annotations
@@ -50,14 +51,18 @@ Fields = Sequence[tuple[str, str]]
 
 
 class Logger:
-  """Writes every row to `csv_path` and, with `tensorboard_dir`, to TensorBoard; prints a
-  train row's short line every `time_delta` seconds, and every row passed with force=True.
+  """Writes every row to `csv_path`, with `tensorboard_dir` to TensorBoard, and with
+  `wandb_project` to a Weights & Biases run of that project (with `wandb_config`, the run's
+  config); prints a train row's short line every `time_delta` seconds, and every row passed
+  with force=True.
 
   The CSV's columns are those of the first row plus any added later (the file is rewritten
   when a new column appears); a resumed run appends to it. TensorBoard gets each number of a
   row as the scalar "<kind>/<field>" at step env_steps, in a new event file per run; a run
   resumed from `start_step` env steps hides what an interrupted run wrote after that step.
-  Use as a context manager, or call `close`, to flush TensorBoard's file.
+  W&B gets the same scalars, against the custom x-axis "env_steps" (an evaluation may be
+  logged after later training rows). Use as a context manager, or call `close`, to flush
+  TensorBoard's file and finish the W&B run.
   """
 
   def __init__(self, csv_path: str | None, time_delta: float = 10.0,
@@ -65,6 +70,7 @@ class Logger:
                tensorboard_dir: str | None = None, start_step: int = 0,
                id_fields: Sequence[str] = (), wandb_project: str | None = None,
                wandb_config: dict | None = None):
+    self.wandb = _wandb_run(wandb_project, wandb_config, csv_path, print_fn)  # first: it may fail
     self.csv_path, self.time_delta, self.print_fn = csv_path, time_delta, print_fn
     self.learner_fields, self.id_fields = tuple(learner_fields), tuple(id_fields)
     self.rows: list[dict] = []
@@ -79,8 +85,6 @@ class Logger:
           self.columns = list(reader.fieldnames or [])
           self.rows = list(reader)
     self.tensorboard = _tensorboard_writer(tensorboard_dir, start_step)
-    if wandb_project is not None:
-      raise ValueError("wandb is not available yet")
 
   def write(self, row: dict, force: bool = False) -> None:
     row = {k: _plain(v) for k, v in row.items()}
@@ -89,8 +93,8 @@ class Logger:
                         and not (k in KEEP_LATEST and math.isnan(v))})
     if self.csv_path:
       self._write_csv(row)
-    if self.tensorboard is not None:
-      self._write_tensorboard(row)
+    if self.tensorboard is not None or self.wandb is not None:
+      self._write_scalars(row)
     now = time.monotonic()
     if force or now - self._last_print >= self.time_delta:
       self._last_print = now
@@ -113,6 +117,9 @@ class Logger:
   def close(self) -> None:
     if self.tensorboard is not None:
       self.tensorboard.close()
+    if self.wandb is not None:
+      self.wandb.finish()
+      self.wandb = None
 
   def __enter__(self) -> "Logger":
     return self
@@ -133,14 +140,18 @@ class Logger:
     with open(self.csv_path, "a", newline="") as f:
       csv.DictWriter(f, self.columns).writerow(row)
 
-  def _write_tensorboard(self, row: dict) -> None:
-    """Each number of `row` as "<kind>/<field>"; a sweep member's as "member<i>/<kind>/<field>",
-    leaving out the fields that name the member (`id_fields`)."""
+  def _write_scalars(self, row: dict) -> None:
+    """Each number of `row` to TensorBoard and W&B as "<kind>/<field>"; a sweep member's as
+    "member<i>/<kind>/<field>", leaving out the fields that name the member (`id_fields`)."""
     step = int(row["env_steps"])
     prefix = f"member{row['member']}/" if "member" in row else ""
-    for key, value in row.items():
-      if key not in ("env_steps", *self.id_fields) and _is_number(value):
-        self.tensorboard.add_scalar(f"{prefix}{row['kind']}/{key}", value, step)
+    scalars = {f"{prefix}{row['kind']}/{key}": value for key, value in row.items()
+               if key not in ("env_steps", *self.id_fields) and _is_number(value)}
+    if self.tensorboard is not None:
+      for tag, value in scalars.items():
+        self.tensorboard.add_scalar(tag, value, step)
+    if self.wandb is not None:
+      self.wandb.log({"env_steps": step, **scalars})
 
 
 def _tensorboard_writer(directory: str | None, start_step: int):
@@ -154,6 +165,29 @@ def _tensorboard_writer(directory: str | None, start_step: int):
   logging.getLogger("tensorboardX.x2num").addFilter(_not_a_nan_notice)
   return SummaryWriter(directory, purge_step=start_step + 1 if start_step else None,
                        flush_secs=10, filename_suffix=f".{time.time_ns()}")
+
+
+def _wandb_run(project: str | None, config: dict | None, csv_path: str | None, print_fn):
+  """A Weights & Biases run of `project` with `config` (None without a project), its files in
+  $WANDB_DIR, else beside `csv_path`. It leaves the terminal's output alone and says where the
+  run is in one line."""
+  if project is None:
+    return None
+  try:
+    import wandb
+  except ImportError:
+    raise ImportError("logging to Weights & Biases needs wandb: pip install "
+                      "'mjx_hopper[wandb]'") from None
+  folder = os.environ.get("WANDB_DIR") or (os.path.dirname(os.path.abspath(csv_path))
+                                            if csv_path else None)
+  run = wandb.init(project=project, config=config, dir=folder,
+                   settings=wandb.Settings(console="off", silent=True))
+  run.define_metric("env_steps")
+  run.define_metric("*", step_metric="env_steps")
+  folder = os.path.dirname(run.dir)
+  print_fn(f"Weights & Biases: {folder} (offline: `wandb sync {folder}` uploads it)"
+           if run.offline else f"Weights & Biases: {run.url}")
+  return run
 
 
 def _not_a_nan_notice(record: logging.LogRecord) -> bool:

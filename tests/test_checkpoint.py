@@ -14,6 +14,7 @@ import jax
 import numpy as np
 import pytest
 
+import mjx_hopper
 from mjx_hopper import agents, checkpoint, cli, loop, train
 from checkpoint_worker import CONFIG, state
 from test_train import TINY_ARGS
@@ -158,6 +159,41 @@ def test_a_checkpoint_without_a_newer_setting_resumes_at_its_default(tmp_path):
   with pytest.raises(checkpoint.ConfigMismatch, match="agent_config: saved .*'float32'.*"
                                                       "now .*'bfloat16'"):
     checkpoint.resume(checkpoint.manager(str(directory)), state(0), other, defaults=defaults)
+
+
+def test_a_checkpoint_records_its_format(tmp_path):
+  mngr = saved_steps(tmp_path / "ckpt", 1)
+  saved = checkpoint.read_config(mngr, 1)
+  assert saved["checkpoint_format"] == checkpoint.FORMAT
+  assert saved["versions"]["mjx_hopper"] == mjx_hopper.__version__
+
+
+@pytest.mark.parametrize("saved_format", [0, 2])
+def test_a_checkpoint_of_another_format_is_refused_in_one_line(tmp_path, monkeypatch,
+                                                               saved_format):
+  # A format this version does not read, older or newer: saved as if by another version.
+  monkeypatch.setattr(checkpoint, "FORMAT", saved_format)
+  directory = tmp_path / "ckpt"
+  saved_steps(directory, 1)
+  monkeypatch.setattr(checkpoint, "FORMAT", 1)
+  files = checkpoint._files(str(directory))
+  with pytest.raises(checkpoint.FormatMismatch) as error:
+    checkpoint.resume(checkpoint.manager(str(directory)), state(0), CONFIG,
+                      print_fn=lambda line: pytest.fail(f"printed {line!r}"))
+  message = str(error.value)
+  assert "\n" not in message
+  assert f"has format {saved_format} (saved by mjx_hopper {mjx_hopper.__version__})" in message
+  assert "reads format 1:" in message and "nothing was written" in message
+  assert ("or newer" if saved_format > 1 else "to resume or evaluate it") in message
+  assert checkpoint._files(str(directory)) == files
+
+
+def test_a_checkpoint_without_a_format_is_format_1(monkeypatch):
+  checkpoint.check_format({"env": "Hopper"}, "DIR")  # saved before formats were recorded
+  monkeypatch.setattr(checkpoint, "OLDEST_FORMAT", 2)
+  monkeypatch.setattr(checkpoint, "FORMAT", 3)
+  with pytest.raises(checkpoint.FormatMismatch, match="has format 1 .* reads formats 2 to 3"):
+    checkpoint.check_format({"env": "Hopper"}, "DIR")
 
 
 # A tiny D4PG run: 2 chunks of 5 iterations (40 env steps each); learning starts at iteration 3.

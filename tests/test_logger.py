@@ -3,12 +3,15 @@ written above a progress bar."""
 
 import csv
 import dataclasses
+import glob
 import io
+import json
 import os
 import struct
 import sys
 
 import numpy as np
+import pytest
 from tensorboardX.proto.event_pb2 import Event, SessionLog
 from tensorboardX.record_writer import masked_crc32c
 from tqdm import tqdm
@@ -201,3 +204,70 @@ def test_sweep_members_have_their_own_tensorboard_series(tmp_path):
                     "env_steps": 40, "eval_return": value})
   assert scalars(read_events(str(tmp_path))) == {("member0/eval/eval_return", 40): [10.0],
                                                  ("member1/eval/eval_return", 40): [20.0]}
+
+
+def wandb_records(path):
+  """The records of a W&B run file (.wandb): LevelDB's log format, in 32 KiB blocks after a
+  7-byte file header; each chunk has a 7-byte header (CRC32C u32, length u16, type u8: 1 a
+  whole record, 2 its first chunk, 3 a middle one, 4 its last), and a record is a protobuf."""
+  from wandb.proto import wandb_internal_pb2
+  with open(path, "rb") as f:
+    data = f.read()
+  assert data[:4] == b":W&B"
+  at, pending, block = 7, b"", 32768
+  while at + 7 <= len(data):
+    if block - at % block < 7:  # a block's tail too short for a header is padding
+      at += block - at % block
+      continue
+    length, kind = struct.unpack_from("<HB", data, at + 4)
+    pending += data[at + 7:at + 7 + length]
+    at += 7 + length
+    if kind in (1, 4):
+      yield wandb_internal_pb2.Record.FromString(pending)
+      pending = b""
+
+
+def test_weights_and_biases_gets_every_scalar_and_the_config(tmp_path, monkeypatch):
+  wandb = pytest.importorskip("wandb")
+  monkeypatch.setenv("WANDB_MODE", "offline")
+  monkeypatch.setenv("WANDB_DIR", str(tmp_path))
+  config = {"env": "Hopper", "agent": "d4pg", "seed": 3}
+  lines = []
+  member_row = {"kind": "eval", "member": 1, "seed": 1, "env_steps": 5000, "eval_return": 9.5}
+  with Logger(str(tmp_path / "log.csv"), print_fn=lines.append, wandb_project="mjx_hopper_test",
+              wandb_config=config, id_fields=("member", "seed")) as logger:
+    for row in ROWS + [member_row]:
+      logger.write(row)
+  wandb.teardown()  # W&B's service writes its run file in the background: wait for it
+  (path,) = glob.glob(str(tmp_path / "wandb" / "offline-run-*" / "run-*.wandb"))
+  assert lines[0] == (f"Weights & Biases: {os.path.dirname(path)} (offline: `wandb sync "
+                      f"{os.path.dirname(path)}` uploads it)")
+  records = list(wandb_records(path))
+  (run,) = [r.run for r in records if r.WhichOneof("record_type") == "run"]
+  assert run.project == "mjx_hopper_test"
+  assert {i.key: json.loads(i.value_json) for i in run.config.update if i.key in config} == config
+  history = []
+  for r in records:
+    if r.WhichOneof("record_type") == "history":
+      items = {(i.key or "/".join(i.nested_key)): json.loads(i.value_json)  # "a/b" is nested
+               for i in r.history.item}
+      history.append({k: v for k, v in items.items() if not k.startswith("_")})  # W&B's own
+  want = [{"env_steps": row["env_steps"],
+           **{f"{row['kind']}/{k}": v for k, v in row.items() if k not in ("kind", "env_steps")}}
+          for row in ROWS]
+  want.append({"env_steps": 5000, "member1/eval/eval_return": 9.5})
+  assert [sorted(h) for h in history] == [sorted(w) for w in want]
+  for got, expected in zip(history, want):
+    np.testing.assert_array_equal([got[k] for k in sorted(got)],  # NaN equals NaN
+                                  [expected[k] for k in sorted(expected)])
+  # The scalars' x-axis is env_steps: an evaluation may be logged after later training rows.
+  steps = [r.metric for r in records if r.WhichOneof("record_type") == "metric"]
+  assert any(m.glob_name == "*" and m.step_metric == "env_steps" for m in steps)
+
+
+def test_weights_and_biases_without_wandb_names_the_extra(tmp_path, monkeypatch):
+  monkeypatch.setitem(sys.modules, "wandb", None)  # import wandb raises ImportError
+  with pytest.raises(ImportError, match=r"^logging to Weights & Biases needs wandb: pip install "
+                                        r"'mjx_hopper\[wandb\]'$"):
+    Logger(str(tmp_path / "run" / "log.csv"), wandb_project="mjx_hopper_test")
+  assert os.listdir(tmp_path) == []  # not even the log's folder

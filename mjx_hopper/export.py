@@ -1,0 +1,307 @@
+"""A trained policy as one .npz file that runs with NumPy alone.
+
+    from mjx_hopper import export
+    export.export_checkpoint("runs/train/checkpoints", "policy.npz")   # needs JAX
+    policy = export.load("policy.npz")                                # NumPy only
+    action = policy(obs)                  # (O,) -> (A,), or a batch (N, O) -> (N, A)
+
+The file holds the deterministic policy's layers (arrays "w{i}", "b{i}" and, after a layer with
+LayerNorm, "ln{i}_scale" and "ln{i}_bias") and a JSON entry "meta": the layers' structure, the
+task's id and settings, the sizes, the versions, the file's format and the evaluation the policy
+scored. `forward` is the whole network; docs/export.md has it in a dozen lines of NumPy.
+
+This module imports JAX only inside the functions that need it (`export_checkpoint`,
+`evaluate_file`), so that `load` runs where JAX is not installed.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from typing import Any, Callable
+
+import numpy as np
+
+import mjx_hopper
+
+# The file's layout. Every change to it raises FORMAT; `load` refuses a newer one.
+FORMAT = 1
+LAYER_NORM_EPSILON = 1e-6  # flax's LayerNorm default, which the agents' networks use
+
+
+def round_bfloat16(x: np.ndarray) -> np.ndarray:
+  """float32 values rounded to the nearest bfloat16 (ties to even), kept as float32: what a
+  cast to bfloat16 and back gives."""
+  bits = np.asarray(x, np.float32).view(np.uint32)
+  rounded = (bits + np.uint32(0x7FFF) + ((bits >> 16) & 1)) & np.uint32(0xFFFF0000)
+  return np.where(np.isnan(x), x, rounded.view(np.float32)).astype(np.float32)
+
+
+def forward(arrays, meta: dict, obs, xp=np, rounding: Callable | None = None):
+  """The policy's actions (..., A) for observations (..., O), in float32.
+
+  Each layer is a Dense, then LayerNorm (statistics in float32) and its activation; then tanh,
+  or a clip to [-1, 1]. A bfloat16 layer computes as XLA compiles flax's bfloat16 layers: its
+  inputs, weights, product and results are rounded to bfloat16, but for a result that the
+  program only widens back to float32 (the sum before LayerNorm, whose statistics are float32,
+  and an activation before a float32 layer), which XLA keeps in float32. `xp` is the array
+  module (NumPy, or jax.numpy with `rounding` its own bfloat16 cast)."""
+  low = rounding or round_bfloat16
+  layers = meta["layers"]
+  x = xp.asarray(obs, xp.float32)
+  for i, layer in enumerate(layers):
+    r = low if layer["dtype"] == "bfloat16" else (lambda v: v)
+    x = r(r(x) @ r(arrays[f"w{i}"])) + r(arrays[f"b{i}"])
+    if layer["norm"]:
+      mean = x.mean(-1, keepdims=True)
+      var = xp.maximum((x * x).mean(-1, keepdims=True) - mean * mean, 0.0)
+      x = ((x - mean) / xp.sqrt(var + LAYER_NORM_EPSILON) * arrays[f"ln{i}_scale"]
+           + arrays[f"ln{i}_bias"])
+    x = r(x)
+    if layer["activation"] == "tanh":
+      x = xp.tanh(x)
+    elif layer["activation"] == "elu":
+      x = xp.where(x > 0, x, r(xp.expm1(xp.minimum(x, 0.0))))
+    if i + 1 < len(layers) and layers[i + 1]["dtype"] == "bfloat16":
+      x = r(x)
+  return xp.tanh(x) if meta["output"] == "tanh" else xp.clip(x, -1.0, 1.0)
+
+
+class Policy:
+  """An exported policy: call it on observations (O,) or (N, O) for actions (A,) or (N, A) in
+  [-1, 1], as float32 NumPy arrays. `meta` is what the file records."""
+
+  def __init__(self, arrays: dict[str, np.ndarray], meta: dict, path: str = "policy"):
+    self.arrays, self.meta, self.path = arrays, meta, path
+    self.observation_size = meta["observation_size"]
+    self.action_size = meta["action_size"]
+
+  def __call__(self, obs) -> np.ndarray:
+    obs = np.asarray(obs, np.float32)
+    if obs.ndim not in (1, 2) or obs.shape[-1] != self.observation_size:
+      raise ValueError(f"{self.path} takes observations of shape ({self.observation_size},) or "
+                       f"(N, {self.observation_size}), got {obs.shape}")
+    return forward(self.arrays, self.meta, obs)
+
+  def __repr__(self) -> str:
+    m = self.meta
+    task = m.get("task", {}).get("env", "its task")
+    return (f"Policy({m['agent']} on {task}: {self.observation_size} observations -> "
+            f"{self.action_size} actions, {m['compute_dtype']})")
+
+
+def load(path: str) -> Policy:
+  """The policy in an exported file (see `export_checkpoint`), as a NumPy function. A file of a
+  newer format, or one that is not an export, is a one-line ValueError."""
+  with np.load(path, allow_pickle=False) as f:
+    arrays = {k: f[k] for k in f.files}
+  if "meta" not in arrays:
+    raise ValueError(f"{path} is not a policy exported by mjx_hopper (it has no 'meta' entry)")
+  meta = json.loads(str(arrays.pop("meta")))
+  found = meta.get("format", 0)
+  if not 1 <= found <= FORMAT:
+    by = meta.get("versions", {}).get("mjx_hopper", "another version")
+    raise ValueError(f"{path} has policy format {found} (written by mjx_hopper {by}), and "
+                     f"mjx_hopper {mjx_hopper.__version__} reads format {FORMAT}: load it with "
+                     f"mjx_hopper {by} or newer")
+  return Policy(arrays, meta, path)
+
+
+# ---- Writing: from an agent's parameters, or from a checkpoint (JAX) --------------------------
+
+def _dense(params: dict, **layer) -> tuple[dict, dict]:
+  """One layer: its arrays by kind ("w", "b", "ln_scale", "ln_bias") and its structure."""
+  arrays = {"w": np.asarray(params["kernel"], np.float32),
+            "b": np.asarray(params["bias"], np.float32)}
+  return arrays, layer
+
+
+def _mlp_layers(mlp: dict, num_layers: int, activate_final: bool, dtype: str) -> list:
+  """The layers of an agents.networks.LayerNormMLP of `num_layers` Dense layers: LayerNorm and
+  tanh after the first, ELU after the others but an unactivated last one (an output layer, in
+  float32)."""
+  out = []
+  for i in range(num_layers):
+    output = i == num_layers - 1 and i > 0 and not activate_final
+    arrays, layer = _dense(mlp[f"Dense_{i}"], dtype="float32" if output else dtype, norm=i == 0,
+                           activation="tanh" if i == 0 else "none" if output else "elu")
+    if i == 0:
+      arrays.update(ln_scale=np.asarray(mlp["LayerNorm_0"]["scale"], np.float32),
+                    ln_bias=np.asarray(mlp["LayerNorm_0"]["bias"], np.float32))
+    out.append((arrays, layer))
+  return out
+
+
+def _tanh_policy(params: dict, config) -> tuple[list, str]:
+  """D4PG's and DDPG's TanhPolicy: LayerNormMLP(policy_layers + (A,)), then tanh."""
+  mlp = params["params"]["LayerNormMLP_0"]
+  return _mlp_layers(mlp, len(config.policy_layers) + 1, False, config.compute_dtype), "tanh"
+
+
+def _gaussian_mean(params: dict, config) -> tuple[list, str]:
+  """MPO's and DMPO's GaussianPolicy's mean (its deterministic policy): an activated
+  LayerNormMLP(policy_layers), a float32 Dense, then tanh ("squash") or a clip to the bounds."""
+  layers = _mlp_layers(params["params"]["LayerNormMLP_0"], len(config.policy_layers), True,
+                       config.compute_dtype)
+  layers.append(_dense(params["params"]["Dense_0"], dtype="float32", norm=False,
+                       activation="none"))
+  return layers, "tanh" if config.action_bounds == "squash" else "clip"
+
+
+# Each agent's deterministic policy, from its state's `policy` params and its config.
+POLICIES = {"d4pg": _tanh_policy, "ddpg": _tanh_policy, "mpo": _gaussian_mean,
+            "dmpo": _gaussian_mean}
+
+
+def policy_of(agent: str, agent_config, policy_params, observation_size: int,
+              action_size: int, **meta) -> Policy:
+  """The NumPy policy of agent `agent`'s policy params (its state's `policy`), with `meta`'s
+  other entries (task, evaluation, ...) recorded as given."""
+  if agent not in POLICIES:
+    raise ValueError(f"cannot export agent {agent!r}; exportable agents are {sorted(POLICIES)}")
+  layers, output = POLICIES[agent](policy_params, agent_config)
+  arrays = {}
+  for i, (named, _) in enumerate(layers):  # w0, b0, ln0_scale, ln0_bias, w1, ...
+    arrays.update({(f"ln{i}_{k[3:]}" if k.startswith("ln_") else f"{k}{i}"): v
+                   for k, v in named.items()})
+  meta = {"format": FORMAT, "agent": agent, "compute_dtype": agent_config.compute_dtype,
+          "observation_size": observation_size, "action_size": action_size,
+          "layers": [layer for _, layer in layers], "output": output, **meta}
+  return Policy(arrays, meta)
+
+
+def save(policy: Policy, out: str) -> str:
+  """Writes `policy` to `out` (its folder made if missing), whole or not at all; returns it."""
+  os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
+  meta = np.array(json.dumps(policy.meta, default=str))
+  with open(out + ".tmp", "wb") as f:
+    np.savez(f, meta=meta, **policy.arrays)
+  os.replace(out + ".tmp", out)
+  return out
+
+
+def export_checkpoint(directory: str, out: str, member: int | str | None = None,
+                      which: str = "best", env: Any = None, print_fn=print) -> str:
+  """Writes the policy of a checkpoint in `directory` to the file `out` and returns its path:
+  the agent of the best evaluation, or with which="latest", the latest. `member` is as
+  `loop.extract` takes it (a member's index, or "best": the member of the best evaluation);
+  required for a sweep, optional for a single run. `env` is the run's task, for a class that
+  cannot be imported (see `loop.resume`). Errors are one-line ValueErrors or
+  FileNotFoundErrors, and nothing is written."""
+  from mjx_hopper import checkpoint, loop
+
+  if which not in ("best", "latest"):
+    raise ValueError(f"which must be 'best' or 'latest', got {which!r}")
+  if not os.path.isdir(directory):
+    raise FileNotFoundError(f"no checkpoint directory {directory!r}")
+  mngr = checkpoint.manager(directory)
+  if not mngr.all_steps():
+    raise FileNotFoundError(f"no checkpoint in {directory!r}")
+  step, saved = checkpoint.load_newest(mngr, lambda s: checkpoint.read_config(mngr, s), print_fn)
+  position = _member_position(directory, saved, member)
+  cfg, state, trainer = loop.load_policy(directory, position, env=env, which=which,
+                                         print_fn=print_fn)
+  best = which == "best" and checkpoint.has_best(mngr, step)
+  evaluation = _evaluation(saved.get("record", {}), position, best, cfg.eval_episodes,
+                           step * trainer.config.steps_per_iteration)
+  policy = policy_of(cfg.agent, cfg.agent_config(), state.policy,
+                     trainer.env.observation_size, trainer.env.action_size,
+                     task={"env": cfg.env, "episode_steps": cfg.episode_steps,
+                           "env_settings": cfg.env_settings},
+                     member=saved.get("member_indices", [0])[position],
+                     evaluation=evaluation, checkpoint_format=saved.get("checkpoint_format", 1),
+                     versions={"mjx_hopper": mjx_hopper.__version__, "numpy": np.__version__},
+                     trained_with=saved.get("versions", {}), run_config=cfg.to_json())
+  save(policy, out)
+  score = "" if evaluation["return"] is None else f", return {evaluation['return']:.1f}"
+  print_fn(f"exported the {evaluation['which']} policy of {directory}{score} "
+           f"({cfg.agent} on {cfg.env}) to {out}")
+  return out
+
+
+def _evaluation(record: dict, position: int, best: bool, episodes: int, env_steps: int) -> dict:
+  """What the file records of the policy's evaluation: the best one's mean return and env
+  steps, or for the latest policy, its env steps (it was not evaluated when saved)."""
+  if not best:
+    return {"which": "latest", "return": None, "env_steps": env_steps, "episodes": episodes}
+  score = record.get("best_return", [None] * (position + 1))[position]
+  at = record.get("best_env_steps", [None] * (position + 1))[position]
+  return {"which": "best", "return": score, "env_steps": at, "episodes": episodes}
+
+
+def _member_position(directory: str, saved: dict, member: int | str | None) -> int:
+  """The position, among the checkpoint's members, of `member` (an index as log.csv names it,
+  or "best"); None is the only member of a single run."""
+  indices = list(saved.get("member_indices", [0]))
+  if member is None:
+    if len(indices) > 1:
+      raise ValueError(f"{directory} holds a sweep of {len(indices)} members: give the member "
+                       "to export (--member INDEX, or --member best)")
+    return 0
+  if member == "best":
+    scores = [-np.inf if v is None else v
+              for v in saved.get("record", {}).get("best_return", [None])]
+    if not np.isfinite(scores).any():
+      raise ValueError(f"{directory}: no evaluation was saved yet, so no member is the best; "
+                       "give a member's index")
+    return int(np.argmax(scores))
+  if isinstance(member, bool) or not isinstance(member, (int, np.integer)):
+    raise ValueError(f"member takes a member's index or 'best', got {member!r}")
+  if member not in indices:
+    raise ValueError(f"member {member} is not in {directory}: it holds members {indices}")
+  return indices.index(member)
+
+
+# ---- Evaluating a file (JAX) ------------------------------------------------------------------
+
+def make_env(policy: Policy, env: Any = None):
+  """The task the policy was trained on, rebuilt from its recorded id and settings; `env` (a
+  class, a `module:Class` path or a name) stands in for a task that cannot be imported."""
+  from mjx_hopper import envs
+
+  task = policy.meta["task"]
+  if env is None and task["env"].startswith("__main__:"):
+    raise ValueError(f"{policy.path} was trained on {task['env']}, a task defined in a notebook "
+                     "or a script, which cannot be imported: pass its class as --env "
+                     "module:Class (env= in Python)")
+  made = envs.make(env if env is not None else task["env"], episode_steps=task["episode_steps"],
+                   **task["env_settings"])
+  if (made.observation_size, made.action_size) != (policy.observation_size, policy.action_size):
+    raise ValueError(f"{policy.path} acts on {policy.observation_size} observations and "
+                     f"{policy.action_size} actions; the task {envs.task_id(type(made))} has "
+                     f"{made.observation_size} and {made.action_size}")
+  return made
+
+
+def evaluate_file(path: str, episodes: int = 16, seed: int = 0, video_path: str | None = None,
+                  env: Any = None, print_fn=print) -> dict[str, np.ndarray]:
+  """Evaluates the exported policy in `path` on its task (see `make_env`) over `episodes`
+  episodes, compiled, and with `video_path`, films episode 0 as an mp4. Returns the
+  per-episode "return" and "length" (and the reward terms' means)."""
+  import jax
+  import jax.numpy as jnp
+
+  from mjx_hopper import rollout
+  from mjx_hopper.envs import render
+
+  policy = load(path)
+  task = make_env(policy, env)
+  arrays = {k: jnp.asarray(v) for k, v in policy.arrays.items()}
+
+  def act(obs, key):
+    # reduce_precision, not a cast to bfloat16 and back, which XLA may drop (excess precision)
+    return forward(arrays, policy.meta, obs, jnp,
+                   lambda x: jax.lax.reduce_precision(x, exponent_bits=8, mantissa_bits=7))
+
+  result = jax.device_get(jax.jit(lambda k: rollout.episodes(
+      task, act, k, episodes, record_qpos=video_path is not None))(jax.random.PRNGKey(seed)))
+  returns = np.asarray(result["return"])
+  print_fn(f"{policy.meta['task']['env']} / {policy.meta['agent']} ({path}): return "
+           f"{returns.mean():.1f} +- {returns.std():.1f}, length "
+           f"{np.mean(result['length']):.0f} over {episodes} episodes")
+  if video_path is not None:
+    length = int(result["length"][0])
+    frames = render.render_frames(task.mj_model, np.asarray(result.pop("qpos")[:length + 1]))
+    render.write_mp4(video_path, frames, fps=1 / task.dt)
+    print_fn(f"video of episode 0 ({length} steps, return {returns[0]:.1f}): {video_path}")
+  return result
