@@ -10,9 +10,7 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 import statistics
-import subprocess
 import sys
 import time
 
@@ -80,12 +78,8 @@ def main() -> None:
   print(common.table(["engine", "envs", "env steps/s"],
                      [[r["engine"], r["num_envs"], f"{r['env_steps_per_s']:,.0f}"] for r in rows]))
   print(f"VectorEnv / JAX env: {vec_rate / jax_rate:.2f}")
-  commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
-                          text=True, cwd=os.path.dirname(os.path.abspath(__file__))).stdout
   common.write_results(args.name, {
-      "date": time.strftime("%Y-%m-%d"), "machine": platform.node(),
-      "cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(),
-      "device": f"{devices[0].platform} x{len(devices)}", "commit": commit.strip(),
+      "device": f"{devices[0].platform} x{len(devices)}",
       "versions": {"python": sys.version.split()[0], "jax": jax.__version__,
                    "gymnasium": __import__("gymnasium").__version__},
       "load_average_1min": os.getloadavg()[0], "env": args.env, "steps_per_timing": steps,

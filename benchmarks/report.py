@@ -44,7 +44,8 @@ SWEEPS = ("sweep_throughput_h100.json", "sweep_throughput_2gpu_h200.json",
           "sweep_throughput_cpu.json")
 PBT = "pbt_quality_halfcheetah_h100x2.json"
 FUSED = ("fused_learner_h100.json", "sweep_fused_vs_xla_h100.json")
-START = "start_time_h100.json"
+START = ("start_time_h100.json", "start_time_h100_ab.json", "start_time_h100_global_gspmd.json")
+GYMNASIUM = "gymnasium_throughput_cpu.json"
 NOTEBOOK = "notebook_time_cpu_2026-11-26.json"
 SUITE = "suite_time_cpu.json"
 TRAINERS = {"ours": "our D4PG", "sac": "Brax SAC", "ppo": "Brax PPO", "sb3": "SB3 SAC on PyBullet"}
@@ -206,6 +207,7 @@ def sections() -> list[tuple[str, str, str, list[str]]]:
               "XLA counts them, against the GPU's measured matmul peak.",
               table(["robot", "batch", "precision", "updates/s", "GFLOP/update", "% of peak",
                      "bfloat16 updates/s"], rows), list(LEARNER)))
+  out.append(gymnasium_section())
   out.append(fused_section())
   out.append(start_section())
   rows = []
@@ -273,13 +275,30 @@ def fused_section() -> tuple[str, str, str, list[str]]:
 
 def start_section() -> tuple[str, str, str, list[str]]:
   """Seconds from process start to the first training row on one GPU."""
-  runs = load(START)["figures"]["runs"]
-  rows = [[name, num(r[0]["first_chunk_done"], 1), num(r[0]["first_eval"], 1)]
-          for name, r in runs.items()]
-  return ("The start on one GPU", "Hopper's gpu preset on a fresh machine, from process start: "
-          "with XLA's autotuning results of an earlier run loaded, and without; each from an "
-          "empty compile cache, then from the cache it left.",
-          table(["run", "first training row (s)", "first evaluation (s)"], rows), [START])
+  rows = []
+  for name in START:
+    figures = load(name)["figures"]
+    for run, r in figures["runs"].items():
+      label = run if name == START[0] else run.replace("this checkout", load(name)["commit"])
+      rows.append([label.replace(".base", "6a969a5"), num(r[0]["first_chunk_done"], 1),
+                   num(r[0]["first_eval"], 1)])
+  return ("The start on one GPU", "Hopper's gpu preset from process start, from an empty "
+          "compile cache, then from the cache it left: with an earlier run's XLA autotuning "
+          "results loaded, and without; then in turns with 6a969a5, the host layer before "
+          "(bc2ad0d compiled all with GSPMD; 4f4803c, as 6a969a5, only the evaluation).",
+          table(["run", "first training row (s)", "first evaluation (s)"], rows), list(START))
+
+
+def gymnasium_section() -> tuple[str, str, str, list[str]]:
+  """The Gymnasium door's env steps/s against the JAX env's."""
+  figures = load(GYMNASIUM)["figures"]
+  jax_rate = figures["rows"][0]["env_steps_per_s"]
+  rows = [[r["engine"], num(r["num_envs"]), num(r["env_steps_per_s"]),
+           num(r["env_steps_per_s"] / jax_rate, 2)] for r in figures["rows"]]
+  return ("The Gymnasium door on 2 CPU cores", "Hopper with random actions through "
+          "`envs.to_gymnasium` (NumPy in and out, a jit-compiled step per call) against the JAX "
+          "env's compiled scan, timed in turns in one process.",
+          table(["engine", "envs", "env steps/s", "× JAX env"], rows), [GYMNASIUM])
 
 
 def benchmarks_page() -> str:

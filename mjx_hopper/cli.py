@@ -5,6 +5,9 @@
     mjx-hopper sweep --seeds 4 --set learning_rate=1e-4,3e-4 [train's flags]
     mjx-hopper extract --checkpoint DIR --member 3 --out DIR
     mjx-hopper eval --checkpoint DIR [--member 0] [--episodes 16] [--video out.mp4]
+    mjx-hopper export --checkpoint DIR [--member M] [--latest] --out policy.npz
+    mjx-hopper eval --policy policy.npz [--video out.mp4]
+    mjx-hopper settings [--agent d4pg] [--env Hopper --preset gpu]
     mjx-hopper demo [--env Hopper] [--num-envs 1024] [--steps 500] [--out runs/demo]
 """
 
@@ -49,8 +52,7 @@ def demo(args: argparse.Namespace) -> None:
   env = envs.make(args.env)
   envs.check_task(env)
   print(f"{args.env}: observation {env.observation_size}, action {env.action_size}, "
-        f"control dt {env.dt} s")
-  print(f"devices: {jax.devices()}")
+        f"control dt {env.dt} s; devices: {jax.devices()}")
   chunk = 50
   init, run = rollout.make_stepper(env, args.num_envs, chunk)
   key = jax.random.PRNGKey(args.seed)
@@ -71,10 +73,9 @@ def demo(args: argparse.Namespace) -> None:
   stats = jax.jit(lambda k: rollout.episodes(
       env, rollout.random_policy(env.action_size), k, 1, record_qpos=True))(key)
   length = int(stats["length"][0])
-  frames = render.render_frames(env.mj_model, np.asarray(stats["qpos"][:length + 1]))
   os.makedirs(args.out, exist_ok=True)
-  path = render.write_mp4(os.path.join(args.out, f"{args.env.lower()}_random.mp4"), frames,
-                          fps=1 / env.dt)
+  path = render.write_mp4(os.path.join(args.out, f"{args.env.lower()}_random.mp4"),
+                          env.render(np.asarray(stats["qpos"][:length + 1])), fps=1 / env.dt)
   print(f"random-action episode: {length} steps, return {float(stats['return'][0]):.1f}; "
         f"video: {path}")
 
@@ -121,24 +122,20 @@ def flag_name(field) -> str:
 
 
 def _parse_value(hint: str):
-  """The argparse type of a field's type hint (written as text under `from __future__`)."""
-  for name, parse in (("int", int), ("float", float)):
-    if hint.split(" |")[0] == name:
-      return parse
-  return str
+  """The argparse type of a field's type hint (text, under `from __future__`)."""
+  return {"int": int, "float": float}.get(hint.split(" |")[0], str)
 
 
 def _base_config(args: argparse.Namespace, command: str):
   """The config a run starts from: a saved config (--config), else the robot's preset
   (--preset) of the agent (--agent) on the task (--env)."""
-  from mjx_hopper import presets
-  from mjx_hopper.config import RunConfig
+  from mjx_hopper import config, presets
   if args.config is not None:
     for flag in ("preset", "agent_preset"):
       if getattr(args, flag, None) is not None:
         raise ValueError(f"--{flag.replace('_', '-')} and --config both choose the settings: "
                          "give one of them")
-    cfg = _read_config(args.config)
+    cfg = config.load(args.config)
     if command == "train" and (cfg.seeds or cfg.grid or cfg.pbt):
       raise ValueError(f"{args.config} is a sweep's config: run it with mjx-hopper sweep "
                        "--config")
@@ -146,28 +143,6 @@ def _base_config(args: argparse.Namespace, command: str):
   base = presets.agent_run_config(getattr(args, "env", "Hopper"), args.preset or "cpu",
                                   getattr(args, "agent", "d4pg"))
   return dataclasses.replace(base, out_dir="runs/sweep") if command == "sweep" else base
-
-
-def _read_config(path: str):
-  """The RunConfig saved in `path` (a run's config.json); anything else is a ValueError."""
-  import json
-
-  from mjx_hopper.config import RunConfig
-  try:
-    with open(path) as f:
-      saved = json.load(f)
-  except (OSError, json.JSONDecodeError) as error:
-    raise ValueError(f"--config {path}: cannot read it as JSON ({error})") from None
-  if not isinstance(saved, dict) or not {"env", "agent", "train"} <= set(saved):
-    raise ValueError(f"--config {path} is not a run's config.json (it lacks env, agent or "
-                     "train)")
-  known = {f.name for f in dataclasses.fields(RunConfig)} | {
-      "agent_config", "member_indices", "record", "versions", "preset", "time_delta",
-      "format_version"}
-  unknown = sorted(set(saved) - known)
-  if unknown:
-    raise ValueError(f"--config {path} names unknown settings {unknown}")
-  return RunConfig.from_json(saved)
 
 
 def _run_config(args: argparse.Namespace, command: str = "train"):
@@ -240,22 +215,13 @@ def _pbt(args: argparse.Namespace):
 
 
 def settings(args: argparse.Namespace) -> None:
-  """Prints every setting: its name, type, default, the preset's value, and whether a sweep can
+  """Prints every setting: its flag, type, default, the preset's value, and whether a sweep can
   vary it in one compiled program."""
   from mjx_hopper import agents, config
   base = _base_config(args, "train")
-  agent_cfg = base.agent_config()
-  dynamic = set(config.dynamic_settings(base.agent, base.agent_preset))
-  rows = [("setting", "type", "default", f"{base.task_id} {args.preset or 'cpu'}", "sweep")]
-  for owner, f in _run_flags():
-    now = getattr(base.train if owner is not type(base) else base, f.name)
-    rows.append((flag_name(f), str(f.type), repr(f.default), repr(now),
-                 "yes" if f.name in dynamic else "no"))
-  defaults = type(agent_cfg)()
-  for f in dataclasses.fields(agent_cfg):
-    rows.append((f"--set {f.name}=", str(f.type), repr(getattr(defaults, f.name)),
-                 repr(getattr(agent_cfg, f.name)), "yes" if f.name in dynamic else "no"))
-  widths = [max(len(r[i]) for r in rows) for i in range(5)]
+  rows = config.settings_table(base, [f for _, f in _run_flags()],
+                               f"{base.task_id} {args.preset or 'cpu'}")
+  widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
   print(f"{base.agent} ({base.agent_preset}); agents: {', '.join(agents.list_agents())}")
   for row in rows:
     print("  ".join(cell.ljust(w) for cell, w in zip(row, widths)).rstrip())
@@ -280,13 +246,34 @@ def extract(args: argparse.Namespace) -> None:
     raise SystemExit(f"mjx-hopper extract: {error}")
 
 
+def export(args: argparse.Namespace) -> None:
+  """Writes a checkpoint's policy as one file that runs with NumPy alone (and as ONNX)."""
+  from mjx_hopper import export as export_lib
+  try:
+    path = export_lib.export_checkpoint(args.checkpoint, args.out, member=args.member,
+                                        which="latest" if args.latest else "best", env=args.env)
+    if args.onnx:
+      from mjx_hopper import export_onnx
+      print(f"ONNX: {export_onnx.write(path, args.onnx)}")
+  except (ValueError, FileNotFoundError) as error:
+    raise SystemExit(f"mjx-hopper export: {error}")
+
+
 def evaluate(args: argparse.Namespace) -> None:
-  """Loads the policy of a checkpoint, evaluates it and writes an mp4 of one episode."""
+  """Loads the policy of a checkpoint (or an exported file), evaluates it and writes an mp4 of
+  one episode."""
   import jax
   import numpy as np
 
   from mjx_hopper import loop, train as train_lib
   from mjx_hopper.envs import render
+  if args.policy is not None:
+    from mjx_hopper import export as export_lib
+    try:
+      export_lib.evaluate_file(args.policy, args.episodes, args.seed, args.video, env=args.env)
+    except (ValueError, FileNotFoundError) as error:
+      raise SystemExit(f"mjx-hopper eval: {error}")
+    return
   try:
     cfg, agent_state, trainer = loop.load_policy(args.checkpoint, args.member,
                                                  which="latest" if args.latest else "best")
@@ -323,10 +310,8 @@ def build_parser(bases: dict | None = None) -> argparse.ArgumentParser:
   w.add_argument("--distributed", action="store_true",
                  help="a sweep over processes, each told its place by its launcher (SLURM, "
                       "Open MPI): each trains its share of the members")
-  w.add_argument("--coordinator", default=None, metavar="HOST:PORT",
-                 help="accepted for older command lines; not needed")
-  w.add_argument("--num-processes", type=int, default=None,
-                 help="a sweep over processes: how many (with --process-id)")
+  w.add_argument("--coordinator", default=None, help="accepted for older command lines")
+  w.add_argument("--num-processes", type=int, default=None, help="a sweep over processes")
   w.add_argument("--process-id", type=int, default=None, help="this process's index")
   w.add_argument("--pbt", action="store_true",
                  help="population-based training: the worst members copy the best and "
@@ -348,14 +333,28 @@ def build_parser(bases: dict | None = None) -> argparse.ArgumentParser:
   x.add_argument("--member", type=_member, required=True,
                  help="the member's index (log.csv), or best: the member of the best evaluation")
   x.add_argument("--out", required=True, help="folder for its checkpoints/ and config.json")
-  e = sub.add_parser("eval", help="evaluate a checkpoint's policy and write an mp4")
-  e.add_argument("--checkpoint", required=True, help="a checkpoint directory")
+  e = sub.add_parser("eval", help="evaluate a checkpoint's or an exported policy, and film it")
+  source = e.add_mutually_exclusive_group(required=True)
+  source.add_argument("--checkpoint", help="a checkpoint directory")
+  source.add_argument("--policy", help="a policy file written by mjx-hopper export")
+  e.add_argument("--env", default=None, metavar="MODULE:CLASS",
+                 help="the task of an exported policy whose task cannot be imported")
   e.add_argument("--member", type=int, default=0, help="which member of a sweep's checkpoint")
   e.add_argument("--latest", action="store_true",
                  help="the latest policy, not the one of the best evaluation (the default)")
   e.add_argument("--episodes", type=int, default=16)
   e.add_argument("--seed", type=int, default=0)
   e.add_argument("--video", default="runs/eval/policy.mp4")
+  o = sub.add_parser("export", help="write a checkpoint's policy as one file for NumPy")
+  o.add_argument("--checkpoint", required=True, help="a checkpoint directory")
+  o.add_argument("--member", type=_member, default=None,
+                 help="a sweep's member: its index, or best (required for a sweep)")
+  o.add_argument("--latest", action="store_true",
+                 help="the latest policy, not the one of the best evaluation (the default)")
+  o.add_argument("--out", required=True, help="the .npz file to write")
+  o.add_argument("--onnx", default=None, metavar="FILE", help="also write it as an ONNX model")
+  o.add_argument("--env", default=None, metavar="MODULE:CLASS",
+                 help="the run's task, for one that cannot be imported")
   p = sub.add_parser("demo", help="batched random rollout, env steps/s, and a video")
   p.add_argument("--env", default="Hopper", help="a robot, or a task of your own as module:Class")
   p.add_argument("--num-envs", type=int, default=1024)
@@ -430,6 +429,8 @@ def main(argv: list[str] | None = None) -> None:
     extract(args)
   elif args.command == "eval":
     evaluate(args)
+  elif args.command == "export":
+    export(args)
   elif args.command == "demo":
     from mjx_hopper import envs
     try:

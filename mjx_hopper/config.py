@@ -192,6 +192,43 @@ def _accept_old_names(init):
 RunConfig.__init__ = _accept_old_names(RunConfig.__init__)
 
 
+def load(path: str) -> "RunConfig":
+  """The RunConfig saved in `path` (a run's config.json); anything else is a ValueError naming
+  what is wrong."""
+  try:
+    with open(path) as f:
+      saved = json.load(f)
+  except (OSError, json.JSONDecodeError) as error:
+    raise ValueError(f"--config {path}: cannot read it as JSON ({error})") from None
+  if not isinstance(saved, dict) or not {"env", "agent", "train"} <= set(saved):
+    raise ValueError(f"--config {path} is not a run's config.json (it lacks env, agent or "
+                     "train)")
+  known = {f.name for f in dataclasses.fields(RunConfig)} | {
+      "agent_config", "member_indices", "record", "versions", "preset", "time_delta",
+      "format_version"}
+  unknown = sorted(set(saved) - known)
+  if unknown:
+    raise ValueError(f"--config {path} names unknown settings {unknown}")
+  return RunConfig.from_json(saved)
+
+
+def settings_table(cfg: RunConfig, flags: list, column: str) -> list[tuple[str, ...]]:
+  """Rows of every setting of `cfg` (the run `flags`, then the agent's): its name, type,
+  default, `cfg`'s value (headed `column`), and whether a sweep can vary it."""
+  agent_cfg = cfg.agent_config()
+  dynamic = set(dynamic_settings(cfg.agent, cfg.agent_preset))
+  rows = [("setting", "type", "default", column, "sweep")]
+  for f in flags:
+    now = getattr(cfg if hasattr(cfg, f.name) else cfg.train, f.name)
+    rows.append(("--" + f.name.replace("_", "-"), str(f.type), repr(f.default), repr(now),
+                 "yes" if f.name in dynamic else "no"))
+  defaults = type(agent_cfg)()
+  for f in dataclasses.fields(agent_cfg):
+    rows.append((f"--set {f.name}=", str(f.type), repr(getattr(defaults, f.name)),
+                 repr(getattr(agent_cfg, f.name)), "yes" if f.name in dynamic else "no"))
+  return rows
+
+
 def settings_text(settings: dict) -> str:
   """A task's settings, as '(episode_steps=300, height_weight=10.0)'."""
   return "(" + ", ".join(f"{k}={v!r}" for k, v in sorted(settings.items())) + ")"
