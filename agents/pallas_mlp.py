@@ -33,7 +33,7 @@ class Tiles(NamedTuple):
   num_stages: int
 
 
-# The fastest measured per compute dtype (the tile sweeps of fused_learner_h100.json); float32's
+# The fastest measured per compute dtype (the fused learner's tile sweeps, commit b6638f1); float32's
 # products stage twice the bytes, so fewer pipeline stages fit in shared memory.
 DEFAULT_TILES = {"bfloat16": Tiles(32, 128, 4, 3), "float32": Tiles(32, 128, 8, 2)}
 

@@ -25,17 +25,6 @@ def cache_loader():
   return compilation_cache
 
 
-@contextlib.contextmanager
-def gspmd_in_this_thread():
-  """This thread traces and compiles with XLA's GSPMD partitioner while the rest of the process
-  keeps its own: `jax._src.config.use_shardy_partitioner` is the thread-local form of the public
-  `jax_use_shardy_partitioner`. Switching the whole process instead slows the training chunk's
-  compile on a GPU (benchmarks/results/start_time_h100_global_gspmd.json)."""
-  from jax._src import config
-  with config.use_shardy_partitioner(False):
-    yield
-
-
 def quiet_cache_loads() -> None:
   """Keeps HARMLESS_LOAD_LINES out of what JAX's persistent-cache loads print (once)."""
   module = cache_loader()

@@ -9,7 +9,6 @@ On some JAX versions XLA's Shardy partitioner crashes compiling our programs ove
 (`SHARDY_CRASHES`); `avoid_shardy_crash` then switches the process to the GSPMD partitioner.
 """
 
-import contextlib
 import logging
 import os
 
@@ -27,19 +26,6 @@ def _shardy_would_crash(num_devices: int) -> bool:
   return (num_devices > 1 and jax.__version_info__ >= SHARDY_CRASHES
           and "JAX_USE_SHARDY_PARTITIONER" not in os.environ
           and jax.config.jax_use_shardy_partitioner)
-
-
-@contextlib.contextmanager
-def gspmd_in_this_thread(num_devices: int):
-  """A context in which this thread compiles with GSPMD where Shardy would crash over
-  `num_devices`, and the rest of the process keeps its partitioner: the host's evaluation over
-  several CPU devices compiles beside a training chunk on one GPU."""
-  if not _shardy_would_crash(num_devices):
-    yield
-    return
-  from mjx_hopper import jax_private
-  with jax_private.gspmd_in_this_thread():
-    yield
 
 
 def avoid_shardy_crash(num_devices: int) -> None:

@@ -20,20 +20,3 @@ def test_quiet_loads_keep_the_loader_working_and_are_installed_once():
   first = jax_private.cache_loader().get_executable_and_time
   jax_private.quiet_cache_loads()
   assert jax_private.cache_loader().get_executable_and_time is first and first.quiet
-
-
-def test_the_partitioner_switch_holds_in_its_thread_only():
-  import threading
-  before = jax.config.jax_use_shardy_partitioner
-  seen = {}
-
-  def other():
-    seen["other"] = jax.config.jax_use_shardy_partitioner
-
-  with jax_private.gspmd_in_this_thread():
-    seen["here"] = jax.config.jax_use_shardy_partitioner
-    thread = threading.Thread(target=other)
-    thread.start()
-    thread.join()
-  assert seen == {"here": False, "other": before}
-  assert jax.config.jax_use_shardy_partitioner == before
