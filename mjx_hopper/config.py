@@ -203,13 +203,15 @@ def load(path: str) -> "RunConfig":
   if not isinstance(saved, dict) or not {"env", "agent", "train"} <= set(saved):
     raise ValueError(f"--config {path} is not a run's config.json (it lacks env, agent or "
                      "train)")
-  known = {f.name for f in dataclasses.fields(RunConfig)} | {
-      "agent_config", "member_indices", "record", "versions", "preset", "time_delta",
-      "format_version"}
+  known = {f.name for f in dataclasses.fields(RunConfig)} | set(RENAMED) | {
+      "agent_config", "member_indices", "record", "versions", "checkpoint_format"}
   unknown = sorted(set(saved) - known)
   if unknown:
     raise ValueError(f"--config {path} names unknown settings {unknown}")
-  return RunConfig.from_json(saved)
+  try:
+    return RunConfig.from_json(saved)
+  except TypeError as error:  # an unknown setting of the trainer's or PBT's
+    raise ValueError(f"--config {path}: {error}") from None
 
 
 def settings_table(cfg: RunConfig, flags: list, column: str) -> list[tuple[str, ...]]:
