@@ -231,3 +231,19 @@ def test_export_of_a_newer_checkpoint_format_writes_nothing(tmp_path, monkeypatc
   with pytest.raises(checkpoint.FormatMismatch, match=f"has format {checkpoint.FORMAT + 1}"):
     export.export_checkpoint(directory, str(tmp_path / "policy.npz"))
   assert not (tmp_path / "policy.npz").exists()
+
+
+def test_the_cli_exports_and_evaluates_the_file(run_dir, tmp_path, capsys):
+  from mjx_hopper import cli
+  out, video = tmp_path / "policy.npz", tmp_path / "policy.mp4"
+  cli.main(["--cpu-devices", "2", "export", "--checkpoint", str(run_dir / "checkpoints"),
+            "--out", str(out)])
+  cli.main(["--cpu-devices", "2", "eval", "--policy", str(out), "--episodes", "2", "--video",
+            str(video)])
+  text = capsys.readouterr().out
+  assert "exported the best policy" in text and "over 2 episodes" in text
+  assert video.stat().st_size > 1000
+  with pytest.raises(SystemExit, match="mjx-hopper export: .*no checkpoint"):
+    cli.main(["--cpu-devices", "2", "export", "--checkpoint", str(tmp_path / "none"),
+              "--out", str(tmp_path / "x.npz")])
+  assert not (tmp_path / "x.npz").exists()

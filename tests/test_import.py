@@ -35,11 +35,13 @@ def test_a_mac_imports_the_envs_and_trains_on_cpu(tmp_path):
   program = ("import platform; platform.system = lambda: 'Darwin'\n"
              "import dataclasses\n"
              "from mjx_hopper import loop, notebook\n"
-             "cfg = notebook.tiny(loop.RunConfig(env='Hopper', agent='ddpg'))\n"
+             "cfg = notebook.tiny(loop.RunConfig(env='Hopper', agent='d4pg'))\n"
              f"cfg = dataclasses.replace(cfg, out_dir={str(tmp_path)!r}, total_env_steps=40)\n"
              "r = loop.run(cfg, progress=False, print_fn=lambda line: None)\n"
              "print(len(r.history))\n")
-  done = subprocess.run([sys.executable, "-c", program], env={**CLEAN, "JAX_PLATFORMS": "cpu"},
-                        capture_output=True, text=True, timeout=600)
+  # The tests' XLA flags and compile cache: the programs of test_train's tiny run, cached.
+  env = {**CLEAN, "JAX_PLATFORMS": "cpu", "XLA_FLAGS": os.environ.get("XLA_FLAGS", "")}
+  done = subprocess.run([sys.executable, "-c", program], env=env, capture_output=True,
+                        text=True, timeout=600)
   assert done.returncode == 0, done.stderr[-2000:]
   assert int(done.stdout.split()[-1]) >= 2
