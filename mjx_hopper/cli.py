@@ -417,8 +417,6 @@ def main(argv: list[str] | None = None) -> None:
   args = parser.parse_args(argv)
   _setup_jax(args.cpu_devices)
   if args.command in ("train", "sweep"):
-    args.env = getattr(args, "env", "Hopper")
-    args.agent = getattr(args, "agent", "d4pg")
     (train if args.command == "train" else sweep)(args)
   elif args.command == "settings":
     try:

@@ -99,3 +99,13 @@ def test_settings_lists_every_setting(capsys):
   line = next(l for l in out.splitlines() if l.startswith("--set learning_rate="))
   assert line.split()[-1] == "yes" and "0.001" in line  # the preset's 1e-3, sweepable
   assert next(l for l in out.splitlines() if l.startswith("--batch-size")).split()[-1] == "no"
+
+
+def test_the_command_line_restates_a_config_without_replacing_its_task(tmp_path, monkeypatch):
+  cfg = presets.run_config("Walker2D", "cpu", total_env_steps=1234)
+  path = tmp_path / "config.json"
+  path.write_text(json.dumps(cfg.to_json()))
+  runs = []
+  monkeypatch.setattr(cli, "train", lambda args: runs.append(cli._run_config(args)))
+  cli.main(["--cpu-devices", "2", "train", "--config", str(path)])
+  assert (runs[0].task_id, runs[0].total_env_steps) == ("Walker2D", 1234)
