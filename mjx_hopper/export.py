@@ -188,26 +188,20 @@ def export_checkpoint(directory: str, out: str, member: int | str | None = None,
   required for a sweep, optional for a single run. `env` is the run's task, for a class that
   cannot be imported (see `loop.resume`). Errors are one-line ValueErrors or
   FileNotFoundErrors, and nothing is written."""
-  from mjx_hopper import checkpoint, loop
+  from mjx_hopper import checkpoint, runs
 
-  if which not in ("best", "latest"):
-    raise ValueError(f"which must be 'best' or 'latest', got {which!r}")
-  if not os.path.isdir(directory):
-    raise FileNotFoundError(f"no checkpoint directory {directory!r}")
-  mngr = checkpoint.manager(directory)
-  if not mngr.all_steps():
-    raise FileNotFoundError(f"no checkpoint in {directory!r}")
+  runs.check_which(which)
+  mngr = runs.open_checkpoints(directory)
   step, saved = checkpoint.load_newest(mngr, lambda s: checkpoint.read_config(mngr, s), print_fn)
   position = _member_position(directory, saved, member)
-  cfg, state, trainer = loop.load_policy(directory, position, env=env, which=which,
+  cfg, state, trainer = runs.load_policy(directory, position, env=env, which=which,
                                          print_fn=print_fn)
   best = which == "best" and checkpoint.has_best(mngr, step)
   evaluation = _evaluation(saved.get("record", {}), position, best, cfg.eval_episodes,
                            step * trainer.config.steps_per_iteration)
   policy = policy_of(cfg.agent, cfg.agent_config(), state.policy,
                      trainer.env.observation_size, trainer.env.action_size,
-                     task={"env": cfg.env, "episode_steps": cfg.episode_steps,
-                           "env_settings": cfg.env_settings},
+                     task=_task(cfg),
                      member=saved.get("member_indices", [0])[position],
                      evaluation=evaluation, checkpoint_format=saved.get("checkpoint_format", 1),
                      versions={"mjx_hopper": mjx_hopper.__version__, "numpy": np.__version__},
@@ -215,8 +209,15 @@ def export_checkpoint(directory: str, out: str, member: int | str | None = None,
   save(policy, out)
   score = "" if evaluation["return"] is None else f", return {evaluation['return']:.1f}"
   print_fn(f"exported the {evaluation['which']} policy of {directory}{score} "
-           f"({cfg.agent} on {cfg.env}) to {out}")
+           f"({cfg.agent} on {cfg.task_id}) to {out}")
   return out
+
+
+def _task(cfg) -> dict:
+  """The task a RunConfig trains, by id, with every setting resolved."""
+  settings = cfg.task_settings()
+  return {"env": cfg.task_id, "episode_steps": settings.pop("episode_steps"),
+          "env_settings": settings}
 
 
 def _evaluation(record: dict, position: int, best: bool, episodes: int, env_steps: int) -> dict:
@@ -239,12 +240,8 @@ def _member_position(directory: str, saved: dict, member: int | str | None) -> i
                        "to export (--member INDEX, or --member best)")
     return 0
   if member == "best":
-    scores = [-np.inf if v is None else v
-              for v in saved.get("record", {}).get("best_return", [None])]
-    if not np.isfinite(scores).any():
-      raise ValueError(f"{directory}: no evaluation was saved yet, so no member is the best; "
-                       "give a member's index")
-    return int(np.argmax(scores))
+    from mjx_hopper import runs
+    return runs.best_position(directory, saved.get("record", {}))
   if isinstance(member, bool) or not isinstance(member, (int, np.integer)):
     raise ValueError(f"member takes a member's index or 'best', got {member!r}")
   if member not in indices:

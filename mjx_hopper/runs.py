@@ -54,7 +54,7 @@ def resume(directory: str, progress: bool = True, print_fn=print, env: Any = Non
   fields that may change between a run and its resumption (total_env_steps, max_minutes, ...);
   one the saved state depends on is refused, naming it. `env` as in `restore`."""
   from mjx_hopper.loop import run  # the host loop, which imports this module
-  mngr = _existing_manager(directory)
+  mngr = open_checkpoints(directory)
   cfg = checkpoint.load_newest(mngr, lambda step: _saved_run(mngr, step, env)[0], print_fn)[1]
   return run(dataclasses.replace(cfg, **changes), checkpoint_dir=directory, progress=progress,
              print_fn=print_fn, progress_fn=progress_fn)
@@ -66,7 +66,7 @@ def load_policy(directory: str, member: int = 0, env: Any = None, which: str = "
   `member`'s agent without the member axis, at its best evaluation (or which="latest"), read
   without the replay. Says which policy it loaded."""
   check_which(which)
-  mngr = _existing_manager(directory)
+  mngr = open_checkpoints(directory)
 
   def load(step):
     cfg, members, saved = _saved_run(mngr, step, env)
@@ -101,7 +101,7 @@ def extract(directory: str, member: int | str, out_dir: str, print_fn=print,
   indices = list(saved.get("member_indices", range(len(cfg.members()))))
   record = saved.get("record", {})
   if member == "best":
-    member = best_member(directory, record, indices)
+    member = indices[best_position(directory, record)]
   try:
     target, chosen = _write_member(cfg, state, best, record, indices, member, out_dir)
   except ValueError as error:
@@ -112,18 +112,18 @@ def extract(directory: str, member: int | str, out_dir: str, print_fn=print,
   return target
 
 
-def best_member(directory: str, record: dict, indices: list[int]) -> int:
-  """The index of the member with the best saved evaluation."""
+def best_position(directory: str, record: dict) -> int:
+  """The position of the member with the best saved evaluation in a checkpoint's `record`."""
   scores = [-np.inf if v is None else v for v in record.get("best_return", [None])]
   if not np.isfinite(scores).any():
     raise ValueError(f"{directory}: no evaluation was saved yet, so no member is the best; "
                      "give a member's index")
-  return indices[int(np.argmax(scores))]
+  return int(np.argmax(scores))
 
 
 def _restore(directory: str, print_fn, env: Any, with_best: bool = False):
   """`restore`'s three, then the saved config item and, `with_best`, the best agents."""
-  mngr = _existing_manager(directory)
+  mngr = open_checkpoints(directory)
 
   def load(step):
     cfg, members, saved = _saved_run(mngr, step, env)
@@ -137,7 +137,8 @@ def _restore(directory: str, print_fn, env: Any, with_best: bool = False):
   return out
 
 
-def _existing_manager(directory: str):
+def open_checkpoints(directory: str):
+  """The checkpoint manager of `directory`; a FileNotFoundError where it holds none."""
   if not os.path.isdir(directory):
     raise FileNotFoundError(f"no checkpoint directory {directory!r}")
   mngr = checkpoint.manager(directory)
