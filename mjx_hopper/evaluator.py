@@ -42,9 +42,11 @@ class Evaluator:
     self.best = None         # each member's agent at its best evaluation
     self.latest = None       # the latest evaluation taken: per-episode arrays per member
     self.pending: list[Pending] = []
-    self._copy = jax.jit(lambda tree: jax.tree.map(jnp.copy, tree),
-                         out_shardings=trainer.shardings.agent)
-    self._select = jax.jit(select_members, out_shardings=trainer.shardings.agent)
+    # Every member's agents copied, and chosen member by member: the host loop's chunk uses
+    # them too, to freeze a sweep's diverged members.
+    self.copy_agents = jax.jit(lambda tree: jax.tree.map(jnp.copy, tree),
+                               out_shardings=trainer.shardings.agent)
+    self.select_agents = jax.jit(select_members, out_shardings=trainer.shardings.agent)
     self.program = None
 
   def compile_in(self, pool, agent_shapes) -> None:
@@ -64,7 +66,7 @@ class Evaluator:
 
   def submit(self, env_steps: int, agent, diverged: np.ndarray) -> None:
     """Queues an evaluation of `agent` (every member's) at `env_steps`."""
-    self.pending.append(Pending(env_steps, self._copy(agent), diverged.copy()))
+    self.pending.append(Pending(env_steps, self.copy_agents(agent), diverged.copy()))
 
   def collect(self, members, wait: bool) -> list[tuple[int, dict]]:
     """The queued evaluations that are done, oldest first, as (env_steps, per-episode results
@@ -98,9 +100,9 @@ class Evaluator:
 
   def _keep_best(self, agent, better: np.ndarray) -> None:
     if self.best is None:
-      self.best = self._copy(agent)  # members with no best yet hold this one meanwhile
+      self.best = self.copy_agents(agent)  # members with no best yet hold this one meanwhile
     elif better.any():
-      self.best = self._select(better, agent, self.best)
+      self.best = self.select_agents(better, agent, self.best)
 
 
 def _finished(started) -> bool:

@@ -23,7 +23,7 @@ from tqdm.auto import tqdm
 
 from mjx_hopper import agents, checkpoint, parallel, pbt, sweep, train
 from mjx_hopper.config import RunConfig
-from mjx_hopper.evaluator import MAX_PENDING, Evaluator, select_members
+from mjx_hopper.evaluator import MAX_PENDING, Evaluator
 from mjx_hopper.logger import Logger
 from mjx_hopper.members import Members
 from mjx_hopper.runs import build, check_which, init
@@ -175,7 +175,7 @@ def _open(cfg: RunConfig, checkpoint_dir: str | None, say, process, progress_fn)
                   wandb_config=saved_config)
   say(_header(cfg, trainer, len(mine), members.single))
   pbt_step = cfg.pbt and pbt.make_step(cfg.pbt, cfg.grid, trainer, cfg.seed, say)
-  parts = _Parts(cfg, trainer, members, evaluator, _Chunk(chunk, trainer, members), pbt_step,
+  parts = _Parts(cfg, trainer, members, evaluator, _Chunk(chunk, evaluator, members), pbt_step,
                  saver, logger, display, _Until(cfg, t_start), progress_fn, say)
   return parts, resumed.state
 
@@ -199,11 +199,9 @@ class _Chunk:
   """Runs one compiled chunk: (state, its metrics on the host); `check` then freezes a sweep's
   members that diverged in it at their agents before it."""
 
-  def __init__(self, program, trainer: train.Trainer, members: Members):
+  def __init__(self, program, evaluator: Evaluator, members: Members):
     self.program, self.members = program, members
-    sharding = trainer.shardings.agent
-    self._copy = jax.jit(lambda tree: jax.tree.map(jnp.copy, tree), out_shardings=sharding)
-    self._select = jax.jit(select_members, out_shardings=sharding)
+    self._copy, self._select = evaluator.copy_agents, evaluator.select_agents
 
   def __call__(self, state: train.TrainState):
     self.before = None if self.members.single else self._copy(state.agent)
