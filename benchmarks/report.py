@@ -162,21 +162,25 @@ def summary() -> str:
       table(PEER_HEAD, peer_rows(best_only=True))])
 
 
+def time_section(title: str, method: str, runs: dict, unit: str, scale: float, digits: int):
+  """A time-to-score section: each task's seeds, in `unit` (seconds over `scale`)."""
+  return (title, method, table(
+      ["task", "score", "agent", "seeds", "seeds reaching it", f"median ({unit})",
+       f"fastest ({unit})", f"slowest ({unit})", "median env steps to it (M)"],
+      time_rows(runs, scale, digits)), [n for v in runs.values() for n in v])
+
+
 def sections() -> list[tuple[str, str, str, list[str]]]:
   """(title, method, table, results files) of each question after the summary."""
-  out = [("Time to score on one GPU", "Each robot's gpu preset alone on the GPU, seeds one "
-          "after another, each compiled afresh (`--no-compile-cache`) and timed until an "
-          "evaluation (20 episodes) reaches the score: a process's first seed from the "
-          "process's start, a later seed of the same process from its own run's start.",
-          table(["task", "score", "agent", "seeds", "seeds reaching it", "median (s)",
-                 "fastest (s)", "slowest (s)", "median env steps to it (M)"],
-                time_rows(GPU, 1, 0)), [n for v in GPU.values() for n in v]),
-         ("Time to score on 2 CPU cores", "Each robot's cpu preset (another agent: its own "
-          "preset, with the robot's settings for it where measured), seeds one after another, "
-          "compiled afresh and timed from process start, as on a Colab CPU runtime.",
-          table(["task", "score", "agent", "seeds", "seeds reaching it", "median (min)",
-                 "fastest (min)", "slowest (min)", "median env steps to it (M)"],
-                time_rows(CPU, 60, 1)), [n for v in CPU.values() for n in v]),
+  out = [time_section("Time to score on one GPU", "Each robot's gpu preset alone on the GPU, "
+                      "seeds one after another, each compiled afresh (`--no-compile-cache`) and "
+                      "timed until an evaluation (20 episodes) reaches the score: a process's "
+                      "first seed from the process's start, a later seed of the same process "
+                      "from its own run's start.", GPU, "s", 1, 0),
+         time_section("Time to score on 2 CPU cores", "Each robot's cpu preset (another agent: "
+                      "its own preset, with the robot's settings for it where measured), seeds "
+                      "one after another, compiled afresh and timed from process start, as on a "
+                      "Colab CPU runtime.", CPU, "min", 60, 1),
          ("Peers", "Our D4PG beside Brax's own SAC and PPO on our Hopper, nine runs sharing one "
           "GPU for 7.5 minutes each; and Stable-Baselines3's SAC on PyBullet's Hopper (the stack "
           "of the NMA Robolympics notebook) beside our D4PG, 4 minutes each on 2 cores. Times "
