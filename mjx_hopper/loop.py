@@ -7,7 +7,6 @@ steps, checkpoints and progress.
 
 from __future__ import annotations
 
-import concurrent.futures
 import dataclasses
 import functools
 import json
@@ -18,11 +17,10 @@ import time
 from typing import Any, Callable
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 from tqdm.auto import tqdm
 
-from mjx_hopper import agents, checkpoint, parallel, pbt, sweep, train
+from mjx_hopper import agents, checkpoint, parallel, pbt, start, sweep, train
 from mjx_hopper.config import RunConfig
 from mjx_hopper.evaluator import MAX_PENDING, Evaluator
 from mjx_hopper.logger import Logger
@@ -156,18 +154,18 @@ def _open(cfg: RunConfig, checkpoint_dir: str | None, say, process, progress_fn)
   saver = _Saver(checkpoint.manager(checkpoint_dir, cfg.keep_checkpoints), saved_config,
                  cfg.checkpoint_minutes)
   per_iteration = trainer.config.steps_per_iteration
-  programs = functools.cache(lambda: _compile(trainer, cfg, mine, evaluator))
-  if (saver.mngr.latest_step() or 0) * per_iteration < cfg.total_env_steps:
-    programs()  # compiling while the state is made or read
+  fresh = functools.partial(init, cfg, trainer, mine)
+  started = functools.cache(lambda: start.start(trainer, fresh, evaluator))
+  training = (saver.mngr.latest_step() or 0) * per_iteration < cfg.total_env_steps
   resumed = checkpoint.resume(
-      saver.mngr, init(cfg, trainer, mine), saved_config, say,
+      saver.mngr, started().state.result() if training else fresh(), saved_config, say,
       defaults={"agent_config": _field_defaults(cfg.agent_config()), "env_settings": {}})
   members.restore(resumed.record)
   evaluator.best = resumed.best
   with open(os.path.join(out_dir, "config.json"), "w") as f:  # once resuming is agreed
     json.dump(saved_config, f, indent=1)
   env_steps = train.iterations(resumed.state) * per_iteration
-  chunk = programs() if env_steps < cfg.total_env_steps else None
+  chunk = started() if env_steps < cfg.total_env_steps else None  # or an older step was read
   display = sweep.Report(cfg.grid, members, say)
   logger = Logger(os.path.join(out_dir, "log.csv"), cfg.log_every, display.logger_print,
                   agents.learner_fields(cfg.agent), cfg.tensorboard_dir, start_step=env_steps,
@@ -180,28 +178,12 @@ def _open(cfg: RunConfig, checkpoint_dir: str | None, say, process, progress_fn)
   return parts, resumed.state
 
 
-def _compile(trainer: train.Trainer, cfg: RunConfig, members: list[dict], evaluator):
-  """The programs that run before the first evaluation, compiling side by side in threads:
-  (the training chunk, the members' finiteness check) as futures; the evaluator keeps its own.
-  Each is traced here first, one after the other, since tracing holds Python's lock."""
-  shapes = jax.tree.map(
-      lambda sharding, part: jax.tree.map(
-          lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sharding), part),
-      trainer.shardings, jax.eval_shape(lambda: init(cfg, trainer, members)))
-  pool = concurrent.futures.ThreadPoolExecutor(3)
-  chunk = pool.submit(trainer.train_chunk.lower(shapes).compile)  # the user's first wait
-  evaluator.compile_in(pool, shapes.agent)
-  finite = pool.submit(_finite_members.lower(shapes.agent).compile)
-  pool.shutdown(wait=False)
-  return chunk, finite
-
-
 class _Chunk:
   """Runs one compiled chunk: (state, its metrics on the host); `check` then freezes a sweep's
   members that diverged in it at their agents before it."""
 
-  def __init__(self, programs, evaluator: Evaluator, members: Members):
-    self.program, self.finite = programs or (None, None)
+  def __init__(self, started: start.Started | None, evaluator: Evaluator, members: Members):
+    self.program, self.finite = (started.chunk, started.finite) if started else (None, None)
     self.members = members
     self._copy, self._select = evaluator.copy_agents, evaluator.select_agents
 
@@ -322,14 +304,6 @@ def _header(cfg: RunConfig, trainer: train.Trainer, count: int, single: bool) ->
           f"{per_chunk:,} env steps and "
           f"{config.updates_per_iteration * config.iterations_per_chunk:,} updates per chunk"
           f"{'' if single else ' per member'}")
-
-
-@jax.jit
-def _finite_members(tree) -> jax.Array:
-  """(members,): whether every float of each member's part of `tree` is finite."""
-  checks = [jnp.isfinite(x).reshape(x.shape[0], -1).all(1) for x in jax.tree.leaves(tree)
-            if jnp.issubdtype(x.dtype, jnp.floating) and x.size]
-  return jnp.stack(checks).all(0)
 
 
 def _field_defaults(config) -> dict:
