@@ -1,12 +1,11 @@
 """Learner throughput: updates/s of each agent preset (or with --robots, each robot's preset), K
 updates in one compiled scan over random batches split over the devices as the trainer does,
 with compile time, launches, and FLOP/s (XLA's count, from the program compiled for the CPU,
-whose products stay XLA's) against the measured matmul peak in the compute dtype. With
---learners xla,fused, D4PG's update on each path (agents/fused.py), in the same process.
+whose products stay XLA's) against the measured matmul peak in the compute dtype.
 
     python benchmarks/learner_throughput.py                     # CPU: 1 and 2 XLA devices
-    python benchmarks/learner_throughput.py --devices 1 --presets gpu --robots Hopper,Humanoid \
-      --learners xla,fused                                      # on a GPU
+    python benchmarks/learner_throughput.py --devices 1 --presets gpu \
+      --robots Hopper,Humanoid                                  # on a GPU
 """
 
 from __future__ import annotations
@@ -90,9 +89,8 @@ def cases(agents_: str, presets: str, robots: str | None, batch: int | None,
   return out
 
 
-def learner_row(case: dict, updates: int, learner: str = "xla") -> dict:
-  """`case` timed on the `learner` path: `updates` updates in one compiled scan, the median of
-  3 calls."""
+def learner_row(case: dict, updates: int) -> dict:
+  """`case` timed: `updates` updates in one compiled scan, the median of 3 calls."""
   import jax
   import numpy as np
   from jax.sharding import NamedSharding, PartitionSpec as P
@@ -114,7 +112,6 @@ def learner_row(case: dict, updates: int, learner: str = "xla") -> dict:
         discount=np.full((k, batch), 0.99**5, np.float32),
         next_obs=rng.normal(size=(k, batch, obs_size)).astype(np.float32))
 
-  os.environ["MJX_HOPPER_LEARNER"] = learner  # read when the agent is made
   agent = agents.make(agent_name, obs_size, act_size,
                       agents.config(agent_name, preset, **overrides))
   state = agent.init(jax.random.PRNGKey(0))
@@ -147,10 +144,10 @@ def learner_row(case: dict, updates: int, learner: str = "xla") -> dict:
   if not all(np.isfinite(v) for v in losses.values()):
     raise SystemExit(f"{agent_name}/{preset}: non-finite metrics {losses}")
   label = case["robot"] + (f" ({case['kind']})" if "kind" in case else "")
-  print(f"  {label} {agent_name}/{preset} {learner} x{len(devices)}: {rate:,.0f} updates/s, "
+  print(f"  {label} {agent_name}/{preset} x{len(devices)}: {rate:,.0f} updates/s, "
         f"{rate * flops / 1e9:.1f} GFLOP/s, compile {compile_s:.1f} s", file=sys.stderr,
         flush=True)
-  return {**case, "label": label, "learner": learner, "platform": devices[0].platform,
+  return {**case, "label": label, "platform": devices[0].platform,
           "devices": len(devices),
           "compile_s": compile_s, "updates_per_s": rate, "gflop_per_update": flops / 1e9,
           "gflops": rate * flops / 1e9, "kernels": kernels, "us_per_kernel": 1e6 / rate / kernels}
@@ -160,7 +157,6 @@ def main() -> None:
   parser = argparse.ArgumentParser(description=__doc__,
                                    formatter_class=argparse.RawDescriptionHelpFormatter)
   parser.add_argument("--agents", default="d4pg", help="comma-separated agent names")
-  parser.add_argument("--learners", default="xla", help="update paths: xla, fused, or both")
   parser.add_argument("--presets", default="acme,gpu,cpu",
                       help="the agents' presets, or with --robots the robots' (gpu, cpu)")
   parser.add_argument("--robots", help="comma-separated robots: time each robot's preset")
@@ -178,9 +174,8 @@ def main() -> None:
   if args.worker:  # one device count per process: XLA reads the flag at start-up
     args = argparse.Namespace(**json.loads(args.worker))
     from mjx_hopper import cli
-    rows = [learner_row(case, args.updates, learner) for case in cases(
-        args.agents, args.presets, args.robots, args.batch, cli._overrides(args.set))
-            for learner in args.learners.split(",")]
+    rows = [learner_row(case, args.updates) for case in cases(
+        args.agents, args.presets, args.robots, args.batch, cli._overrides(args.set))]
     print(json.dumps({"peak": matmul_peak(), "peak_bf16": matmul_peak("bfloat16"),
                       "rows": rows}))
     return
@@ -201,9 +196,9 @@ def main() -> None:
   print(f"# learner throughput, {time.strftime('%Y-%m-%d')}, {platform.node()}, "
         f"{os.cpu_count()} CPUs\n")
   print(common.table(
-      ["robot", "agent", "preset", "learner", "platform", "devices", "batch", "compile (s)",
+      ["robot", "agent", "preset", "platform", "devices", "batch", "compile (s)",
        "updates/s", "GFLOP/update", "GFLOP/s", "% of matmul peak", "kernels", "us/kernel"],
-      [[r["label"], r["agent"], r["preset"], r["learner"], r["platform"], r["devices"], r["batch"],
+      [[r["label"], r["agent"], r["preset"], r["platform"], r["devices"], r["batch"],
         f"{r['compile_s']:.1f}", f"{r['updates_per_s']:,.0f}", f"{r['gflop_per_update']:.3f}", f"{r['gflops']:.1f}",
         f"{100 * r['gflops'] / peak(r):.1f}%", r["kernels"],
         f"{r['us_per_kernel']:.1f}"] for r in rows]))
