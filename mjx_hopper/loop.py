@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import concurrent.futures
 import dataclasses
+import functools
 import json
 import math
 import os
@@ -155,9 +156,9 @@ def _open(cfg: RunConfig, checkpoint_dir: str | None, say, process, progress_fn)
   saver = _Saver(checkpoint.manager(checkpoint_dir, cfg.keep_checkpoints), saved_config,
                  cfg.checkpoint_minutes)
   per_iteration = trainer.config.steps_per_iteration
-  chunk = None
+  programs = functools.cache(lambda: _compile(trainer, cfg, mine, evaluator))
   if (saver.mngr.latest_step() or 0) * per_iteration < cfg.total_env_steps:
-    chunk = _compile(trainer, cfg, mine, evaluator)
+    programs()  # compiling while the state is made or read
   resumed = checkpoint.resume(
       saver.mngr, init(cfg, trainer, mine), saved_config, say,
       defaults={"agent_config": _field_defaults(cfg.agent_config()), "env_settings": {}})
@@ -166,8 +167,7 @@ def _open(cfg: RunConfig, checkpoint_dir: str | None, say, process, progress_fn)
   with open(os.path.join(out_dir, "config.json"), "w") as f:  # once resuming is agreed
     json.dump(saved_config, f, indent=1)
   env_steps = train.iterations(resumed.state) * per_iteration
-  if chunk is None and env_steps < cfg.total_env_steps:  # an older step was read
-    chunk = _compile(trainer, cfg, mine, evaluator)
+  chunk = programs() if env_steps < cfg.total_env_steps else None
   display = sweep.Report(cfg.grid, members, say)
   logger = Logger(os.path.join(out_dir, "log.csv"), cfg.log_every, display.logger_print,
                   agents.learner_fields(cfg.agent), cfg.tensorboard_dir, start_step=env_steps,
@@ -181,26 +181,28 @@ def _open(cfg: RunConfig, checkpoint_dir: str | None, say, process, progress_fn)
 
 
 def _compile(trainer: train.Trainer, cfg: RunConfig, members: list[dict], evaluator):
-  """The training chunk's compile, started in a thread (it is the user's first wait), and the
-  evaluation's after it: evaluations due before that is compiled wait in its queue."""
+  """The programs that run before the first evaluation, compiling side by side in threads:
+  (the training chunk, the members' finiteness check) as futures; the evaluator keeps its own.
+  Each is traced here first, one after the other, since tracing holds Python's lock."""
   shapes = jax.tree.map(
       lambda sharding, part: jax.tree.map(
           lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sharding), part),
       trainer.shardings, jax.eval_shape(lambda: init(cfg, trainer, members)))
-  lowered = trainer.train_chunk.lower(shapes)  # tracing holds Python's lock: before the pool
-  pool = concurrent.futures.ThreadPoolExecutor(1)  # one program after the other
-  chunk = pool.submit(lowered.compile)
+  pool = concurrent.futures.ThreadPoolExecutor(3)
+  chunk = pool.submit(trainer.train_chunk.lower(shapes).compile)  # the user's first wait
   evaluator.compile_in(pool, shapes.agent)
+  finite = pool.submit(_finite_members.lower(shapes.agent).compile)
   pool.shutdown(wait=False)
-  return chunk
+  return chunk, finite
 
 
 class _Chunk:
   """Runs one compiled chunk: (state, its metrics on the host); `check` then freezes a sweep's
   members that diverged in it at their agents before it."""
 
-  def __init__(self, program, evaluator: Evaluator, members: Members):
-    self.program, self.members = program, members
+  def __init__(self, programs, evaluator: Evaluator, members: Members):
+    self.program, self.finite = programs or (None, None)
+    self.members = members
     self._copy, self._select = evaluator.copy_agents, evaluator.select_agents
 
   def __call__(self, state: train.TrainState):
@@ -210,7 +212,7 @@ class _Chunk:
 
   def check(self, state: train.TrainState, metrics: dict, env_steps: int):
     """Marks the members that went non-finite in the chunk, and freezes them."""
-    self.members.check(env_steps, metrics, jax.device_get(_finite_members(state.agent)))
+    self.members.check(env_steps, metrics, jax.device_get(self.finite.result()(state.agent)))
     if self.before is not None and self.members.diverged.any():
       state = state._replace(agent=self._select(self.members.diverged, self.before,
                                                 state.agent))
