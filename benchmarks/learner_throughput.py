@@ -1,6 +1,6 @@
 """Learner throughput: updates/s of each agent preset (or with --robots, each robot's preset), K
 updates in one compiled scan over random batches split over the devices as the trainer does,
-with compile time, launches, and FLOP/s (XLA's count, from the program compiled for the CPU,
+with compile time and FLOP/s (XLA's count, from the program compiled for the CPU,
 whose products stay XLA's) against the measured matmul peak in the compute dtype.
 
     python benchmarks/learner_throughput.py                     # CPU: 1 and 2 XLA devices
@@ -14,7 +14,6 @@ import argparse
 import json
 import os
 import platform
-import re
 import statistics
 import sys
 import time
@@ -44,28 +43,6 @@ def matmul_peak(dtype: str = "float32", repeats: int = 10) -> float:
     f(a).block_until_ready()
     best = min(best, time.perf_counter() - t0)
   return 2 * n**3 * len(devices) / best
-
-
-OPCODE = re.compile(r" = .*?\s([a-z][\w-]*)\(")
-NOT_LAUNCHED = ("parameter", "constant", "tuple", "get-tuple-element", "bitcast", "while",
-                "conditional", "call")
-
-
-def count_kernels(hlo: str) -> int:
-  """The launches of a compiled HLO module: the instructions of its entry computation and of its
-  loops' bodies (fused bodies and reductions' operators are not launched), less those that
-  launch nothing."""
-  launching = {"ENTRY"} | set(re.findall(r"body=(%[\w.-]+)", hlo))
-  count, counting = 0, False
-  for line in hlo.splitlines():
-    if line and not line.startswith(" "):  # a computation's header, or the module's
-      words = line.split()
-      counting = bool(words) and words[0] in launching
-      continue
-    op = OPCODE.search(line)
-    if counting and op and op.group(1) not in NOT_LAUNCHED:
-      count += 1
-  return count
 
 
 def cases(agents_: str, presets: str, robots: str | None, batch: int | None,
@@ -121,7 +98,6 @@ def learner_row(case: dict, updates: int) -> dict:
   cost = update.lower(*jax.device_put((state, one, jax.random.PRNGKey(0)),
                                       jax.devices("cpu")[0])).compile().cost_analysis()
   flops = float((cost[0] if isinstance(cost, (list, tuple)) else cost).get("flops", np.nan))
-  kernels = count_kernels(update.lower(state, one, jax.random.PRNGKey(0)).compile().as_text())
 
   def run(state, data, key):
     def step(state, inputs):
@@ -150,7 +126,7 @@ def learner_row(case: dict, updates: int) -> dict:
   return {**case, "label": label, "platform": devices[0].platform,
           "devices": len(devices),
           "compile_s": compile_s, "updates_per_s": rate, "gflop_per_update": flops / 1e9,
-          "gflops": rate * flops / 1e9, "kernels": kernels, "us_per_kernel": 1e6 / rate / kernels}
+          "gflops": rate * flops / 1e9}
 
 
 def main() -> None:
@@ -197,11 +173,10 @@ def main() -> None:
         f"{os.cpu_count()} CPUs\n")
   print(common.table(
       ["robot", "agent", "preset", "platform", "devices", "batch", "compile (s)",
-       "updates/s", "GFLOP/update", "GFLOP/s", "% of matmul peak", "kernels", "us/kernel"],
+       "updates/s", "GFLOP/update", "GFLOP/s", "% of matmul peak"],
       [[r["label"], r["agent"], r["preset"], r["platform"], r["devices"], r["batch"],
         f"{r['compile_s']:.1f}", f"{r['updates_per_s']:,.0f}", f"{r['gflop_per_update']:.3f}", f"{r['gflops']:.1f}",
-        f"{100 * r['gflops'] / peak(r):.1f}%", r["kernels"],
-        f"{r['us_per_kernel']:.1f}"] for r in rows]))
+        f"{100 * r['gflops'] / peak(r):.1f}%"] for r in rows]))
   print("\nmeasured matmul peak (GFLOP/s), float32 / bfloat16: "
         + ", ".join(f"{d} device(s): {p:,.1f} / {peaks_bf16[d]:,.1f}" for d, p in peaks.items()))
   common.write_results(f"learner_throughput_{args.label}",

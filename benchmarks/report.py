@@ -16,6 +16,8 @@ import re
 import statistics
 import sys
 
+from common import table
+
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "benchmarks" / "results"
 ROBOTS = ("Hopper", "Walker2D", "HalfCheetah", "Ant", "Humanoid")
@@ -55,11 +57,6 @@ MARK = "<!-- report.py: {} -->"
 def load(name: str) -> dict:
   with open(RESULTS / name) as f:
     return json.load(f)
-
-
-def table(head: list[str], rows: list[list]) -> str:
-  lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-  return "\n".join(lines + ["| " + " | ".join(str(c) for c in row) + " |" for row in rows])
 
 
 def num(x, digits: int = 0) -> str:
