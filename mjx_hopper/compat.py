@@ -40,7 +40,7 @@ NAMES = {
         "check_grid": ("mjx_hopper.config", "0.5.0"),
         "check_value": ("mjx_hopper.config", "0.5.0"),
         "dynamic_settings": ("mjx_hopper.config", "0.5.0"),
-        "members": ("mjx_hopper.config", "0.5.0")},
+        "members": ("mjx_hopper.config", "0.5.0"), "plot": ("mjx_hopper.curves", "0.5.0")},
 }
 
 
@@ -108,7 +108,7 @@ class _MovedModules(importlib.abc.MetaPathFinder, importlib.abc.Loader):
 
   def exec_module(self, module):
     new, removed = MODULES[module.__name__]
-    _warn(module.__name__, new, removed, stacklevel=2)
+    _warn(module.__name__, new, removed)  # (warnings skips importlib's frames)
     # The import system hands out what sys.modules holds under the name once this returns.
     sys.modules[module.__name__] = importlib.import_module(new)
 

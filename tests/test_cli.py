@@ -39,7 +39,7 @@ def test_every_run_flag_comes_from_a_field():
 def test_only_flags_given_replace_the_preset_in_any_order(capsys):
   walker = presets.run_config("Walker2D", "gpu")
   one = flags.run_config(parse("--num-envs", "256", "--env", "Walker2D", "--preset", "gpu",
-                              "--steps", "5000"))
+                              "--total-env-steps", "5000"))
   two = flags.run_config(parse("--preset", "gpu", "--total-env-steps", "5000", "--env",
                               "Walker2D", "--num-envs", "256"))
   assert one == two
