@@ -86,7 +86,7 @@ FILE_SECONDS = {"test_notebooks.py": 306, "test_sweep.py": 340, "test_brax.py": 
                 "test_checkpoint.py": 78, "test_export.py": 100, "test_gymnasium.py": 40,
                 "test_env_api.py": 76, "test_observation.py": 57, "test_dpg.py": 42,
                 "test_mpo.py": 37, "test_presets.py": 31, "test_render.py": 20,
-                "test_notebook_helpers.py": 20}
+                "test_notebook_helpers.py": 20, "test_pretrained.py": 150}
 
 
 def pytest_collection_modifyitems(items):
