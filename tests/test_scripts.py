@@ -1,10 +1,14 @@
-"""The setup scripts, run in a scratch copy against a stand-in Python and apt: a Python older
-than the floor is one line before anything is downloaded, and a Python without venv gets
-Debian's package for it, with the EGL packages."""
+"""The installers. The setup scripts, run in a scratch copy against a stand-in Python and apt: a
+Python older than the floor is one line before anything is downloaded, and a Python without venv
+gets Debian's package for it, with the EGL packages. The notebook's install cell runs where there
+is no apt, saying what it skipped."""
 
+import json
 import os
 import shutil
 import subprocess
+import sys
+from importlib.metadata import version
 
 import pytest
 
@@ -63,3 +67,17 @@ def test_a_python_without_venv_gets_debians_package(tmp_path):
   apt = [line.removeprefix("sudo ") for line in log if "apt-get" in line]
   assert apt[-1] == f"apt-get install -y -qq {packages}"
   assert log[-1] == "python -m venv .venv"
+
+
+def test_the_notebooks_install_cell_runs_without_apt(tmp_path):
+  with open(os.path.join(SCRIPTS, "..", "notebooks", "robolympics.ipynb")) as f:
+    cell = next("".join(c["source"]) for c in json.load(f)["cells"]
+                if "".join(c["source"]).startswith("REPO_URL"))
+  env = dict(os.environ, PATH=str(tmp_path), MJX_HOPPER_SHORT="1")  # no apt, no dpkg
+  done = subprocess.run([sys.executable, "-c", cell], env=env, capture_output=True, text=True,
+                        cwd=tmp_path)
+  assert done.returncode == 0, done.stderr
+  lines = done.stdout.splitlines()
+  assert lines[:2] == ["no apt here: skipped Mesa's EGL packages (for videos, install your "
+                       "system's EGL)", "to install: nothing"]
+  assert lines[2] == f"JAX {version('jax')}, as it was installed"
