@@ -11,11 +11,11 @@ from __future__ import annotations
 import dataclasses
 from typing import Any, Callable, NamedTuple
 
+from mjx_hopper import compat
 from mjx_hopper.agents import d4pg, ddpg, dpg, mpo
 from mjx_hopper.agents.base import Agent
 
 PRESET_NAMES = ("cpu", "gpu")  # the presets every agent declares
-OLD_PRESET_NAMES = {"seed": "acme"}
 
 
 class Spec(NamedTuple):
@@ -81,7 +81,7 @@ def learner_fields(name: str) -> tuple[tuple[str, str], ...]:
 def config(name: str, preset: str = "acme", **overrides):
   """Agent `name`'s config: its preset `preset` with fields replaced by `overrides`."""
   presets = spec(name).presets
-  preset = OLD_PRESET_NAMES.get(preset, preset)
+  preset = compat.preset(preset)
   if preset not in presets:
     raise ValueError(f"unknown preset {preset!r} for {name}; valid presets are "
                      f"{sorted(presets)}")

@@ -24,6 +24,20 @@ class Pending(NamedTuple):
   started: Any = None    # the result's arrays, once started (JAX computes them asynchronously)
 
 
+class Done(NamedTuple):
+  """A finished evaluation: its per-episode results per member ("return" and "length", each
+  (members, episodes)), the agents it evaluated and the members diverged then."""
+  env_steps: int
+  result: dict
+  agent: Any
+  diverged: np.ndarray
+
+  @property
+  def returns(self) -> np.ndarray:
+    """(members,): each member's mean return."""
+    return self.result["return"].mean(-1)
+
+
 class Evaluator:
   """Evaluates every member's deterministic policy when asked, on the training's devices or,
   with `on_host`, on the host's CPU devices beside training."""
@@ -41,7 +55,7 @@ class Evaluator:
       self.host = NamedSharding(Mesh(np.array(cpus[:count]), ("host",)), P())
     self.episodes = episodes
     self.best = None         # each member's agent at its best evaluation
-    self.latest = None       # the latest evaluation taken: per-episode arrays per member
+    self.latest: Done | None = None  # the latest evaluation kept
     self.pending: list[Pending] = []
     # Every member's agents copied, and chosen member by member: the host loop's chunk uses
     # them too, to freeze a sweep's diverged members.
@@ -70,12 +84,10 @@ class Evaluator:
     """Queues an evaluation of `agent` (every member's) at `env_steps`."""
     self.pending.append(Pending(env_steps, self.copy_agents(agent), diverged.copy()))
 
-  def collect(self, members, wait: bool) -> list[tuple[int, dict]]:
-    """The queued evaluations that are done, oldest first, as (env_steps, per-episode results
-    per member); with `wait`, all of them. Their returns go to `members`' record, and the
-    agents that beat a member's best are kept. On the training's devices every evaluation
-    waits; on the host, only those beyond MAX_PENDING do. None start before the program is
-    compiled, unless `wait`."""
+  def collect(self, wait: bool) -> list[Done]:
+    """The queued evaluations that are done, oldest first; with `wait`, all of them. On the
+    training's devices every evaluation waits; on the host, only those beyond MAX_PENDING do.
+    Those queued while the program compiled start here, once it is compiled (or with `wait`)."""
     if not self.pending or not (wait or self.program.done()):
       return []
     self.pending = [p if p.started is not None else p._replace(started=self._start(p))
@@ -85,12 +97,17 @@ class Evaluator:
     while self.pending and (wait or len(self.pending) > MAX_PENDING
                             or _finished(self.pending[0].started)):
       done = self.pending.pop(0)
-      result = jax.device_get(done.started)
-      better = members.evaluated(done.env_steps, result["return"].mean(-1), done.diverged)
-      self._keep_best(done.agent, better)
-      self.latest = result
-      out.append((done.env_steps, result))
+      out.append(Done(done.env_steps, jax.device_get(done.started), done.agent, done.diverged))
     return out
+
+  def keep(self, done: Done, better: np.ndarray) -> None:
+    """Keeps what a taken evaluation leaves: its results as the latest, and its agents of the
+    members that beat their best (`better`, from the members' record)."""
+    self.latest = done
+    if self.best is None:
+      self.best = done.agent  # members with no best yet hold this one meanwhile
+    elif better.any():
+      self.best = self.select_agents(better, done.agent, self.best)
 
   def _start(self, pending: Pending):
     keys = _evaluation_keys(train.seed_bits(self.seeds), train.seed_bits(pending.env_steps))
@@ -98,12 +115,6 @@ class Evaluator:
     if self.host is not None:
       agent, keys = jax.device_put((agent, keys), self.host)
     return self.program.result()(agent, keys)
-
-  def _keep_best(self, agent, better: np.ndarray) -> None:
-    if self.best is None:
-      self.best = self.copy_agents(agent)  # members with no best yet hold this one meanwhile
-    elif better.any():
-      self.best = self.select_agents(better, agent, self.best)
 
 
 @jax.jit

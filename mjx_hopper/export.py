@@ -263,3 +263,35 @@ def evaluate_file(path: str, episodes: int = 16, seed: int = 0, video_path: str 
     render.write_mp4(video_path, frames, fps=1 / task.dt)
     print_fn(f"video of episode 0 ({length} steps, return {returns[0]:.1f}): {video_path}")
   return result
+
+
+# ---- Shipped policies: one per robot, trained by benchmarks/pretrain.py -----------------------
+
+PRETRAINED = os.path.join(os.path.dirname(os.path.abspath(__file__)), "pretrained")
+
+
+def pretrained_path(robot: str) -> str:
+  """The path of robot `robot`'s shipped policy file; a one-line ValueError for another name."""
+  shipped = sorted(f[:-4] for f in os.listdir(PRETRAINED) if f.endswith(".npz")) \
+      if os.path.isdir(PRETRAINED) else []
+  if robot not in shipped:
+    raise ValueError(f"no pretrained policy for {robot!r}; the shipped ones are {shipped}")
+  return os.path.join(PRETRAINED, f"{robot}.npz")
+
+
+def pretrained(robot: str) -> Policy:
+  """The policy shipped with the package for `robot` (Hopper, Walker2D, HalfCheetah, Ant,
+  Humanoid), trained by this project's own gpu preset; NumPy alone runs it."""
+  return load(pretrained_path(robot))
+
+
+def fingerprint(env) -> dict:
+  """What a policy depends on of its task `env`: its model file's hash and its observation
+  and action sizes. A shipped file records it; a change means the file needs retraining."""
+  import hashlib
+
+  from mjx_hopper.envs.base import ASSETS
+  with open(os.path.join(ASSETS, env.xml_file), "rb") as f:
+    model = hashlib.sha256(f.read()).hexdigest()[:16]
+  return {"model_sha256": model, "observation_size": env.observation_size,
+          "action_size": env.action_size}

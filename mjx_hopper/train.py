@@ -40,7 +40,7 @@ class TrainConfig:
   replay_ratio: float = setting(4.0, "samples drawn per transition inserted")
   replay_size: int = setting(1_000_000, "transitions kept in the replay")
   min_replay: int = setting(20_000, "transitions collected before learning starts")
-  iterations_per_chunk: int = setting(25, "iterations per compiled chunk", aliases=("--chunk",))
+  iterations_per_chunk: int = setting(25, "iterations per compiled chunk")
 
   @property
   def steps_per_iteration(self) -> int:
