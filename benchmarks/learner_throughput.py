@@ -134,9 +134,9 @@ def main() -> None:
   args = parser.parse_args()
   if args.worker:  # one device count per process: XLA reads the flag at start-up
     args = argparse.Namespace(**json.loads(args.worker))
-    from mjx_hopper import cli
+    from mjx_hopper import flags
     rows = [learner_row(case, args.updates)
-            for case in cases(args.robots, args.presets, cli._overrides(args.set))]
+            for case in cases(args.robots, args.presets, flags.overrides(args.set))]
     print(json.dumps({"peak": matmul_peak(), "peak_bf16": matmul_peak("bfloat16"),
                       "rows": rows}))
     return

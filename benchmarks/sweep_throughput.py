@@ -26,11 +26,11 @@ def measure(args) -> dict:
   """One sweep of args.members members: compile time, rates and memory."""
   import jax
 
-  from mjx_hopper import cli, config, runs, train
+  from mjx_hopper import config, flags, runs, train
 
   cfg = config.RunConfig(
       env=args.env, agent=args.agent, preset=args.preset,
-      agent_overrides=cli._overrides(args.set),
+      agent_overrides=flags.overrides(args.set),
       train=train.TrainConfig(num_envs=args.num_envs, unroll_length=args.unroll_length,
                               batch_size=args.batch_size, replay_ratio=args.replay_ratio,
                               replay_size=args.replay_size, min_replay=0,

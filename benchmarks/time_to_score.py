@@ -99,7 +99,7 @@ def main() -> None:
   t0 = time.perf_counter()
   import jax
 
-  from mjx_hopper import cli, loop, presets
+  from mjx_hopper import flags, loop, presets
   if not args.no_compile_cache:
     mjx_hopper.use_compile_cache()
   try:
@@ -119,7 +119,7 @@ def main() -> None:
   results = {}
   for seed in seeds:
     cfg = presets.agent_run_config(
-        args.robot, args.kind, agent, agent_overrides=cli._overrides(args.set), seed=seed,
+        args.robot, args.kind, agent, agent_overrides=flags.overrides(args.set), seed=seed,
         eval_episodes=20, total_env_steps=10**12, max_minutes=minutes,
         stop_at_return=None if args.run_on else target,
         out_dir=os.path.join(out, f"seed_{seed}"), checkpoint_minutes=10**6)
