@@ -10,7 +10,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import statistics
 import sys
 import time
@@ -114,33 +113,19 @@ def main() -> None:
                       for r in mjx_rows(e, batches, args.steps_total)]))
     return
 
-  env_ids, rows = args.envs.split(","), []
+  rows = []
   for d in [int(x) for x in args.devices.split(",")]:
     result = common.worker(__file__, vars(args), d)
     if result is None:
       raise SystemExit(1)
     rows += result
   os.environ["JAX_PLATFORMS"] = "cpu"  # after the workers: this process measures the CPU alone
-  for e in env_ids:
-    row = pybullet_row(e)
-    rows += [dict(row, env=e)] if row else []
-    rows.append(dict(mujoco_c_row(e, threads=2), env=e))
-  rows.sort(key=lambda r: (env_ids.index(r["env"]), r["engine"] != "PyBullet",
-                           not r["engine"].startswith("MuJoCo"), r["devices"], r["batch"]))
-  print(f"# env throughput, {time.strftime('%Y-%m-%d')}, {platform.node()}, "
-        f"{os.cpu_count()} CPUs\n")
-
-  def ratio(r, engine, digits):  # r's rate against PyBullet's or MuJoCo C's on the same robot
-    ref = next((x["env_steps_per_s"] for x in rows
-                if x["env"] == r["env"] and x["engine"].startswith(engine)), None)
-    return f"{r['env_steps_per_s'] / ref:.{digits}f}" if ref else "-"
-
-  print(common.table(
-      ["env", "engine", "platform", "devices", "batch", "compile (s)", "env steps/s",
-       "× PyBullet", "÷ MuJoCo C"],
-      [[r["env"], r["engine"], r["platform"], r["devices"], r["batch"], f"{r['compile_s']:.1f}",
-        f"{r['env_steps_per_s']:,.0f}", ratio(r, "PyBullet", 1), ratio(r, "MuJoCo C", 2)]
-       for r in rows]))
+  for e in args.envs.split(","):
+    for row in (pybullet_row(e), mujoco_c_row(e, threads=2)):
+      if row:
+        rows.append(dict(row, env=e))
+        print(f"  {row['engine']} {e}: {row['env_steps_per_s']:,.0f} env steps/s",
+              file=sys.stderr, flush=True)
   common.write_results(f"env_throughput_{args.label}", {"rows": rows})
 
 

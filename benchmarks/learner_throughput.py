@@ -1,26 +1,21 @@
-"""Learner throughput: updates/s of each agent preset (or with --robots, each robot's preset), K
+"""Learner throughput: updates/s of each robot's preset (its agent, networks, batch and sizes), K
 updates in one compiled scan over random batches split over the devices as the trainer does,
 with compile time and FLOP/s (XLA's count, from the program compiled for the CPU,
 whose products stay XLA's) against the measured matmul peak in the compute dtype.
 
     python benchmarks/learner_throughput.py                     # CPU: 1 and 2 XLA devices
-    python benchmarks/learner_throughput.py --devices 1 --presets gpu \
-      --robots Hopper,Humanoid                                  # on a GPU
+    python benchmarks/learner_throughput.py --devices 1 --presets gpu --robots Hopper,Humanoid
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
 import statistics
 import sys
 import time
 
 import common
-
-OBS, ACT = 15, 3  # Hopper
 
 
 def matmul_peak(dtype: str = "float32", repeats: int = 10) -> float:
@@ -45,24 +40,19 @@ def matmul_peak(dtype: str = "float32", repeats: int = 10) -> float:
   return 2 * n**3 * len(devices) / best
 
 
-def cases(agents_: str, presets: str, robots: str | None, batch: int | None,
-          overrides: dict) -> list[dict]:
-  """What to time: each agent's preset of each name at `batch` (256 unless given) on
-  Hopper-sized data, or with `robots`, each robot's preset of each kind (its agent, settings,
-  batch size and sizes), `overrides` over either."""
-  if not robots:
-    return [dict(robot="Hopper", agent=a, preset=p, overrides=overrides, obs=OBS, act=ACT,
-                 batch=batch or 256) for a in agents_.split(",") for p in presets.split(",")]
-  from mjx_hopper import envs, presets as robot_presets
+def cases(robots: str, kinds: str, overrides: dict) -> list[dict]:
+  """What to time: each robot's preset of each kind (its agent, settings, batch size and
+  sizes), `overrides` over its agent's settings."""
+  from mjx_hopper import envs, presets
   out = []
   for robot in robots.split(","):
     env = envs.make(robot)
-    for kind in presets.split(","):
-      preset = robot_presets.get(robot, kind)
+    for kind in kinds.split(","):
+      preset = presets.get(robot, kind)
       out.append(dict(robot=robot, agent=preset.agent, preset=preset.agent_preset,
                       overrides={**preset.agent_overrides, **overrides},
                       obs=env.observation_size, act=env.action_size,
-                      batch=batch or preset.train.batch_size, kind=kind))
+                      batch=preset.train.batch_size, kind=kind))
   return out
 
 
@@ -119,12 +109,11 @@ def learner_row(case: dict, updates: int) -> dict:
   losses = {k: float(v) for k, v in timed.out.items()}
   if not all(np.isfinite(v) for v in losses.values()):
     raise SystemExit(f"{agent_name}/{preset}: non-finite metrics {losses}")
-  label = case["robot"] + (f" ({case['kind']})" if "kind" in case else "")
+  label = f"{case['robot']} ({case['kind']})"
   print(f"  {label} {agent_name}/{preset} x{len(devices)}: {rate:,.0f} updates/s, "
         f"{rate * flops / 1e9:.1f} GFLOP/s, compile {compile_s:.1f} s", file=sys.stderr,
         flush=True)
-  return {**case, "label": label, "platform": devices[0].platform,
-          "devices": len(devices),
+  return {**case, "label": label, "platform": devices[0].platform, "devices": len(devices),
           "compile_s": compile_s, "updates_per_s": rate, "gflop_per_update": flops / 1e9,
           "gflops": rate * flops / 1e9}
 
@@ -132,12 +121,8 @@ def learner_row(case: dict, updates: int) -> dict:
 def main() -> None:
   parser = argparse.ArgumentParser(description=__doc__,
                                    formatter_class=argparse.RawDescriptionHelpFormatter)
-  parser.add_argument("--agents", default="d4pg", help="comma-separated agent names")
-  parser.add_argument("--presets", default="acme,gpu,cpu",
-                      help="the agents' presets, or with --robots the robots' (gpu, cpu)")
-  parser.add_argument("--robots", help="comma-separated robots: time each robot's preset")
-  parser.add_argument("--batch", type=int,
-                      help="default: 256, or with --robots each preset's batch size")
+  parser.add_argument("--robots", default="Hopper", help="comma-separated robots")
+  parser.add_argument("--presets", default="cpu", help="the robots' presets: gpu, cpu or both")
   parser.add_argument("--updates", type=int, default=100, help="updates per timed call")
   parser.add_argument("--devices", default="1,2",
                       help="XLA CPU device counts (on a GPU: GPUs used)")
@@ -149,38 +134,22 @@ def main() -> None:
   args = parser.parse_args()
   if args.worker:  # one device count per process: XLA reads the flag at start-up
     args = argparse.Namespace(**json.loads(args.worker))
-    from mjx_hopper import cli
-    rows = [learner_row(case, args.updates) for case in cases(
-        args.agents, args.presets, args.robots, args.batch, cli._overrides(args.set))]
+    from mjx_hopper import flags
+    rows = [learner_row(case, args.updates)
+            for case in cases(args.robots, args.presets, flags.overrides(args.set))]
     print(json.dumps({"peak": matmul_peak(), "peak_bf16": matmul_peak("bfloat16"),
                       "rows": rows}))
     return
-
-  rows, peaks, peaks_bf16 = [], {}, {}
-  for d in [int(x) for x in args.devices.split(",")]:
-    result = common.worker(__file__, vars(args), d)
-    if result is None:
-      raise SystemExit(1)
-    peaks[d] = result["peak"] / 1e9
-    peaks_bf16[d] = result["peak_bf16"] / 1e9
-    rows += result["rows"]
-
-  def peak(row):
-    bf16 = row["overrides"].get("compute_dtype") == "bfloat16"
-    return (peaks_bf16 if bf16 else peaks)[row["devices"]]
-
-  print(f"# learner throughput, {time.strftime('%Y-%m-%d')}, {platform.node()}, "
-        f"{os.cpu_count()} CPUs\n")
-  print(common.table(
-      ["robot", "agent", "preset", "platform", "devices", "batch", "compile (s)",
-       "updates/s", "GFLOP/update", "GFLOP/s", "% of matmul peak"],
-      [[r["label"], r["agent"], r["preset"], r["platform"], r["devices"], r["batch"],
-        f"{r['compile_s']:.1f}", f"{r['updates_per_s']:,.0f}", f"{r['gflop_per_update']:.3f}", f"{r['gflops']:.1f}",
-        f"{100 * r['gflops'] / peak(r):.1f}%"] for r in rows]))
-  print("\nmeasured matmul peak (GFLOP/s), float32 / bfloat16: "
-        + ", ".join(f"{d} device(s): {p:,.1f} / {peaks_bf16[d]:,.1f}" for d, p in peaks.items()))
-  common.write_results(f"learner_throughput_{args.label}",
-                       {"peaks_gflops": peaks, "peaks_bf16_gflops": peaks_bf16, "rows": rows})
+  results = {d: common.worker(__file__, vars(args), d) for d in map(int, args.devices.split(","))}
+  if None in results.values():
+    raise SystemExit(1)
+  peaks = {d: r["peak"] / 1e9 for d, r in results.items()}
+  peaks_bf16 = {d: r["peak_bf16"] / 1e9 for d, r in results.items()}
+  print("measured matmul peak (GFLOP/s), float32 / bfloat16: " + ", ".join(
+      f"{d} device(s): {p:,.1f} / {peaks_bf16[d]:,.1f}" for d, p in peaks.items()))
+  common.write_results(f"learner_throughput_{args.label}", {
+      "peaks_gflops": peaks, "peaks_bf16_gflops": peaks_bf16,
+      "rows": [row for r in results.values() for row in r["rows"]]})
 
 
 if __name__ == "__main__":

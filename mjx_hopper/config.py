@@ -90,6 +90,7 @@ class RunConfig:
           self.agent, self.agent_preset, name, value, self.train, self.agent_overrides))
 
   def task(self) -> type[envs.LocomotionEnv]:
+    """The task's class, from `env` (a name, a `module:Class` path, a class or an instance)."""
     return envs.task_class(self.env)
 
   @property

@@ -31,6 +31,9 @@ ProgressFn = Callable[[int, dict], Any]
 
 @dataclasses.dataclass
 class Result:
+  """What a run returns: its final state and trainer, its logged rows, its last evaluation, and
+  each member's best agent and return."""
+
   state: train.TrainState
   trainer: train.Trainer
   history: list[dict]            # every logged row (train and eval)

@@ -44,10 +44,12 @@ class TrainConfig:
 
   @property
   def steps_per_iteration(self) -> int:
+    """Env steps one iteration collects: num_envs x unroll_length."""
     return self.num_envs * self.unroll_length
 
   @property
   def updates_per_iteration(self) -> int:
+    """Learner updates per iteration: replay_ratio x its env steps / batch_size, rounded."""
     return round(self.replay_ratio * self.steps_per_iteration / self.batch_size)
 
   def check(self, num_devices: int = 1) -> None:
@@ -137,6 +139,7 @@ class Layout(NamedTuple):
     return AXIS if self.group_size > 1 else None
 
   def device_index(self):
+    """This device's place among its member's devices (0 for a member on one device)."""
     return jax.lax.axis_index(AXIS) if self.axis else 0
 
   def total(self, x):
