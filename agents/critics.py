@@ -32,10 +32,14 @@ def scalar() -> Head:
 
 
 def categorical(vmin: float, vmax: float, num_atoms: int) -> Head:
-  support = distributional.atoms(vmin, vmax, num_atoms)
+  # The support is made where it is used, inside the compiled update: made here from numbers,
+  # it would be a program of its own, compiled eagerly.
+  def support():
+    return distributional.atoms(vmin, vmax, num_atoms)
 
   def target(next_logits, reward, discount):
     probs = jax.nn.softmax(next_logits).mean(axis=0)
-    return distributional.project(support, probs, reward, discount)
-  return Head(num_atoms, lambda logits: distributional.mean(support, logits), target,
+    return distributional.project(support(), probs, reward, discount)
+  distributional.check_concrete_support(vmin, vmax, num_atoms)
+  return Head(num_atoms, lambda logits: distributional.mean(support(), logits), target,
               distributional.cross_entropy)

@@ -54,10 +54,11 @@ def mujoco_c_row(env_id: str, threads: int, batch: int = 256, physics_steps: int
   rng = np.random.default_rng(0)
   data = mujoco.MjData(model)
   spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+  joints = [model.jnt_qposadr[model.joint(name).id] for name in env.joints]
   states = []
   for _ in range(batch):
     mujoco.mj_resetData(model, data)
-    data.qpos[env._qadr] = rng.uniform(-env.reset_noise, env.reset_noise, env.action_size)
+    data.qpos[joints] = rng.uniform(-env.reset_noise, env.reset_noise, env.action_size)
     states.append(np.empty(mujoco.mj_stateSize(model, spec)))
     mujoco.mj_getState(model, data, states[-1], spec)
   controls = rng.uniform(-1, 1, (batch, physics_steps, model.nu))
@@ -87,7 +88,7 @@ def pybullet_row(env_id: str, seconds: float = 5.0) -> dict | None:
     _, _, done, _ = env.step(rng.uniform(-1, 1, env.action_space.shape))
     steps += 1
     if done:
-      with pybullet_oracle._quiet():
+      with pybullet_oracle.quiet():
         env.reset()
   return {"engine": "PyBullet", "platform": "cpu", "devices": 1, "batch": 1, "compile_s": 0.0,
           "env_steps_per_s": steps / (time.perf_counter() - t0)}

@@ -16,6 +16,8 @@ import re
 import statistics
 import sys
 
+from common import table
+
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "benchmarks" / "results"
 ROBOTS = ("Hopper", "Walker2D", "HalfCheetah", "Ant", "Humanoid")
@@ -55,11 +57,6 @@ MARK = "<!-- report.py: {} -->"
 def load(name: str) -> dict:
   with open(RESULTS / name) as f:
     return json.load(f)
-
-
-def table(head: list[str], rows: list[list]) -> str:
-  lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-  return "\n".join(lines + ["| " + " | ".join(str(c) for c in row) + " |" for row in rows])
 
 
 def num(x, digits: int = 0) -> str:
@@ -248,7 +245,7 @@ def sections() -> list[tuple[str, str, str, list[str]]]:
 
 
 def fused_section() -> tuple[str, str, str, list[str]]:
-  """The Pallas-fused D4PG update against XLA's, and both in a 16-member sweep."""
+  """A past result: the Pallas-fused D4PG update against XLA's, alone and in a sweep."""
   learner, sweep = (load(n)["figures"] for n in FUSED)
   rows = []
   for r in learner["results"]:
@@ -256,25 +253,19 @@ def fused_section() -> tuple[str, str, str, list[str]]:
                       key=lambda row: row["updates_per_s"]) for name in ("xla", "fused"))
     rows.append([r["case"]["robot"], r["case"]["overrides"].get("compute_dtype", "float32"),
                  num(r["case"]["batch"]), num(xla["updates_per_s"]),
-                 num(100 * xla["fraction_of_peak"], 1), num(fused["updates_per_s"]),
-                 num(100 * fused["fraction_of_peak"], 1),
-                 num(fused["updates_per_s"] / xla["updates_per_s"], 2),
-                 f"{xla['kernels']} → {fused['kernels']}"])
-  single = {name: next(r for r in sweep[name] if r["members"] == 1) for name in ("xla", "fused")}
-  many = {name: next(r for r in sweep[name] if r["members"] == 16) for name in ("xla", "fused")}
-  rows.append(["16-member sweep (Hopper, batch 1,024)", "float32", "", num(many["xla"][
-      "env_steps_per_s"]), "", num(many["fused"]["env_steps_per_s"]), "",
-      num(many["fused"]["env_steps_per_s"] / many["xla"]["env_steps_per_s"], 2),
-      f"× one XLA run: {many['xla']['env_steps_per_s'] / single['xla']['env_steps_per_s']:.2f}"
-      f" → {many['fused']['env_steps_per_s'] / single['xla']['env_steps_per_s']:.2f}"])
-  return ("The fused learner", "D4PG's update with each LayerNormMLP's forward and backward "
-          "pass as Pallas (Triton) kernels, beside XLA's update in the same process, each "
-          "robot's gpu preset on random batches; the fastest tiles of each; a sweep's row in "
-          "env steps/s. Training uses XLA's update unless MJX_HOPPER_LEARNER=fused. Regenerate the "
-          "first rows with `learner_throughput.py --learners xla,fused`.",
-          table(["preset", "precision", "batch", "XLA updates/s", "XLA % of peak",
-                 "fused updates/s", "fused % of peak", "fused ÷ XLA", "kernels"], rows),
-          list(FUSED))
+                 num(fused["updates_per_s"]), num(fused["updates_per_s"] / xla["updates_per_s"],
+                                                  2)])
+  xla, fused = (next(r for r in sweep[name] if r["members"] == 16) for name in ("xla", "fused"))
+  rows.append(["16-member sweep (Hopper), env steps/s", "float32", "1,024",
+               num(xla["env_steps_per_s"]), num(fused["env_steps_per_s"]),
+               num(fused["env_steps_per_s"] / xla["env_steps_per_s"], 2)])
+  return ("The fused learner, removed", "A past result: D4PG's update with each "
+          "LayerNormMLP's forward and backward pass as Pallas (Triton) kernels, beside XLA's "
+          "update in the same process, each robot's gpu preset on random batches, the fastest "
+          "tiles of each. It never beat XLA's update, so it left the package; git keeps its "
+          "code (`agents/fused.py` and `agents/pallas_mlp.py` at commit 416e724).",
+          table(["preset", "precision", "batch", "XLA updates/s", "fused updates/s",
+                 "fused ÷ XLA"], rows), list(FUSED))
 
 
 def start_section() -> tuple[str, str, str, list[str]]:

@@ -175,7 +175,9 @@ class LocomotionEnv(Env):
     self._n_parts = int(np.sum(kinds != free)) + len(self._part_bodies) + 1
     self._foot_geom, self._foot_half_length, self._foot_radius, self._foot_mask = (
         self._foot_geoms(model))
-    self._data0 = mjx.make_data(self.mjx_model, device=device)
+    # One compiled program, rather than MJX's eager one-op programs for each field.
+    self._data0 = jax.jit(lambda: mjx.make_data(self.mjx_model),
+                          out_shardings=jax.sharding.SingleDeviceSharding(device))()
 
   def edit_model(self, model: mujoco.MjModel) -> None:
     """Edits the MuJoCo model before the env is built; a no-op by default."""
