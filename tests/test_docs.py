@@ -10,6 +10,7 @@ import re
 import shlex
 import subprocess
 import sys
+import textwrap
 import tomllib
 
 import jax
@@ -144,7 +145,7 @@ def test_the_pages_have_commands_to_check():
 def test_the_brax_pages_code_runs_as_written_in_order(monkeypatch):
   with open(os.path.join(ROOT, "docs", "brax.md")) as f:
     blocks = re.findall(r"```python\n(.*?)```", f.read(), re.S)
-  code = "\n".join(blocks)
+  code = "\n".join(textwrap.dedent(block) for block in blocks)  # one sits in a list item
   # Its budget shrunk to two short epochs; every other word as the page has it.
   for budget, small in (("num_timesteps=2_000_000", "num_timesteps=1_024"),
                         ("num_evals=20", "num_evals=2")):
