@@ -15,6 +15,7 @@ import pathlib
 import re
 import statistics
 import sys
+import tomllib
 
 from common import table
 
@@ -230,11 +231,19 @@ def sections() -> list[tuple[str, str, str, list[str]]]:
                      "env steps per member", "env steps/s"], load(PBT)["figures"]["rows"]),
               [PBT]))
   nb = load(NOTEBOOK)["figures"]
+  first = sorted(p.name for p in RESULTS.glob("notebook_first_video_*.json"))
   out.append(("The notebook on 2 CPU cores", "`notebooks/robolympics.ipynb` in its full mode, "
-              "top to bottom, from an empty compile cache; sections under half a minute left out.",
+              "top to bottom, from an empty compile cache; sections under half a minute left out. "
+              "Its first video (a pretrained Humanoid, before any training), from the kernel's "
+              "start with the project installed: `notebook_time.py --first-video`.",
               table(["section", "minutes"], [[t, num(s / 60, 1)] for t, s in
                                              nb["sections_s"].items() if s >= 30]
-                    + [["all", num(nb["total_s"] / 60, 1)]]), [NOTEBOOK]))
+                    + [["all", num(nb["total_s"] / 60, 1)]]
+                    + [["first video", num(load(n)["figures"]["first_video_s"] / 60, 1)]
+                       for n in first]), [NOTEBOOK, *first]))
+  pretrained = sorted(p.name for p in RESULTS.glob("pretrained_*.json"))
+  if pretrained:
+    out.append(pretrained_section(pretrained))
   suite = load(SUITE)["figures"]
   out.append(("Test suite", "`bash scripts/test.sh` on a fresh clone, as CI runs it, on 2 CPU "
               "cores from an empty compile cache.",
@@ -284,6 +293,22 @@ def start_section() -> tuple[str, str, str, list[str]]:
           table(["run", "first training row (s)", "first evaluation (s)"], rows), list(START))
 
 
+def pretrained_section(names: list[str]) -> tuple[str, str, str, list[str]]:
+  """The shipped policies (mjx_hopper/pretrained/): how each was trained, and its file's return."""
+  rows = []
+  for name in names:
+    r = load(name)["figures"]
+    rows.append([r["robot"], num(r["target"]), r["seed"], num(r["env_steps"]),
+                 num(r["wall_s"]), num(r["best_eval_return"]),
+                 f"{num(r['return'])} ± {num(r['return_std'])}", num(r["file_bytes"] / 1024)])
+  return ("Pretrained policies", "One policy per robot, shipped in `mjx_hopper/pretrained/`: the "
+          "robot's gpu preset trained until an evaluation (20 episodes) reached its score plus a "
+          "margin (`benchmarks/pretrain.py`); the best evaluation's policy exported, then the "
+          "file evaluated again on episodes of its own.",
+          table(["robot", "score", "seed", "env steps", "training (s)", "best evaluation",
+                 "the file's return", "file (KiB)"], rows), names)
+
+
 def gymnasium_section() -> tuple[str, str, str, list[str]]:
   """The Gymnasium door's env steps/s against the JAX env's."""
   figures = load(GYMNASIUM)["figures"]
@@ -313,10 +338,21 @@ def readme_table() -> str:
   rows = []
   for robot in ROBOTS:
     g, c = time_to_score(GPU[robot]), time_to_score(CPU[robot], 60)
-    rows.append([f'<img src="docs/media/{robot}.gif" width="160">', robot, num(g["target"]),
-                 num(g["median"]), g["seeds"], num(c["target"]), num(c["median"], 1), c["seeds"]])
-  return table(["", "robot", "score (GPU)", f"median on {machine(GPU['Hopper'][0])} (s)", "seeds",
-                "score (2 cores)", "median on 2 CPU cores (min)", "seeds"], rows)
+    rows.append([f'<img src="{media()}/{robot}.gif" width="160">', robot, num(g["target"]),
+                 num(g["median"]), f"{g['reached']}/{g['seeds']}", num(c["target"]),
+                 num(c["median"], 1), f"{c['reached']}/{c['seeds']}"])
+  return table(["", "robot", "score (GPU)", f"median on {machine(GPU['Hopper'][0])} (s)",
+                "seeds reaching it", "score (2 cores)", "median on 2 CPU cores (min)",
+                "seeds reaching it"], rows)
+
+
+def media() -> str:
+  """Where the README's images are: absolute, on the repository of pyproject's project.urls, so
+  that they load where the README is shown outside it (PyPI); relative while that address is
+  the placeholder."""
+  with open(ROOT / "pyproject.toml", "rb") as f:
+    repository = tomllib.load(f)["project"]["urls"]["Repository"]
+  return "docs/media" if "/OWNER/" in repository else f"{repository}/raw/main/docs/media"
 
 
 def notebook_times() -> str:
