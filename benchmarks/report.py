@@ -47,7 +47,17 @@ SWEEPS = ("sweep_throughput_h100.json", "sweep_throughput_2gpu_h200.json",
           "sweep_throughput_cpu.json")
 PBT = "pbt_quality_halfcheetah_h100x2.json"
 FUSED = ("fused_learner_h100.json", "sweep_fused_vs_xla_h100.json")
-START = ("start_time_h100.json", "start_time_h100_ab.json", "start_time_h100_global_gspmd.json")
+START = {"one H100": ("start_time_h100.json", "start_time_h100_autotune0.json"),
+         "2 CPU cores": ("start_time_cpu.json",)}
+# A start's phases as the table shows them: (label, key in start_time.py's medians, digits).
+START_ROWS = (("imports", "imports", 1), ("build: env, agent, trainer", "build", 1),
+              ("chunk: tracing", "chunk trace", 1), ("chunk: lowering", "chunk lower", 1),
+              ("chunk: XLA compile", "chunk compile", 1),
+              ("fresh state: XLA compile", "init_member compile", 1),
+              ("evaluation: tracing", "one trace", 1),
+              ("evaluation: XLA compile", "one compile", 1),
+              ("first training row", "first_train", 1), ("first evaluation", "first_eval", 1),
+              ("env steps/s after it", "steps_per_s", 0))
 GYMNASIUM = "gymnasium_throughput_cpu.json"
 NOTEBOOK = "notebook_time_cpu_2026-11-26.json"
 SUITE = "suite_time_cpu.json"
@@ -278,19 +288,28 @@ def fused_section() -> tuple[str, str, str, list[str]]:
 
 
 def start_section() -> tuple[str, str, str, list[str]]:
-  """Seconds from process start to the first training row on one GPU."""
-  rows = []
-  for name in START:
-    figures = load(name)["figures"]
-    for run, r in figures["runs"].items():
-      label = run if name == START[0] else run.replace("this checkout", load(name)["commit"])
-      rows.append([label.replace(".base", "6a969a5"), num(r[0]["first_chunk_done"], 1),
-                   num(r[0]["first_eval"], 1)])
-  return ("The start on one GPU", "Hopper's gpu preset from process start, from an empty "
-          "compile cache, then from the cache it left: with an earlier run's XLA autotuning "
-          "results loaded, and without; then in turns with 6a969a5, the host layer before "
-          "(bc2ad0d compiled all with GSPMD; 4f4803c, as 6a969a5, only the evaluation).",
-          table(["run", "first training row (s)", "first evaluation (s)"], rows), list(START))
+  """A run's start, phase by phase (s from process start), before and after, cold and warm."""
+  tables = []
+  for where, names in START.items():
+    columns = {}
+    for name in names:
+      if (RESULTS / name).exists():
+        data = load(name)
+        for label, figures in data["figures"]["medians"].items():
+          code, cache = label.split(", ")
+          code = data["commit"] if code == "this checkout" else code
+          flags = data["figures"].get("xla_flags")
+          columns[f"{code}{' with ' + flags if flags else ''}, {cache}"] = figures
+    if columns:
+      rows = [[label, *(num(c.get(key), digits) if c.get(key) is not None else "–"
+                        for c in columns.values())] for label, key, digits in START_ROWS]
+      tables.append(f"On {where}:\n\n" + table(["phase (s)", *columns], rows))
+  return ("The start, phase by phase", "The main job's command with the robot's preset (Hopper: "
+          "gpu on the GPU, cpu on 2 cores), from process start, from an empty compile cache "
+          "(cold) and from the cache that run left (warm), in turns with the commit before the "
+          "start's rework; tracing and compiles from JAX's own events. The programs compile side "
+          "by side, so their times overlap.", "\n\n".join(tables),
+          [n for names in START.values() for n in names if (RESULTS / n).exists()])
 
 
 def pretrained_section(names: list[str]) -> tuple[str, str, str, list[str]]:
