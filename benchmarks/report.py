@@ -15,6 +15,9 @@ import pathlib
 import re
 import statistics
 import sys
+import tomllib
+
+from common import table
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "benchmarks" / "results"
@@ -55,11 +58,6 @@ MARK = "<!-- report.py: {} -->"
 def load(name: str) -> dict:
   with open(RESULTS / name) as f:
     return json.load(f)
-
-
-def table(head: list[str], rows: list[list]) -> str:
-  lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-  return "\n".join(lines + ["| " + " | ".join(str(c) for c in row) + " |" for row in rows])
 
 
 def num(x, digits: int = 0) -> str:
@@ -233,11 +231,19 @@ def sections() -> list[tuple[str, str, str, list[str]]]:
                      "env steps per member", "env steps/s"], load(PBT)["figures"]["rows"]),
               [PBT]))
   nb = load(NOTEBOOK)["figures"]
+  first = sorted(p.name for p in RESULTS.glob("notebook_first_video_*.json"))
   out.append(("The notebook on 2 CPU cores", "`notebooks/robolympics.ipynb` in its full mode, "
-              "top to bottom, from an empty compile cache; sections under half a minute left out.",
+              "top to bottom, from an empty compile cache; sections under half a minute left out. "
+              "Its first video (a pretrained Humanoid, before any training), from the kernel's "
+              "start with the project installed: `notebook_time.py --first-video`.",
               table(["section", "minutes"], [[t, num(s / 60, 1)] for t, s in
                                              nb["sections_s"].items() if s >= 30]
-                    + [["all", num(nb["total_s"] / 60, 1)]]), [NOTEBOOK]))
+                    + [["all", num(nb["total_s"] / 60, 1)]]
+                    + [["first video", num(load(n)["figures"]["first_video_s"] / 60, 1)]
+                       for n in first]), [NOTEBOOK, *first]))
+  pretrained = sorted(p.name for p in RESULTS.glob("pretrained_*.json"))
+  if pretrained:
+    out.append(pretrained_section(pretrained))
   suite = load(SUITE)["figures"]
   out.append(("Test suite", "`bash scripts/test.sh` on a fresh clone, as CI runs it, on 2 CPU "
               "cores from an empty compile cache.",
@@ -248,7 +254,7 @@ def sections() -> list[tuple[str, str, str, list[str]]]:
 
 
 def fused_section() -> tuple[str, str, str, list[str]]:
-  """The Pallas-fused D4PG update against XLA's, and both in a 16-member sweep."""
+  """A past result: the Pallas-fused D4PG update against XLA's, alone and in a sweep."""
   learner, sweep = (load(n)["figures"] for n in FUSED)
   rows = []
   for r in learner["results"]:
@@ -256,25 +262,19 @@ def fused_section() -> tuple[str, str, str, list[str]]:
                       key=lambda row: row["updates_per_s"]) for name in ("xla", "fused"))
     rows.append([r["case"]["robot"], r["case"]["overrides"].get("compute_dtype", "float32"),
                  num(r["case"]["batch"]), num(xla["updates_per_s"]),
-                 num(100 * xla["fraction_of_peak"], 1), num(fused["updates_per_s"]),
-                 num(100 * fused["fraction_of_peak"], 1),
-                 num(fused["updates_per_s"] / xla["updates_per_s"], 2),
-                 f"{xla['kernels']} → {fused['kernels']}"])
-  single = {name: next(r for r in sweep[name] if r["members"] == 1) for name in ("xla", "fused")}
-  many = {name: next(r for r in sweep[name] if r["members"] == 16) for name in ("xla", "fused")}
-  rows.append(["16-member sweep (Hopper, batch 1,024)", "float32", "", num(many["xla"][
-      "env_steps_per_s"]), "", num(many["fused"]["env_steps_per_s"]), "",
-      num(many["fused"]["env_steps_per_s"] / many["xla"]["env_steps_per_s"], 2),
-      f"× one XLA run: {many['xla']['env_steps_per_s'] / single['xla']['env_steps_per_s']:.2f}"
-      f" → {many['fused']['env_steps_per_s'] / single['xla']['env_steps_per_s']:.2f}"])
-  return ("The fused learner", "D4PG's update with each LayerNormMLP's forward and backward "
-          "pass as Pallas (Triton) kernels, beside XLA's update in the same process, each "
-          "robot's gpu preset on random batches; the fastest tiles of each; a sweep's row in "
-          "env steps/s. Training uses XLA's update unless MJX_HOPPER_LEARNER=fused. Regenerate the "
-          "first rows with `learner_throughput.py --learners xla,fused`.",
-          table(["preset", "precision", "batch", "XLA updates/s", "XLA % of peak",
-                 "fused updates/s", "fused % of peak", "fused ÷ XLA", "kernels"], rows),
-          list(FUSED))
+                 num(fused["updates_per_s"]), num(fused["updates_per_s"] / xla["updates_per_s"],
+                                                  2)])
+  xla, fused = (next(r for r in sweep[name] if r["members"] == 16) for name in ("xla", "fused"))
+  rows.append(["16-member sweep (Hopper), env steps/s", "float32", "1,024",
+               num(xla["env_steps_per_s"]), num(fused["env_steps_per_s"]),
+               num(fused["env_steps_per_s"] / xla["env_steps_per_s"], 2)])
+  return ("The fused learner, removed", "A past result: D4PG's update with each "
+          "LayerNormMLP's forward and backward pass as Pallas (Triton) kernels, beside XLA's "
+          "update in the same process, each robot's gpu preset on random batches, the fastest "
+          "tiles of each. It never beat XLA's update, so it left the package; git keeps its "
+          "code (`agents/fused.py` and `agents/pallas_mlp.py` at commit 416e724).",
+          table(["preset", "precision", "batch", "XLA updates/s", "fused updates/s",
+                 "fused ÷ XLA"], rows), list(FUSED))
 
 
 def start_section() -> tuple[str, str, str, list[str]]:
@@ -291,6 +291,22 @@ def start_section() -> tuple[str, str, str, list[str]]:
           "results loaded, and without; then in turns with 6a969a5, the host layer before "
           "(bc2ad0d compiled all with GSPMD; 4f4803c, as 6a969a5, only the evaluation).",
           table(["run", "first training row (s)", "first evaluation (s)"], rows), list(START))
+
+
+def pretrained_section(names: list[str]) -> tuple[str, str, str, list[str]]:
+  """The shipped policies (mjx_hopper/pretrained/): how each was trained, and its file's return."""
+  rows = []
+  for name in names:
+    r = load(name)["figures"]
+    rows.append([r["robot"], num(r["target"]), r["seed"], num(r["env_steps"]),
+                 num(r["wall_s"]), num(r["best_eval_return"]),
+                 f"{num(r['return'])} ± {num(r['return_std'])}", num(r["file_bytes"] / 1024)])
+  return ("Pretrained policies", "One policy per robot, shipped in `mjx_hopper/pretrained/`: the "
+          "robot's gpu preset trained until an evaluation (20 episodes) reached its score plus a "
+          "margin (`benchmarks/pretrain.py`); the best evaluation's policy exported, then the "
+          "file evaluated again on episodes of its own.",
+          table(["robot", "score", "seed", "env steps", "training (s)", "best evaluation",
+                 "the file's return", "file (KiB)"], rows), names)
 
 
 def gymnasium_section() -> tuple[str, str, str, list[str]]:
@@ -322,10 +338,21 @@ def readme_table() -> str:
   rows = []
   for robot in ROBOTS:
     g, c = time_to_score(GPU[robot]), time_to_score(CPU[robot], 60)
-    rows.append([f'<img src="docs/media/{robot}.gif" width="160">', robot, num(g["target"]),
-                 num(g["median"]), g["seeds"], num(c["target"]), num(c["median"], 1), c["seeds"]])
-  return table(["", "robot", "score (GPU)", f"median on {machine(GPU['Hopper'][0])} (s)", "seeds",
-                "score (2 cores)", "median on 2 CPU cores (min)", "seeds"], rows)
+    rows.append([f'<img src="{media()}/{robot}.gif" width="160">', robot, num(g["target"]),
+                 num(g["median"]), f"{g['reached']}/{g['seeds']}", num(c["target"]),
+                 num(c["median"], 1), f"{c['reached']}/{c['seeds']}"])
+  return table(["", "robot", "score (GPU)", f"median on {machine(GPU['Hopper'][0])} (s)",
+                "seeds reaching it", "score (2 cores)", "median on 2 CPU cores (min)",
+                "seeds reaching it"], rows)
+
+
+def media() -> str:
+  """Where the README's images are: absolute, on the repository of pyproject's project.urls, so
+  that they load where the README is shown outside it (PyPI); relative while that address is
+  the placeholder."""
+  with open(ROOT / "pyproject.toml", "rb") as f:
+    repository = tomllib.load(f)["project"]["urls"]["Repository"]
+  return "docs/media" if "/OWNER/" in repository else f"{repository}/raw/main/docs/media"
 
 
 def notebook_times() -> str:

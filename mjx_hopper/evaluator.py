@@ -3,6 +3,7 @@ CPU beside training on an accelerator, and each member's best agent."""
 
 from __future__ import annotations
 
+import functools
 from typing import Any, NamedTuple
 
 import jax
@@ -64,19 +65,20 @@ class Evaluator:
     self.program = None
 
   def compile_in(self, pool, agent_shapes) -> None:
-    """Compiles the evaluation in the thread pool `pool`, after what it holds already."""
-    self.program = pool.submit(self._compile, agent_shapes)
+    """Traces the evaluation here (tracing holds Python's lock) and compiles it in the thread
+    pool `pool`."""
+    self.program = pool.submit(self._lower(agent_shapes).compile)
 
-  def _compile(self, agent):
+  def _lower(self, agent):
     keys = jax.ShapeDtypeStruct((len(self.seeds), 2), jnp.uint32)
     if self.host is None:
-      return self.trainer.evaluate.lower(agent, keys).compile()
+      return self.trainer.evaluate.lower(agent, keys)
     devices = list(self.host.mesh.devices.flat)
     evaluate = train.make_evaluate(self.trainer.env, self.trainer.agent, self.episodes,
                                    len(self.seeds), devices)
     agent, keys = jax.tree.map(
         lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=self.host), (agent, keys))
-    return evaluate.lower(agent, keys).compile()
+    return evaluate.lower(agent, keys)
 
   def submit(self, env_steps: int, agent, diverged: np.ndarray) -> None:
     """Queues an evaluation of `agent` (every member's) at `env_steps`."""
@@ -108,12 +110,18 @@ class Evaluator:
       self.best = self.select_agents(better, done.agent, self.best)
 
   def _start(self, pending: Pending):
-    keys = jnp.stack([jax.random.fold_in(jax.random.PRNGKey(seed), pending.env_steps)
-                      for seed in self.seeds])
+    keys = _evaluation_keys(train.seed_bits(self.seeds), train.seed_bits(pending.env_steps))
     agent = pending.agent
     if self.host is not None:
       agent, keys = jax.device_put((agent, keys), self.host)
     return self.program.result()(agent, keys)
+
+
+@jax.jit
+@functools.partial(jax.vmap, in_axes=(0, None))
+def _evaluation_keys(seed, env_steps):
+  """(members, 2): the key of each member's evaluation at `env_steps`, in one program."""
+  return jax.random.fold_in(jax.random.PRNGKey(seed), env_steps)
 
 
 def _finished(started) -> bool:

@@ -22,6 +22,7 @@ def fields() -> list:
 
 
 def flag_name(field) -> str:
+  """A config field's flag: its name with dashes, `--total-env-steps` for `total_env_steps`."""
   return "--" + field.name.replace("_", "-")
 
 

@@ -7,8 +7,8 @@ steps, checkpoints and progress.
 
 from __future__ import annotations
 
-import concurrent.futures
 import dataclasses
+import functools
 import json
 import math
 import os
@@ -17,11 +17,10 @@ import time
 from typing import Any, Callable
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 from tqdm.auto import tqdm
 
-from mjx_hopper import agents, checkpoint, compat, parallel, pbt, runs, sweep, train
+from mjx_hopper import agents, checkpoint, compat, parallel, pbt, runs, start, sweep, train
 from mjx_hopper.config import RunConfig
 from mjx_hopper.evaluator import Evaluator
 from mjx_hopper.logger import Logger
@@ -32,6 +31,9 @@ ProgressFn = Callable[[int, dict], Any]
 
 @dataclasses.dataclass
 class Result:
+  """What a run returns: its final state and trainer, its logged rows, its last evaluation, and
+  each member's best agent and return."""
+
   state: train.TrainState
   trainer: train.Trainer
   history: list[dict]            # every logged row (train and eval)
@@ -118,7 +120,7 @@ def _train(p: _Parts, state: train.TrainState, progress: bool, stop) -> train.Tr
     before, t0 = env_steps, time.perf_counter()
     state, metrics, agents_before = p.chunk(state)
     env_steps = p.env_steps(state)
-    members.check(env_steps, metrics, finite_members(state.agent))
+    members.check(env_steps, metrics, p.chunk.finite(state.agent))
     state = p.chunk.freeze(state, agents_before, members.diverged)
     rate = (env_steps - before) * len(members) / (time.perf_counter() - t0)
     stopped = _log_train(p, state, env_steps, rate, metrics)
@@ -178,19 +180,18 @@ def _open(cfg: RunConfig, checkpoint_dir: str | None, say, process, progress_fn)
   saver = _Saver(checkpoint.manager(checkpoint_dir, cfg.keep_checkpoints), saved_config,
                  cfg.checkpoint_minutes)
   per_iteration = trainer.config.steps_per_iteration
-  chunk = None
-  if (saver.mngr.latest_step() or 0) * per_iteration < cfg.total_env_steps:
-    chunk = _compile(trainer, cfg, mine, evaluator)
+  fresh = functools.partial(runs.init, cfg, trainer, mine)
+  started = functools.cache(lambda: start.start(trainer, fresh, evaluator))
+  training = (saver.mngr.latest_step() or 0) * per_iteration < cfg.total_env_steps
   resumed = checkpoint.resume(
-      saver.mngr, runs.init(cfg, trainer, mine), saved_config, say,
+      saver.mngr, started().state.result() if training else fresh(), saved_config, say,
       defaults={"agent_config": _field_defaults(cfg.agent_config()), "env_settings": {}})
   members.restore(resumed.record)
   evaluator.best = resumed.best
   with open(os.path.join(out_dir, "config.json"), "w") as f:  # once resuming is agreed
     json.dump(saved_config, f, indent=1)
   env_steps = train.iterations(resumed.state) * per_iteration
-  if chunk is None and env_steps < cfg.total_env_steps:  # an older step was read
-    chunk = _compile(trainer, cfg, mine, evaluator)
+  chunk = started() if env_steps < cfg.total_env_steps else None  # or an older step was read
   display = sweep.Report(cfg.grid, members, say)
   logger = Logger(os.path.join(out_dir, "log.csv"), cfg.log_every, display.logger_print,
                   agents.learner_fields(cfg.agent), cfg.tensorboard_dir, start_step=env_steps,
@@ -203,27 +204,13 @@ def _open(cfg: RunConfig, checkpoint_dir: str | None, say, process, progress_fn)
   return parts, resumed.state
 
 
-def _compile(trainer: train.Trainer, cfg: RunConfig, members: list[dict], evaluator):
-  """The training chunk's compile, started in a thread (it is the user's first wait), and the
-  evaluation's after it: evaluations due before that is compiled wait in its queue."""
-  shapes = jax.tree.map(
-      lambda sharding, part: jax.tree.map(
-          lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sharding), part),
-      trainer.shardings, jax.eval_shape(lambda: runs.init(cfg, trainer, members)))
-  lowered = trainer.train_chunk.lower(shapes)  # tracing holds Python's lock: before the pool
-  pool = concurrent.futures.ThreadPoolExecutor(1)  # one program after the other
-  chunk = pool.submit(lowered.compile)
-  evaluator.compile_in(pool, shapes.agent)
-  pool.shutdown(wait=False)
-  return chunk
-
-
 class _Chunk:
   """Runs one compiled chunk, and freezes a sweep's members that diverged in it at their agents
   before it."""
 
-  def __init__(self, program, evaluator: Evaluator, members: Members):
-    self.program, self.single = program, members.single
+  def __init__(self, started: start.Started | None, evaluator: Evaluator, members: Members):
+    self.program, self._finite = (started.chunk, started.finite) if started else (None, None)
+    self.single = members.single
     self._copy, self._select = evaluator.copy_agents, evaluator.select_agents
 
   def __call__(self, state: train.TrainState):
@@ -232,6 +219,10 @@ class _Chunk:
     before = None if self.single else self._copy(state.agent)
     state, metrics = self.program.result()(state)
     return state, jax.device_get(metrics), before
+
+  def finite(self, agent) -> np.ndarray:
+    """(members,): whether every float of each member's `agent` is finite."""
+    return jax.device_get(self._finite.result()(agent))
 
   def freeze(self, state: train.TrainState, before, diverged: np.ndarray) -> train.TrainState:
     """`state` with the agents of the `diverged` members taken back to `before`."""
@@ -349,18 +340,6 @@ def _header(cfg: RunConfig, trainer: train.Trainer, count: int, single: bool) ->
           f"{per_chunk:,} env steps and "
           f"{config.updates_per_iteration * config.iterations_per_chunk:,} updates per chunk"
           f"{'' if single else ' per member'}")
-
-
-def finite_members(tree) -> np.ndarray:
-  """(members,): whether every float of each member's part of `tree` is finite."""
-  return jax.device_get(_finite_members(tree))
-
-
-@jax.jit
-def _finite_members(tree) -> jax.Array:
-  checks = [jnp.isfinite(x).reshape(x.shape[0], -1).all(1) for x in jax.tree.leaves(tree)
-            if jnp.issubdtype(x.dtype, jnp.floating) and x.size]
-  return jnp.stack(checks).all(0)
 
 
 def _field_defaults(config) -> dict:

@@ -19,6 +19,7 @@ def random_policy(action_size: int) -> Policy:
 
 
 def zero_policy(action_size: int) -> Policy:
+  """A policy whose every action is zero: the robot unactuated."""
   return lambda obs, key: jnp.zeros(action_size)
 
 

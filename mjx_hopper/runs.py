@@ -31,8 +31,8 @@ def build(cfg: RunConfig, num_members: int | None = None) -> train.Trainer:
 def init(cfg: RunConfig, trainer: train.Trainer, members: list[dict]) -> train.TrainState:
   """The fresh TrainState of `members` (from `cfg.members()`), each from its own seed's key and
   with its own swept values: a member starts as the single run of its settings."""
-  keys = jnp.stack([jax.random.PRNGKey(m["seed"]) for m in members])
-  return trainer.init(keys, {name: [m[name] for m in members] for name in cfg.grid})
+  return trainer.init([m["seed"] for m in members],
+                      {name: [m[name] for m in members] for name in cfg.grid})
 
 
 def check_which(which: str) -> None:

@@ -54,7 +54,7 @@ def single():
 def single_run(single, chosen, chunks=2):
   """Host (state, metrics) of the single run of one member's seed and swept values."""
   hparams = {name: [value] for name, value in chosen.items() if name != "seed"}
-  return run_chunks(single, single.init(jax.random.PRNGKey(chosen["seed"]), hparams), chunks)
+  return run_chunks(single, single.init([chosen["seed"]], hparams), chunks)
 
 
 def test_member_is_bit_identical_to_its_single_run(single):

@@ -37,7 +37,7 @@ def trainer():
 def two_chunks(trainer):
   """Host copies of the (one member's) state after one and two chunks, and the second chunk's
   metrics."""
-  first, _ = trainer.train_chunk(trainer.init(jax.random.PRNGKey(0)))
+  first, _ = trainer.train_chunk(trainer.init([0]))
   first_host = member(first)
   second, metrics = trainer.train_chunk(first)  # donates `first`
   return first_host, member(second), member(metrics)
@@ -77,7 +77,7 @@ def test_stored_steps_chain_within_episodes(two_chunks):
 
 
 def test_state_is_sharded_and_params_replicated(trainer):
-  state = trainer.init(jax.random.PRNGKey(0))
+  state = trainer.init([0])
   state, _ = trainer.train_chunk(state)
   assert len(jax.devices()) == 2
   assert state.env.obs.addressable_shards[0].data.shape == (1, 2, 15)
@@ -116,12 +116,12 @@ def test_meshes_and_envs_avoid_shardy_where_it_crashes(monkeypatch, version, dev
 
 def test_same_seed_same_run(trainer, two_chunks):
   first, _, _ = two_chunks
-  again, _ = trainer.train_chunk(trainer.init(jax.random.PRNGKey(0)))
+  again, _ = trainer.train_chunk(trainer.init([0]))
   jax.tree.map(np.testing.assert_array_equal, member(again), first)
 
 
 def test_evaluate_runs_whole_episodes(trainer):
-  state = trainer.init(jax.random.PRNGKey(0))
+  state = trainer.init([0])
   result = jax.device_get(trainer.evaluate(state.agent, jax.random.PRNGKey(1)[None]))
   assert result["return"].shape == (1, TINY.eval_episodes)
   assert ((result["length"] >= 1) & (result["length"] <= 30)).all()
