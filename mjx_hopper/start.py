@@ -1,19 +1,15 @@
-"""A run's start: the programs it runs before its first evaluation, compiled side by side in
-threads (XLA's compile releases Python's lock), in the order the run needs them."""
+"""A run's start: the programs it runs before its first evaluation, compiled in two threads
+(XLA's compile releases Python's lock), in the order the run needs them."""
 
 from __future__ import annotations
 
 import concurrent.futures
-import os
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 
 from mjx_hopper import train
-
-
-SMALL_CPU = 4  # cores up to which two programs compile at once, not four
 
 
 class Started(NamedTuple):
@@ -26,16 +22,16 @@ class Started(NamedTuple):
 def start(trainer: train.Trainer, init, evaluator) -> Started:
   """Starts making the fresh state (`init()`) and compiling the chunk, the evaluation (which
   `evaluator` keeps) and the finiteness check. The chunk and the state come first, side by side,
-  as the first training row waits for both. Each program is traced here, in turn, since tracing
+  as the first training row waits for both. The programs are traced here, in turn, since tracing
   holds Python's lock; the state's program is traced in its thread."""
   shapes = jax.tree.map(
       lambda sharding, part: jax.tree.map(
           lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sharding), part),
       trainer.shardings, jax.eval_shape(init))
-  if (os.cpu_count() or 1) > SMALL_CPU:
-    lines = [concurrent.futures.ThreadPoolExecutor(4)] * 2
-  else:  # the evaluation compiles after the chunk: beside it, it delayed the first row
-    lines = [concurrent.futures.ThreadPoolExecutor(1), concurrent.futures.ThreadPoolExecutor(1)]
+  # Two lines: the chunk, then the evaluation (compiled beside the chunk, it slowed the chunk's
+  # compile more than it brought the first evaluation forward, on 2 cores and on a GPU's host);
+  # the state, then the finiteness check.
+  lines = [concurrent.futures.ThreadPoolExecutor(1), concurrent.futures.ThreadPoolExecutor(1)]
   chunk = lines[0].submit(trainer.train_chunk.lower(shapes).compile)
   state = lines[1].submit(init)
   evaluator.compile_in(lines[0], shapes.agent)
