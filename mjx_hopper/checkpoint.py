@@ -135,8 +135,10 @@ def finish(mngr: ocp.CheckpointManager) -> None:
 
 def _write_manifests(mngr: ocp.CheckpointManager) -> None:
   folder = os.path.join(mngr.directory, MANIFESTS)
-  os.makedirs(folder, exist_ok=True)
   steps = {str(step) for step in mngr.all_steps()}
+  if not steps and not os.path.isdir(folder):
+    return
+  os.makedirs(folder, exist_ok=True)
   for name in os.listdir(folder):
     if name.removesuffix(".json") not in steps:
       os.remove(os.path.join(folder, name))
@@ -228,6 +230,8 @@ def _failed(mngr: ocp.CheckpointManager, step: int | None, error: Exception) -> 
     if type(thread).__module__.startswith("orbax.") and thread is not threading.current_thread():
       with contextlib.suppress(Exception):  # orbax's threads raise their error again on join
         thread.join(WRITERS_S)
+  with contextlib.suppress(Exception):  # orbax keeps the error to raise at the next save
+    mngr.check_for_errors()
   try:
     names = os.listdir(mngr.directory)
   except OSError:  # a vanished mount: nothing to remove
@@ -282,7 +286,7 @@ def _not_a_failed_save(record: logging.LogRecord) -> bool:
   """False for orbax's (absl's) logged tracebacks and asyncio's unretrieved errors of a save."""
   message = record.getMessage()
   if record.name == "absl":
-    return not (record.exc_info and message.startswith("[process="))
+    return not (record.exc_info and (message.startswith("[process=") or PARTIAL in message))
   return not ("exception was never retrieved" in message.split("\n")[0]
               and (PARTIAL in message or f"{os.sep}orbax{os.sep}" in message))
 
@@ -457,8 +461,9 @@ class Saver:
     self.mngr, self.config, self.minutes = mngr, config, minutes
     self.per_iteration, self.say = steps_per_iteration, say
     self.last = time.monotonic()
-    self.failures = 0     # saves that failed since the last that succeeded
-    self.unsaved = None   # the last save's SaveFailed, raised by `finish`
+    self.pending = None   # the step being saved
+    self.failures = 0     # saves that failed since the last that worked
+    self.unsaved = None   # the run's last save's SaveFailed, which `finish` raises
 
   def due(self) -> bool:
     return time.monotonic() - self.last >= 60 * self.minutes
@@ -467,9 +472,12 @@ class Saver:
     """Starts saving `state`, `best` (the agents at their best evaluations) and `members`'
     record, once the previous save has finished. Saving the run's `last` state, a failure is
     kept for `finish`."""
-    self._settle(state)
+    failed = self._wait()
+    if failed is not None:
+      self._report(failed, state)
     try:
-      save(self.mngr, state, {**self.config, "record": members.record()}, best=best)
+      self.pending = save(self.mngr, state, {**self.config, "record": members.record()},
+                          best=best)
     except SaveFailed as error:
       if last:
         self.unsaved = error
@@ -479,26 +487,24 @@ class Saver:
 
   def finish(self, state: train.TrainState) -> None:
     """Waits for the save in flight; a SaveFailed naming what is lost if the last one failed."""
-    if self.unsaved is None:
-      try:
-        finish(self.mngr)
-      except SaveFailed as error:
-        self.unsaved = error
-    if self.unsaved is not None:
-      error, self.unsaved = self.unsaved, None
-      raise self._lost(error, state) from None
+    failed = self.unsaved or self._wait()
+    self.unsaved = None
+    if failed is not None:
+      raise self._lost(failed, state) from None
 
-  def _settle(self, state: train.TrainState) -> None:
-    """The previous save's outcome, said where it failed, or where it ends failures."""
+  def _wait(self) -> SaveFailed | None:
+    """The failure of the save in flight, once it ends; where it works after failures, says
+    so."""
+    step, self.pending = self.pending, None
     try:
       finish(self.mngr)
     except SaveFailed as error:
-      self._report(error, state)
-      return
-    if self.failures and self.mngr.latest_step() is not None:
-      self.say(f"checkpoint step {self.mngr.latest_step()} is saved in {self.mngr.directory}, "
-               f"after {self.failures} failed save(s)")
+      return error
+    if step is not None and self.failures:
+      self.say(f"checkpoint step {step} is saved in {self.mngr.directory}, after "
+               f"{self.failures} failed save(s)")
       self.failures = 0
+    return None
 
   def _report(self, error: SaveFailed, state: train.TrainState) -> None:
     then = "" if self.failures else (
