@@ -11,44 +11,54 @@ from __future__ import annotations
 import dataclasses
 from typing import Any, Callable, NamedTuple
 
-from mjx_hopper.agents import d4pg, ddpg, mpo
+from mjx_hopper import compat
+from mjx_hopper.agents import d4pg, ddpg, dpg, mpo
 from mjx_hopper.agents.base import Agent
 
 PRESET_NAMES = ("cpu", "gpu")  # the presets every agent declares
-OLD_PRESET_NAMES = {"seed": "acme"}
 
 
 class Spec(NamedTuple):
   """What an agent declares: how to build it, its named configs, the learner metrics its
-  terminal line shows ((metric, "text {}") pairs), and settings small enough for tests."""
+  terminal line shows ((metric, "text {}") pairs), settings small enough for tests, and its
+  exported policy (see `register`)."""
   make: Callable[[int, int, Any], Agent]
   presets: dict[str, Any]
   learner_fields: tuple[tuple[str, str], ...]
   tiny: dict
+  exported_policy: Callable[[Any, Any], tuple[list, str]] | None
 
 
 _AGENTS: dict[str, Spec] = {}
 
 
 def register(name: str, make: Callable[[int, int, Any], Agent], presets: dict[str, Any],
-             learner_fields: tuple[tuple[str, str], ...] = (), tiny: dict | None = None) -> None:
+             learner_fields: tuple[tuple[str, str], ...] = (), tiny: dict | None = None,
+             exported_policy: Callable[[Any, Any], tuple[list, str]] | None = None) -> None:
   """Makes agent `name` trainable everywhere an agent's name is taken. `make(obs_size,
   action_size, config)` builds it; `presets` ({name: config dataclass}) must hold "cpu" and
   "gpu"; `learner_fields` name the metrics of its `update` shown on the terminal; `tiny`
-  overrides the config for the short runs of tests and the notebook's quick mode."""
+  overrides the config for the short runs of tests and the notebook's quick mode.
+
+  `exported_policy(policy_params, config) -> (layers, output)` lets `mjx_hopper.export` write
+  its deterministic policy, from its state's `policy`, as NumPy layers: each an (arrays,
+  structure) pair of `networks.exported_dense`, and the output "tanh" or "clip". Without it,
+  the agent trains but cannot be exported."""
   missing = [p for p in PRESET_NAMES if p not in presets]
   if missing:
     raise ValueError(f"agent {name!r} must declare the presets {list(PRESET_NAMES)}; it lacks "
                      f"{missing}")
   if not all(dataclasses.is_dataclass(c) for c in presets.values()):
     raise ValueError(f"agent {name!r}'s presets must be config dataclasses, got {presets!r}")
-  _AGENTS[name] = Spec(make, dict(presets), tuple(learner_fields), dict(tiny or {}))
+  _AGENTS[name] = Spec(make, dict(presets), tuple(learner_fields), dict(tiny or {}),
+                       exported_policy)
 
 
-register("d4pg", d4pg.make, d4pg.PRESETS, d4pg.LEARNER_FIELDS, d4pg.TINY)
-register("ddpg", ddpg.make, ddpg.PRESETS, ddpg.LEARNER_FIELDS, ddpg.TINY)
-register("mpo", mpo.make, mpo.PRESETS, mpo.LEARNER_FIELDS, mpo.TINY)
-register("dmpo", mpo.make, mpo.DMPO_PRESETS, mpo.LEARNER_FIELDS, mpo.DMPO_TINY)
+register("d4pg", d4pg.make, d4pg.PRESETS, d4pg.LEARNER_FIELDS, d4pg.TINY, dpg.exported_policy)
+register("ddpg", ddpg.make, ddpg.PRESETS, ddpg.LEARNER_FIELDS, ddpg.TINY, dpg.exported_policy)
+register("mpo", mpo.make, mpo.PRESETS, mpo.LEARNER_FIELDS, mpo.TINY, mpo.exported_policy)
+register("dmpo", mpo.make, mpo.DMPO_PRESETS, mpo.LEARNER_FIELDS, mpo.DMPO_TINY,
+         mpo.exported_policy)
 
 
 def list_agents() -> list[str]:
@@ -64,13 +74,14 @@ def spec(name: str) -> Spec:
 
 
 def learner_fields(name: str) -> tuple[tuple[str, str], ...]:
+  """The (metric, "text {}") pairs agent `name`'s terminal line shows."""
   return spec(name).learner_fields
 
 
 def config(name: str, preset: str = "acme", **overrides):
   """Agent `name`'s config: its preset `preset` with fields replaced by `overrides`."""
   presets = spec(name).presets
-  preset = OLD_PRESET_NAMES.get(preset, preset)
+  preset = compat.preset(preset)
   if preset not in presets:
     raise ValueError(f"unknown preset {preset!r} for {name}; valid presets are "
                      f"{sorted(presets)}")

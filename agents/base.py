@@ -8,6 +8,7 @@ from typing import Any, Callable, ClassVar, NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 import optax
 
 from mjx_hopper.fields import check_types
@@ -81,10 +82,11 @@ class CommonConfig:
                          f"{layers!r}")
 
 
-def hparams(cfg: CommonConfig) -> dict[str, jax.Array]:
-  """`cfg.DYNAMIC`'s settings as int32 or float32 arrays."""
-  return {name: jnp.asarray(getattr(cfg, name),
-                            jnp.int32 if isinstance(getattr(cfg, name), int) else jnp.float32)
+def hparams(cfg: CommonConfig) -> dict[str, np.ndarray]:
+  """`cfg.DYNAMIC`'s settings as int32 or float32 arrays (NumPy's: made with JAX, each would be
+  a program compiled at start)."""
+  return {name: np.asarray(getattr(cfg, name),
+                           np.int32 if isinstance(getattr(cfg, name), int) else np.float32)
           for name in cfg.DYNAMIC}
 
 

@@ -40,11 +40,10 @@ PRESETS = {
 State = dpg.State
 
 
-def make(obs_size: int, action_size: int, cfg: Config = Config(),
-         learner: str | None = None) -> Agent:
-  """`learner`: how the update runs its networks (dpg.make's)."""
+def make(obs_size: int, action_size: int, cfg: Config = Config()) -> Agent:
+  """D4PG: dpg's functions with a categorical critic over the state's [vmin, vmax]."""
   return dpg.make(obs_size, action_size, cfg,
-                  lambda hp: critics.categorical(hp["vmin"], hp["vmax"], cfg.num_atoms), learner)
+                  lambda hp: critics.categorical(hp["vmin"], hp["vmax"], cfg.num_atoms))
 
 
 # The learner figures on the terminal line (log.csv has all of them): a bounded critic loss, and a

@@ -23,10 +23,9 @@ PRESETS = {
 State = dpg.State
 
 
-def make(obs_size: int, action_size: int, cfg: Config = Config(),
-         learner: str | None = None) -> Agent:
-  """`learner`: how the update runs its networks (dpg.make's)."""
-  return dpg.make(obs_size, action_size, cfg, lambda hp: critics.scalar(), learner)
+def make(obs_size: int, action_size: int, cfg: Config = Config()) -> Agent:
+  """DDPG: dpg's functions with a scalar critic."""
+  return dpg.make(obs_size, action_size, cfg, lambda hp: critics.scalar())
 
 
 LEARNER_FIELDS = (("critic_loss", "critic loss {}"), ("q_mean", "Q {}"))

@@ -13,11 +13,17 @@ def check_support(vmin: float, vmax: float, num_atoms: int) -> None:
                      f"vmax={vmax}, num_atoms={num_atoms!r}")
 
 
+def check_concrete_support(vmin, vmax, num_atoms: int) -> None:
+  """`check_support` where vmin and vmax are numbers (inside a compiled function, arrays whose
+  values the config checked)."""
+  if not any(isinstance(v, jax.core.Tracer) for v in (vmin, vmax)):
+    check_support(float(vmin), float(vmax), num_atoms)
+
+
 def atoms(vmin, vmax, num_atoms: int) -> jax.Array:
   """(num_atoms,) evenly spaced support from vmin to vmax (numbers, or arrays inside a
   compiled function, whose values the config checked)."""
-  if not any(isinstance(v, jax.core.Tracer) for v in (vmin, vmax)):
-    check_support(float(vmin), float(vmax), num_atoms)
+  check_concrete_support(vmin, vmax, num_atoms)
   return jnp.linspace(vmin, vmax, num_atoms)
 
 

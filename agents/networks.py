@@ -1,4 +1,5 @@
-"""The NMA notebook's networks (acme's), in flax linen: LayerNormMLP, a tanh policy, and critics.
+"""The NMA notebook's networks (acme's), in flax linen: LayerNormMLP, a tanh policy, and critics;
+and their layers as NumPy arrays, for `mjx_hopper.export`.
 
 Every module works on any leading batch shape: observations (..., O), actions (..., A).
 
@@ -14,6 +15,7 @@ from typing import Any, Sequence
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 _INIT = nn.initializers.variance_scaling(1.0, "fan_in", "uniform")
 
@@ -94,3 +96,29 @@ class GaussianPolicy(nn.Module):
     raw = nn.Dense(self.action_size, kernel_init=_INIT, dtype=jnp.float32)(x)
     std = nn.softplus(raw) * (self.init_scale / jnp.log(2.0)) + self.min_scale
     return mean, std
+
+
+# ---- The networks as `export` writes them: NumPy layers that mjx_hopper.export.forward runs --
+
+def exported_dense(params: dict, dtype: str, norm: bool, activation: str) -> tuple[dict, dict]:
+  """One exported layer: its arrays ("w", "b"), and its structure (the compute dtype, whether
+  LayerNorm follows, the activation: "tanh", "elu" or "none")."""
+  arrays = {"w": np.asarray(params["kernel"], np.float32),
+            "b": np.asarray(params["bias"], np.float32)}
+  return arrays, {"dtype": dtype, "norm": norm, "activation": activation}
+
+
+def exported_mlp(mlp: dict, num_layers: int, activate_final: bool, dtype: str) -> list:
+  """The exported layers of a LayerNormMLP of `num_layers` Dense layers: LayerNorm and tanh
+  after the first, ELU after the others but an unactivated last one (an output layer, in
+  float32)."""
+  out = []
+  for i in range(num_layers):
+    output = i == num_layers - 1 and i > 0 and not activate_final
+    arrays, layer = exported_dense(mlp[f"Dense_{i}"], "float32" if output else dtype, i == 0,
+                                   "tanh" if i == 0 else "none" if output else "elu")
+    if i == 0:
+      arrays.update(ln_scale=np.asarray(mlp["LayerNorm_0"]["scale"], np.float32),
+                    ln_bias=np.asarray(mlp["LayerNorm_0"]["bias"], np.float32))
+    out.append((arrays, layer))
+  return out

@@ -8,7 +8,6 @@ set -uo pipefail
 at=${AUTOTUNE_FILE:-${OUT:-/tmp}/autotune.textproto}
 cache=$(mktemp -d)
 out=$(mktemp -d)
-export MJX_HOPPER_LEARNER=${MJX_HOPPER_LEARNER:-xla}
 MJX_HOPPER_JAX_CACHE=$cache XLA_FLAGS="--xla_gpu_dump_autotune_results_to=$at" \
   python -P -m mjx_hopper.cli train --env Hopper --agent d4pg --preset gpu --steps 1000000000 \
   --no-progress --log-every 1 --max-minutes 0.5 --out "$out" >"$out/log.txt" 2>&1

@@ -10,7 +10,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import statistics
 import sys
 import time
@@ -54,10 +53,11 @@ def mujoco_c_row(env_id: str, threads: int, batch: int = 256, physics_steps: int
   rng = np.random.default_rng(0)
   data = mujoco.MjData(model)
   spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+  joints = [model.jnt_qposadr[model.joint(name).id] for name in env.joints]
   states = []
   for _ in range(batch):
     mujoco.mj_resetData(model, data)
-    data.qpos[env._qadr] = rng.uniform(-env.reset_noise, env.reset_noise, env.action_size)
+    data.qpos[joints] = rng.uniform(-env.reset_noise, env.reset_noise, env.action_size)
     states.append(np.empty(mujoco.mj_stateSize(model, spec)))
     mujoco.mj_getState(model, data, states[-1], spec)
   controls = rng.uniform(-1, 1, (batch, physics_steps, model.nu))
@@ -87,7 +87,7 @@ def pybullet_row(env_id: str, seconds: float = 5.0) -> dict | None:
     _, _, done, _ = env.step(rng.uniform(-1, 1, env.action_space.shape))
     steps += 1
     if done:
-      with pybullet_oracle._quiet():
+      with pybullet_oracle.quiet():
         env.reset()
   return {"engine": "PyBullet", "platform": "cpu", "devices": 1, "batch": 1, "compile_s": 0.0,
           "env_steps_per_s": steps / (time.perf_counter() - t0)}
@@ -113,33 +113,19 @@ def main() -> None:
                       for r in mjx_rows(e, batches, args.steps_total)]))
     return
 
-  env_ids, rows = args.envs.split(","), []
+  rows = []
   for d in [int(x) for x in args.devices.split(",")]:
     result = common.worker(__file__, vars(args), d)
     if result is None:
       raise SystemExit(1)
     rows += result
   os.environ["JAX_PLATFORMS"] = "cpu"  # after the workers: this process measures the CPU alone
-  for e in env_ids:
-    row = pybullet_row(e)
-    rows += [dict(row, env=e)] if row else []
-    rows.append(dict(mujoco_c_row(e, threads=2), env=e))
-  rows.sort(key=lambda r: (env_ids.index(r["env"]), r["engine"] != "PyBullet",
-                           not r["engine"].startswith("MuJoCo"), r["devices"], r["batch"]))
-  print(f"# env throughput, {time.strftime('%Y-%m-%d')}, {platform.node()}, "
-        f"{os.cpu_count()} CPUs\n")
-
-  def ratio(r, engine, digits):  # r's rate against PyBullet's or MuJoCo C's on the same robot
-    ref = next((x["env_steps_per_s"] for x in rows
-                if x["env"] == r["env"] and x["engine"].startswith(engine)), None)
-    return f"{r['env_steps_per_s'] / ref:.{digits}f}" if ref else "-"
-
-  print(common.table(
-      ["env", "engine", "platform", "devices", "batch", "compile (s)", "env steps/s",
-       "× PyBullet", "÷ MuJoCo C"],
-      [[r["env"], r["engine"], r["platform"], r["devices"], r["batch"], f"{r['compile_s']:.1f}",
-        f"{r['env_steps_per_s']:,.0f}", ratio(r, "PyBullet", 1), ratio(r, "MuJoCo C", 2)]
-       for r in rows]))
+  for e in args.envs.split(","):
+    for row in (pybullet_row(e), mujoco_c_row(e, threads=2)):
+      if row:
+        rows.append(dict(row, env=e))
+        print(f"  {row['engine']} {e}: {row['env_steps_per_s']:,.0f} env steps/s",
+              file=sys.stderr, flush=True)
   common.write_results(f"env_throughput_{args.label}", {"rows": rows})
 
 

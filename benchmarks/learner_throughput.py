@@ -1,28 +1,21 @@
-"""Learner throughput: updates/s of each agent preset (or with --robots, each robot's preset), K
+"""Learner throughput: updates/s of each robot's preset (its agent, networks, batch and sizes), K
 updates in one compiled scan over random batches split over the devices as the trainer does,
-with compile time, launches, and FLOP/s (XLA's count, from the program compiled for the CPU,
-whose products stay XLA's) against the measured matmul peak in the compute dtype. With
---learners xla,fused, D4PG's update on each path (agents/fused.py), in the same process.
+with compile time and FLOP/s (XLA's count, from the program compiled for the CPU,
+whose products stay XLA's) against the measured matmul peak in the compute dtype.
 
     python benchmarks/learner_throughput.py                     # CPU: 1 and 2 XLA devices
-    python benchmarks/learner_throughput.py --devices 1 --presets gpu --robots Hopper,Humanoid \
-      --learners xla,fused                                      # on a GPU
+    python benchmarks/learner_throughput.py --devices 1 --presets gpu --robots Hopper,Humanoid
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
-import re
 import statistics
 import sys
 import time
 
 import common
-
-OBS, ACT = 15, 3  # Hopper
 
 
 def matmul_peak(dtype: str = "float32", repeats: int = 10) -> float:
@@ -47,52 +40,24 @@ def matmul_peak(dtype: str = "float32", repeats: int = 10) -> float:
   return 2 * n**3 * len(devices) / best
 
 
-OPCODE = re.compile(r" = .*?\s([a-z][\w-]*)\(")
-NOT_LAUNCHED = ("parameter", "constant", "tuple", "get-tuple-element", "bitcast", "while",
-                "conditional", "call")
-
-
-def count_kernels(hlo: str) -> int:
-  """The launches of a compiled HLO module: the instructions of its entry computation and of its
-  loops' bodies (fused bodies and reductions' operators are not launched), less those that
-  launch nothing."""
-  launching = {"ENTRY"} | set(re.findall(r"body=(%[\w.-]+)", hlo))
-  count, counting = 0, False
-  for line in hlo.splitlines():
-    if line and not line.startswith(" "):  # a computation's header, or the module's
-      words = line.split()
-      counting = bool(words) and words[0] in launching
-      continue
-    op = OPCODE.search(line)
-    if counting and op and op.group(1) not in NOT_LAUNCHED:
-      count += 1
-  return count
-
-
-def cases(agents_: str, presets: str, robots: str | None, batch: int | None,
-          overrides: dict) -> list[dict]:
-  """What to time: each agent's preset of each name at `batch` (256 unless given) on
-  Hopper-sized data, or with `robots`, each robot's preset of each kind (its agent, settings,
-  batch size and sizes), `overrides` over either."""
-  if not robots:
-    return [dict(robot="Hopper", agent=a, preset=p, overrides=overrides, obs=OBS, act=ACT,
-                 batch=batch or 256) for a in agents_.split(",") for p in presets.split(",")]
-  from mjx_hopper import envs, presets as robot_presets
+def cases(robots: str, kinds: str, overrides: dict) -> list[dict]:
+  """What to time: each robot's preset of each kind (its agent, settings, batch size and
+  sizes), `overrides` over its agent's settings."""
+  from mjx_hopper import envs, presets
   out = []
   for robot in robots.split(","):
     env = envs.make(robot)
-    for kind in presets.split(","):
-      preset = robot_presets.get(robot, kind)
+    for kind in kinds.split(","):
+      preset = presets.get(robot, kind)
       out.append(dict(robot=robot, agent=preset.agent, preset=preset.agent_preset,
                       overrides={**preset.agent_overrides, **overrides},
                       obs=env.observation_size, act=env.action_size,
-                      batch=batch or preset.train.batch_size, kind=kind))
+                      batch=preset.train.batch_size, kind=kind))
   return out
 
 
-def learner_row(case: dict, updates: int, learner: str = "xla") -> dict:
-  """`case` timed on the `learner` path: `updates` updates in one compiled scan, the median of
-  3 calls."""
+def learner_row(case: dict, updates: int) -> dict:
+  """`case` timed: `updates` updates in one compiled scan, the median of 3 calls."""
   import jax
   import numpy as np
   from jax.sharding import NamedSharding, PartitionSpec as P
@@ -114,7 +79,6 @@ def learner_row(case: dict, updates: int, learner: str = "xla") -> dict:
         discount=np.full((k, batch), 0.99**5, np.float32),
         next_obs=rng.normal(size=(k, batch, obs_size)).astype(np.float32))
 
-  os.environ["MJX_HOPPER_LEARNER"] = learner  # read when the agent is made
   agent = agents.make(agent_name, obs_size, act_size,
                       agents.config(agent_name, preset, **overrides))
   state = agent.init(jax.random.PRNGKey(0))
@@ -124,7 +88,6 @@ def learner_row(case: dict, updates: int, learner: str = "xla") -> dict:
   cost = update.lower(*jax.device_put((state, one, jax.random.PRNGKey(0)),
                                       jax.devices("cpu")[0])).compile().cost_analysis()
   flops = float((cost[0] if isinstance(cost, (list, tuple)) else cost).get("flops", np.nan))
-  kernels = count_kernels(update.lower(state, one, jax.random.PRNGKey(0)).compile().as_text())
 
   def run(state, data, key):
     def step(state, inputs):
@@ -146,26 +109,20 @@ def learner_row(case: dict, updates: int, learner: str = "xla") -> dict:
   losses = {k: float(v) for k, v in timed.out.items()}
   if not all(np.isfinite(v) for v in losses.values()):
     raise SystemExit(f"{agent_name}/{preset}: non-finite metrics {losses}")
-  label = case["robot"] + (f" ({case['kind']})" if "kind" in case else "")
-  print(f"  {label} {agent_name}/{preset} {learner} x{len(devices)}: {rate:,.0f} updates/s, "
+  label = f"{case['robot']} ({case['kind']})"
+  print(f"  {label} {agent_name}/{preset} x{len(devices)}: {rate:,.0f} updates/s, "
         f"{rate * flops / 1e9:.1f} GFLOP/s, compile {compile_s:.1f} s", file=sys.stderr,
         flush=True)
-  return {**case, "label": label, "learner": learner, "platform": devices[0].platform,
-          "devices": len(devices),
+  return {**case, "label": label, "platform": devices[0].platform, "devices": len(devices),
           "compile_s": compile_s, "updates_per_s": rate, "gflop_per_update": flops / 1e9,
-          "gflops": rate * flops / 1e9, "kernels": kernels, "us_per_kernel": 1e6 / rate / kernels}
+          "gflops": rate * flops / 1e9}
 
 
 def main() -> None:
   parser = argparse.ArgumentParser(description=__doc__,
                                    formatter_class=argparse.RawDescriptionHelpFormatter)
-  parser.add_argument("--agents", default="d4pg", help="comma-separated agent names")
-  parser.add_argument("--learners", default="xla", help="update paths: xla, fused, or both")
-  parser.add_argument("--presets", default="acme,gpu,cpu",
-                      help="the agents' presets, or with --robots the robots' (gpu, cpu)")
-  parser.add_argument("--robots", help="comma-separated robots: time each robot's preset")
-  parser.add_argument("--batch", type=int,
-                      help="default: 256, or with --robots each preset's batch size")
+  parser.add_argument("--robots", default="Hopper", help="comma-separated robots")
+  parser.add_argument("--presets", default="cpu", help="the robots' presets: gpu, cpu or both")
   parser.add_argument("--updates", type=int, default=100, help="updates per timed call")
   parser.add_argument("--devices", default="1,2",
                       help="XLA CPU device counts (on a GPU: GPUs used)")
@@ -177,40 +134,22 @@ def main() -> None:
   args = parser.parse_args()
   if args.worker:  # one device count per process: XLA reads the flag at start-up
     args = argparse.Namespace(**json.loads(args.worker))
-    from mjx_hopper import cli
-    rows = [learner_row(case, args.updates, learner) for case in cases(
-        args.agents, args.presets, args.robots, args.batch, cli._overrides(args.set))
-            for learner in args.learners.split(",")]
+    from mjx_hopper import flags
+    rows = [learner_row(case, args.updates)
+            for case in cases(args.robots, args.presets, flags.overrides(args.set))]
     print(json.dumps({"peak": matmul_peak(), "peak_bf16": matmul_peak("bfloat16"),
                       "rows": rows}))
     return
-
-  rows, peaks, peaks_bf16 = [], {}, {}
-  for d in [int(x) for x in args.devices.split(",")]:
-    result = common.worker(__file__, vars(args), d)
-    if result is None:
-      raise SystemExit(1)
-    peaks[d] = result["peak"] / 1e9
-    peaks_bf16[d] = result["peak_bf16"] / 1e9
-    rows += result["rows"]
-
-  def peak(row):
-    bf16 = row["overrides"].get("compute_dtype") == "bfloat16"
-    return (peaks_bf16 if bf16 else peaks)[row["devices"]]
-
-  print(f"# learner throughput, {time.strftime('%Y-%m-%d')}, {platform.node()}, "
-        f"{os.cpu_count()} CPUs\n")
-  print(common.table(
-      ["robot", "agent", "preset", "learner", "platform", "devices", "batch", "compile (s)",
-       "updates/s", "GFLOP/update", "GFLOP/s", "% of matmul peak", "kernels", "us/kernel"],
-      [[r["label"], r["agent"], r["preset"], r["learner"], r["platform"], r["devices"], r["batch"],
-        f"{r['compile_s']:.1f}", f"{r['updates_per_s']:,.0f}", f"{r['gflop_per_update']:.3f}", f"{r['gflops']:.1f}",
-        f"{100 * r['gflops'] / peak(r):.1f}%", r["kernels"],
-        f"{r['us_per_kernel']:.1f}"] for r in rows]))
-  print("\nmeasured matmul peak (GFLOP/s), float32 / bfloat16: "
-        + ", ".join(f"{d} device(s): {p:,.1f} / {peaks_bf16[d]:,.1f}" for d, p in peaks.items()))
-  common.write_results(f"learner_throughput_{args.label}",
-                       {"peaks_gflops": peaks, "peaks_bf16_gflops": peaks_bf16, "rows": rows})
+  results = {d: common.worker(__file__, vars(args), d) for d in map(int, args.devices.split(","))}
+  if None in results.values():
+    raise SystemExit(1)
+  peaks = {d: r["peak"] / 1e9 for d, r in results.items()}
+  peaks_bf16 = {d: r["peak_bf16"] / 1e9 for d, r in results.items()}
+  print("measured matmul peak (GFLOP/s), float32 / bfloat16: " + ", ".join(
+      f"{d} device(s): {p:,.1f} / {peaks_bf16[d]:,.1f}" for d, p in peaks.items()))
+  common.write_results(f"learner_throughput_{args.label}", {
+      "peaks_gflops": peaks, "peaks_bf16_gflops": peaks_bf16,
+      "rows": [row for r in results.values() for row in r["rows"]]})
 
 
 if __name__ == "__main__":

@@ -30,7 +30,7 @@ import common
 
 GRID = ["--set", "learning_rate=2.5e-4,5e-4,1e-3,2e-3", "--set", "sigma=0.2,0.4,0.6,0.8"]
 QUALITY = ["--preset", "gpu", "--num-envs", "512", "--batch-size", "1024", "--replay-size",
-           "1000000", *GRID, "--steps", str(10**10)]
+           "1000000", *GRID, "--total-env-steps", str(10**10)]
 PBT = ["--pbt", "--pbt-every", "1"]
 HEAD = ["seed", "run", "best to target (s)", "best return", "members' median best",
         "env steps", "env steps/s (median chunk)"]
@@ -46,7 +46,7 @@ def sweep(flags: list[str], out: str, env: dict | None = None,
   elif not os.path.isdir(os.path.join(out, "checkpoints")):
     raise SystemExit(f"--resume: {out} holds no checkpoint to continue (a fresh machine?)")
   return subprocess.Popen([sys.executable, "-P", "-m", "mjx_hopper.cli", "sweep", *flags,
-                           "--out", out, "--no-progress", "--log-every", "30",
+                           "--out-dir", out, "--no-progress", "--log-every", "30",
                            "--checkpoint-minutes", "1e4"], env={**os.environ, **(env or {})})
 
 

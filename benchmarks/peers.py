@@ -8,7 +8,7 @@ benchmarks/results/peers_LABEL.json.
 
 --grid TRAINER:NAME=V1,V2 replaces one of the settings the Brax trainers start from (Brax's for
 its hopper: SAC's from its training notebook, PPO's its locomotion ones, the notebook's `ant`);
-NAME+NAME=V+V,... sets several together; every combination of the --grid values is a run.
+every combination of the --grid values is a run.
 """
 
 from __future__ import annotations
@@ -63,28 +63,21 @@ def brax_train(trainer: str):
 
 def parse_grid(specs: list[str], trainers: list[str]) -> dict[str, list[dict]]:
   """{trainer: [settings, ...]}: every combination of the --grid values, per Brax trainer.
-  A spec is TRAINER:NAME=V1,V2,... or TRAINER:NAME+NAME=V+V,...; values are Python literals."""
+  A spec is TRAINER:NAME=V1,V2,...; values are Python literals."""
   axes = {t: [] for t in BRAX}
   for spec in specs:
     trainer, _, assignment = spec.partition(":")
-    names, _, values = assignment.partition("=")
-    if trainer not in BRAX or trainer not in trainers or not names or not values:
+    name, _, values = assignment.partition("=")
+    if trainer not in BRAX or trainer not in trainers or not name or not values:
       raise SystemExit(f"--grid {spec!r}: want TRAINER:NAME=V1,V2 with TRAINER one of "
                        f"--trainers' {sorted(set(trainers) & set(BRAX))}")
-    names = names.split("+")
     known = set(inspect.signature(brax_train(trainer)).parameters) | {"eval_every"}
-    for name in set(names) - known:
+    if name not in known:
       raise SystemExit(f"--grid {spec!r}: {trainer} has no setting {name!r}; it has "
                        f"{sorted(known)}")
-    options = []
-    for value in values.split(","):
-      parts = [ast.literal_eval(v) for v in value.split("+")]
-      if len(parts) != len(names):
-        raise SystemExit(f"--grid {spec!r}: {value!r} has {len(parts)} values for {names}")
-      options.append(dict(zip(names, parts)))
-    axes[trainer].append(options)
-  return {t: [dict(BRAX[t], **{k: v for o in combo for k, v in o.items()})
-              for combo in itertools.product(*axes[t])] for t in BRAX if t in trainers}
+    axes[trainer].append([(name, ast.literal_eval(v)) for v in values.split(",")])
+  return {t: [dict(BRAX[t], **dict(combo)) for combo in itertools.product(*axes[t])]
+          for t in BRAX if t in trainers}
 
 
 def plan(args) -> list[dict]:
@@ -227,9 +220,9 @@ def worker_ours(run: dict, folder: str) -> None:
   with open(os.path.join(folder, "started.json"), "w") as f:
     json.dump({"loop_start_s": loop_start}, f)
   minutes = run["minutes"] - loop_start / 60
-  cli.main(["train", *run["settings"], "--steps", str(10**10), "--max-minutes", str(minutes),
-            "--eval-episodes", str(run["eval_episodes"]), "--out", folder, "--no-progress",
-            "--log-every", "30", "--checkpoint-minutes", "10000"])
+  cli.main(["train", *run["settings"], "--total-env-steps", str(10**10), "--max-minutes",
+            str(minutes), "--eval-episodes", str(run["eval_episodes"]), "--out-dir", folder,
+            "--no-progress", "--log-every", "30", "--checkpoint-minutes", "10000"])
   import jax
   write_meta(folder, device=jax.devices()[0].device_kind, jax=jax.__version__)
 
@@ -332,13 +325,10 @@ def worker_sb3(run: dict, folder: str) -> None:
     """Counts training time only; evaluates at each check, stops at the last."""
 
     def _on_training_start(self):
-      self.train_s, self.t0, self.learning_from = 0.0, time.time(), None
+      self.train_s, self.t0 = 0.0, time.time()
 
     def _on_step(self):
-      now = time.time()
-      self.train_s += now - self.t0
-      if self.learning_from is None and self.num_timesteps >= settings["learning_starts"]:
-        self.learning_from = (self.train_s, self.num_timesteps)  # random actions until here
+      self.train_s += time.time() - self.t0
       if self.train_s >= checks[0] * budget:
         returns, lengths = evaluate_policy(model, eval_env, run["eval_episodes"],
                                            deterministic=True, return_episode_rewards=True)
@@ -354,11 +344,8 @@ def worker_sb3(run: dict, folder: str) -> None:
   model.learn(total_timesteps=total, callback=clock)
   ours = returns_on_ours(model, run["eval_episodes"], seed)
   final = evaluations(folder)[-1]
-  learn_s, learn_steps = clock.learning_from or (clock.train_s, model.num_timesteps)
   write_meta(folder, device="cpu", sb3=stable_baselines3.__version__, train_s=clock.train_s,
              train_steps_per_s=model.num_timesteps / clock.train_s,
-             learning_steps_per_s=(model.num_timesteps - learn_steps) / max(
-                 clock.train_s - learn_s, 1e-9),
              final_return_pybullet=final["eval_return"], final_return_ours=float(np.mean(ours)),
              final_returns_ours=ours)
 
@@ -377,8 +364,6 @@ def main() -> None:
                  help="SB3 SAC on PyBullet, then our D4PG cpu preset, MINUTES each")
   p.add_argument("--label", default="run", help="results: benchmarks/results/peers_LABEL.json")
   p.add_argument("--out", default="runs/peers")
-  p.add_argument("--summarise-only", action="store_true",
-                 help="only redo the table and the results file from OUT")
   p.add_argument("--worker", default=None, help=argparse.SUPPRESS)
   args = p.parse_args()
   if args.worker:  # one run, in a process of its own
@@ -386,16 +371,8 @@ def main() -> None:
     workers = {"ours": worker_ours, "sac": worker_brax, "ppo": worker_brax, "sb3": worker_sb3}
     return workers[run["trainer"]](run, args.worker)
   runs = plan(args)
-  if not args.summarise_only:
-    os.makedirs(args.out, exist_ok=True)
-    run_all(runs, args.out, 1 if args.cpu_baseline else len(runs))
-  else:
-    for run in runs:
-      saved = read_json(os.path.join(args.out, run["name"], "run.json"))
-      if not saved:
-        raise SystemExit(f"--summarise-only: no {run['name']}/run.json in {args.out}; give "
-                         "the flags of the run that wrote it")
-      run.update(saved)
+  os.makedirs(args.out, exist_ok=True)
+  run_all(runs, args.out, 1 if args.cpu_baseline else len(runs))
   rows = summarise(runs, args.out)
   report(rows)
   common.write_results(f"peers_{args.label}", {"thresholds": THRESHOLDS, "runs": rows})

@@ -1,21 +1,22 @@
-"""How long a training run makes a user wait: `mjx-hopper train --env ENV --agent d4pg --preset
-KIND` (by default the main job's, Hopper's cpu preset) from process start to its first `[train]`
-line (the first chunk done) and its first `[eval]` line, with an empty compile cache and then
-with the cache that run left.
+"""How long a training run makes a user wait, phase by phase: `mjx-hopper train --env ENV --agent
+d4pg --preset KIND` (by default the main job's, Hopper's cpu preset) from process start to its
+first `[train]` line (the first chunk done) and its first `[eval]` line, from an empty compile
+cache ("cold") and then from the cache that run left ("warm").
 
-    python benchmarks/start_time.py --rounds 2
-    python benchmarks/start_time.py --rounds 2 --checkout /tmp/old   # beside another checkout
-    bash benchmarks/gpu.sh "python benchmarks/start_time.py --kind gpu --seconds 45 --label h100"
+    python benchmarks/start_time.py --rounds 2 --checkout /tmp/before   # beside another commit
+    bash benchmarks/gpu.sh "python benchmarks/start_time.py --kind gpu --label h100"
 
-"first chunk starts" is the first line's time less one chunk at the run's later pace (the median
-env steps/s of the rows after its first evaluation): when training began, compile done. With
---checkout DIR, DIR's mjx_hopper (laid out as installed, with its envs and agents inside, in a
-temporary folder put first on PYTHONPATH) runs in turns with this one's.
+Each run records, in seconds from process start: the imports (`mjx_hopper.loop` and what it
+pulls in, JAX included), the build (imports done to the chunk's tracing), each program's tracing,
+lowering and XLA compile (JAX's own duration events, `jax.monitoring`), and the first lines.
+With --checkout DIR, DIR's mjx_hopper (laid out as installed, with its envs and agents inside, in
+a temporary folder put first on PYTHONPATH) runs in turns with this one's.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import re
 import shutil
@@ -27,47 +28,104 @@ import time
 
 import common
 
-STEPS = re.compile(r"\[train\] ([\d,]+) env steps \| ([\d,]+) steps/s")
+# Runs in the measured process: JAX's compile events with their end times, then the CLI.
+PROBE = """
+import atexit, json, sys, time
+import jax
+events = []
+def listen(event, duration, fun_name="?", **kwargs):
+  events.append((time.time(), event.rsplit("/", 1)[-1], fun_name, duration))
+jax.monitoring.register_event_duration_secs_listener(listen)
+import mjx_hopper.loop
+imported = time.time()
+record = sys.argv[1]
+atexit.register(lambda: json.dump({"imported": imported, "events": events}, open(record, "w")))
+from mjx_hopper import cli
+sys.argv = ["mjx-hopper"] + sys.argv[2:]
+cli.main()
+"""
+PHASES = {"jaxpr_trace_duration": "trace", "jaxpr_to_mlir_module_duration": "lower",
+          "backend_compile_duration": "compile"}
+RATE = re.compile(r"\| ([\d,]+) steps/s")
+MIN_SECONDS = 0.2  # programs whose phases took less are summed as "small programs"
 
 
 def one_run(command: list[str], cache: str, code: str | None, seconds: float) -> dict:
-  """Times of the main job's first lines (s from process start), run for about `seconds`."""
+  """One run's phases (s from process start), run for about `seconds`."""
   env = dict(os.environ, MJX_HOPPER_JAX_CACHE=cache)
   if code:
     env["PYTHONPATH"] = os.pathsep.join([code, env.get("PYTHONPATH", "")])
   with tempfile.TemporaryDirectory() as out:
-    start = time.perf_counter()
-    proc = subprocess.Popen([sys.executable, "-P", *command, "--out", out,
+    record = os.path.join(out, "events.json")
+    start = time.time()
+    proc = subprocess.Popen([sys.executable, "-P", "-c", PROBE, record, *command, "--out", out,
                              "--max-minutes", str(seconds / 60)], env=env, text=True,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
-    lines = [(time.perf_counter() - start, line) for line in proc.stdout]
+    lines = [(time.time() - start, line) for line in proc.stdout]
     if proc.wait():
-      raise SystemExit("the main job failed:\n" + "".join(line for _, line in lines[-20:]))
-  trains = [(t, *map(lambda v: int(v.replace(",", "")), STEPS.search(line).groups()))
-            for t, line in lines if line.startswith("[train]")]
-  first_eval = next((t for t, line in lines if line.startswith("[eval]")), None)
-  later = [rate for t, _, rate in trains if first_eval is not None and t > first_eval]
-  if not later:
-    raise SystemExit(f"a run of {seconds:g} s logged no chunk after its first evaluation, "
-                     "whose pace the first chunk is timed by; give it more --seconds")
-  pace = statistics.median(later)
-  done, steps, _ = trains[0]
-  return {"first_chunk_done": done, "first_chunk_starts": done - steps / pace,
-          "first_eval": first_eval}
+      raise SystemExit("the run failed:\n" + "".join(line for _, line in lines[-20:]))
+    with open(record) as f:
+      probe = json.load(f)
+  first = {kind: next((t for t, line in lines if line.startswith(f"[{kind}]")), None)
+           for kind in ("train", "eval")}
+  # Training's pace once started: the rows after the first evaluation (which competes with the
+  # first chunks for the CPU).
+  later = [float(RATE.search(line).group(1).replace(",", "")) for t, line in lines
+           if line.startswith("[train]") and t > (first["eval"] or float("inf"))]
+  programs: dict[str, dict[str, float]] = {}
+  chunk_traced = None
+  for end, event, name, duration in probe["events"]:
+    if event not in PHASES:
+      continue
+    name = name.removeprefix("jit(").removesuffix(")")
+    if name == "chunk" and event == "jaxpr_trace_duration" and chunk_traced is None:
+      chunk_traced = end - duration - start
+    if end - start <= (first["eval"] or float("inf")):  # what the first evaluation waited for
+      phases = programs.setdefault(name, {})
+      phases[PHASES[event]] = phases.get(PHASES[event], 0.0) + duration
+  small = {k: v for k, v in programs.items() if sum(v.values()) < MIN_SECONDS}
+  programs = {k: v for k, v in programs.items() if k not in small}
+  programs[f"{len(small)} small programs"] = {
+      phase: sum(v.get(phase, 0.0) for v in small.values()) for phase in PHASES.values()}
+  imported = probe["imported"] - start
+  return {"imports": imported, "build": (chunk_traced or imported) - imported,
+          "first_train": first["train"], "first_eval": first["eval"],
+          "steps_per_s": statistics.median(later) if later else None, "programs": programs}
+
+
+def summary(runs: list[dict]) -> dict:
+  """The medians of `runs`' phases, programs' phases flattened as 'PROGRAM PHASE'."""
+  def flat(run):
+    out = {k: run[k] for k in ("imports", "build", "first_train", "first_eval", "steps_per_s")}
+    for program, phases in run["programs"].items():
+      out.update({f"{program} {phase}": s for phase, s in phases.items()})
+    return out
+  flats = [flat(r) for r in runs]
+  keys = [k for k in flats[0] if all(f.get(k) is not None for f in flats)]
+  return {k: statistics.median(f[k] for f in flats) for k in keys}
+
+
+def _commit(folder: str) -> str:
+  """The short commit of the checkout in `folder`, else the folder's name."""
+  done = subprocess.run(["git", "-C", folder, "rev-parse", "--short", "HEAD"],
+                        capture_output=True, text=True)
+  return done.stdout.strip() or folder
 
 
 def main() -> None:
   p = argparse.ArgumentParser(description=__doc__,
                               formatter_class=argparse.RawDescriptionHelpFormatter)
   p.add_argument("--rounds", type=int, default=2)
-  p.add_argument("--seconds", type=float, default=75.0, help="each run's length")
+  p.add_argument("--seconds", type=float, default=60.0, help="each run's length")
   p.add_argument("--checkout", default=None, help="another checkout's folder to time beside")
+  p.add_argument("--checkout-name", default=None,
+                 help="its name in the results (default: its commit)")
   p.add_argument("--env", default="Hopper")
   p.add_argument("--kind", default="cpu", help="the robot preset: cpu or gpu")
   p.add_argument("--label", default="cpu")
   args = p.parse_args()
-  command = ["-m", "mjx_hopper.cli", "train", "--env", args.env, "--agent", "d4pg", "--preset",
-             args.kind, "--steps", "1000000000", "--no-progress", "--log-every", "1"]
+  command = ["train", "--env", args.env, "--agent", "d4pg", "--preset", args.kind,
+             "--total-env-steps", "1000000000", "--no-progress", "--log-every", "1"]
   codes = {"this checkout": None}
   with tempfile.TemporaryDirectory(prefix="start_time_") as installed:
     if args.checkout:
@@ -76,22 +134,21 @@ def main() -> None:
       for sub in ("envs", "agents"):  # packaged as mjx_hopper.envs and .agents (pyproject.toml)
         shutil.copytree(os.path.join(args.checkout, sub),
                         os.path.join(installed, "mjx_hopper", sub))
-      codes[args.checkout] = installed
-    times = {(name, cache): [] for name in codes for cache in ("empty cache", "warm cache")}
+      codes[args.checkout_name or _commit(args.checkout)] = installed
+    runs = {(name, cache): [] for name in codes for cache in ("cold", "warm")}
     for i in range(args.rounds):
       for name, code in (codes.items() if i % 2 == 0 else reversed(codes.items())):
         with tempfile.TemporaryDirectory() as cache:
-          for state in ("empty cache", "warm cache"):  # the second run loads what the first kept
-            times[name, state].append(one_run(command, cache, code, args.seconds))
-            print(name, state, times[name, state][-1], flush=True)
-  fields = ("first_chunk_starts", "first_chunk_done", "first_eval")
-  rows = [[name, state, *(" / ".join(f"{r[f]:.1f}" for r in runs) for f in fields)]
-          for (name, state), runs in times.items()]
-  text = common.table(["code", "compile cache", "first chunk starts (s)",
-                       "first [train] line (s)", "first [eval] line (s)"], rows)
-  print(text)
-  common.write_results(f"start_time_{args.label}", {"table": text, "runs": {
-      f"{name}, {state}": runs for (name, state), runs in times.items()}})
+          for state in ("cold", "warm"):  # the second run loads what the first kept
+            runs[name, state].append(one_run(command, cache, code, args.seconds))
+            print(name, state, json.dumps(runs[name, state][-1]), flush=True)
+  medians = {f"{name}, {state}": summary(r) for (name, state), r in runs.items()}
+  for label, figures in medians.items():
+    print(label, {k: round(v, 1) for k, v in figures.items()})
+  common.write_results(f"start_time_{args.label}", {
+      "preset": f"{args.env} {args.kind}", "xla_flags": os.environ.get("XLA_FLAGS"),
+      "medians": medians,
+      "runs": {f"{name}, {state}": r for (name, state), r in runs.items()}})
 
 
 if __name__ == "__main__":

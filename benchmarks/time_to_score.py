@@ -1,9 +1,8 @@
-"""Time to score: one robot trained with its preset (mjx_hopper.presets), seeds one after another
-(or --at-once, as one sweep), each until the robot's target or the time budget; a task of your
-own (module:Class, a subclass of a robot) with its robot's preset. Writes its figures to
-benchmarks/results/time_to_score_ROBOT_KIND[_LABEL].json, and to OUT the score curves
-(score_curves.png) and the best seed's final episode (episode.npz, rendered to frame.png and
-robot.gif where a renderer works).
+"""Time to score: one robot trained with its preset (mjx_hopper.presets), seeds one after
+another, each until the robot's target or the time budget; a task of your own (module:Class, a
+subclass of a robot) with its robot's preset. Writes its figures to
+benchmarks/results/time_to_score_ROBOT_KIND[_LABEL].json, and to OUT the best seed's final
+episode (episode.npz, rendered to frame.png and robot.gif where a renderer works).
 
     python benchmarks/time_to_score.py Hopper --kind cpu              # on the 2-core CPU
     python benchmarks/time_to_score.py Walker2D --render-only runs/time_to_score/Walker2D_gpu
@@ -36,8 +35,8 @@ def record_episode(checkpoint_dir: str, member: int, path: str) -> dict:
   """Runs one deterministic episode of `member`'s final policy and saves its qpos."""
   import jax
 
-  from mjx_hopper import loop, train
-  cfg, agent_state, trainer = loop.load_policy(checkpoint_dir, member)
+  from mjx_hopper import runs, train
+  cfg, agent_state, trainer = runs.load_policy(checkpoint_dir, member)
   result = jax.device_get(jax.jit(lambda s, k: train.evaluate(
       trainer.env, trainer.agent, s, k, 1, record_qpos=True))(agent_state, jax.random.PRNGKey(7)))
   length = int(result["length"][0])
@@ -63,12 +62,10 @@ def render(out: str) -> list[str]:
   return paths
 
 
-def main() -> None:
+def parse_args() -> argparse.Namespace:
   p = argparse.ArgumentParser(description=__doc__,
                               formatter_class=argparse.RawDescriptionHelpFormatter)
   p.add_argument("robot", help="a robot, or a task of your own as module:Class")
-  p.add_argument("--env-set", action="append", default=[], metavar="NAME=VALUE",
-                 help="a constructor setting of the task")
   p.add_argument("--kind", default="gpu", help="the robot preset: gpu or cpu")
   p.add_argument("--agent", default=None,
                  help="another agent than the preset's: its own preset of --kind's name, with "
@@ -76,20 +73,11 @@ def main() -> None:
   p.add_argument("--seeds", default="0,1,2")
   p.add_argument("--minutes", type=float, default=None,
                  help="wall-clock budget (default: the preset's, its target's time)")
-  p.add_argument("--env-steps", type=int, default=None,
-                 help="also stop each seed at this many env steps (a budget that does not depend "
-                 "on the machine's speed, for runs standing in for a slower machine's)")
   p.add_argument("--target", type=float, default=None, help="default: the preset's")
   p.add_argument("--run-on", action="store_true",
                  help="run out the budget instead of stopping once every seed reached the target")
-  p.add_argument("--at-once", action="store_true",
-                 help="the seeds as one sweep (one program) instead of one after another")
   p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                  help="an agent setting replacing the preset's")
-  p.add_argument("--train-set", action="append", default=[], metavar="NAME=VALUE",
-                 help="a TrainConfig field replacing the preset's (num_envs, batch_size, ...)")
-  p.add_argument("--eval-every", type=int, default=None,
-                 help="env steps between evaluations (default: the preset's)")
   p.add_argument("--no-compile-cache", action="store_true",
                  help="compile every seed afresh, as a first run on a new machine does (by "
                  "default the compile cache loads the programs of the seeds after the first)")
@@ -98,7 +86,11 @@ def main() -> None:
   p.add_argument("--label", default="", help="results: time_to_score_ROBOT_KIND_LABEL.json")
   p.add_argument("--render-only", metavar="OUT", default=None,
                  help="only render OUT/episode.npz to frame.png and robot.gif")
-  args = p.parse_args()
+  return p.parse_args()
+
+
+def main() -> None:
+  args = parse_args()
   if args.render_only:
     print("\n".join(render(args.render_only)))
     return
@@ -107,7 +99,7 @@ def main() -> None:
   t0 = time.perf_counter()
   import jax
 
-  from mjx_hopper import cli, loop, presets
+  from mjx_hopper import flags, loop, presets
   if not args.no_compile_cache:
     mjx_hopper.use_compile_cache()
   try:
@@ -115,64 +107,44 @@ def main() -> None:
   except ValueError as error:
     raise SystemExit(f"time_to_score: {error}")
   agent = args.agent or preset.agent
-  base = presets.agent_run_config(args.robot, args.kind, agent)  # as `mjx-hopper train` starts
-  try:
-    layout = dataclasses.replace(base.train, **cli._overrides(args.train_set, "--train-set"))
-  except TypeError as error:
-    raise SystemExit(f"time_to_score: --train-set: {error}; the fields are "
-                     f"{[f.name for f in dataclasses.fields(base.train)]}")
   target = preset.target if args.target is None else args.target
   minutes = preset.minutes if args.minutes is None else args.minutes
   name = args.robot.split(":")[-1]
   out = args.out or os.path.join("runs", "time_to_score", f"{name}_{args.kind}")
   seeds = [int(s) for s in args.seeds.split(",")]
-  groups = [seeds] if args.at_once else [[s] for s in seeds]
-  folders = [out if args.at_once else os.path.join(out, f"seed_{g[0]}") for g in groups]
-  for folder in folders:  # a run there would resume, and its times would mean nothing
-    if os.path.exists(os.path.join(folder, "checkpoints")):
-      raise SystemExit(f"time_to_score: {folder} already holds a run; choose another --out "
-                       "or remove it")
-  results, where = {}, {}
-  for group, group_out in zip(groups, folders):
+  for seed in seeds:  # a run there would resume, and its times would mean nothing
+    if os.path.exists(os.path.join(out, f"seed_{seed}", "checkpoints")):
+      raise SystemExit(f"time_to_score: {out}/seed_{seed} already holds a run; choose another "
+                       "--out or remove it")
+  results = {}
+  for seed in seeds:
     cfg = presets.agent_run_config(
-        args.robot, args.kind, agent, env_settings=cli._overrides(args.env_set, "--env-set"),
-        agent_overrides=cli._overrides(args.set), train=layout,
-        eval_every=args.eval_every or base.eval_every, seed=group[0], eval_episodes=20,
-        seeds=tuple(group) if len(group) > 1 else (), total_env_steps=args.env_steps or 10**12,
-        max_minutes=minutes, stop_at_return=None if args.run_on else target,
-        out_dir=group_out, checkpoint_minutes=10**6)
-    offset = time.perf_counter() - t0 if group is groups[0] else 0.0  # imports, before the run
+        args.robot, args.kind, agent, agent_overrides=flags.overrides(args.set), seed=seed,
+        eval_episodes=20, total_env_steps=10**12, max_minutes=minutes,
+        stop_at_return=None if args.run_on else target,
+        out_dir=os.path.join(out, f"seed_{seed}"), checkpoint_minutes=10**6)
+    offset = time.perf_counter() - t0 if seed == seeds[0] else 0.0  # imports, before the run
     loop.run(cfg, progress=False)
-    rows = common.evaluations(os.path.join(group_out, "log.csv"))
-    for m, seed in enumerate(group):
-      results[seed] = summarise(rows[m], target, offset)
-      where[seed] = (group_out, m)
+    results[seed] = summarise(common.evaluations(os.path.join(cfg.out_dir, "log.csv"))[0],
+                              target, offset)
+    hit = results[seed]["target_wall_s"]
+    print(f"seed {seed}: {target:g} {'not reached' if hit is None else f'at {hit:.0f} s'}, best "
+          f"return {results[seed]['best_return']:,.0f}", flush=True)
   best = max(results, key=lambda s: results[s]["final_return"])
-  episode = record_episode(os.path.join(where[best][0], "checkpoints"), where[best][1],
+  episode = record_episode(os.path.join(out, f"seed_{best}", "checkpoints"), 0,
                            os.path.join(out, "episode.npz"))
   device = jax.local_devices()[0]
-  summary = {"robot": args.robot, "env_settings": cfg.env_settings,
-             "episode_steps": cfg.episode_steps, "kind": args.kind, "target": target,
-             "minutes": minutes, "env_steps_budget": args.env_steps, "agent": cfg.agent,
-             "agent_preset": cfg.preset, "agent_overrides": cfg.agent_overrides,
-             "train": dataclasses.asdict(cfg.train), "at_once": args.at_once,
-             "device": f"{device.platform} {device.device_kind}", "best_seed": best,
-             "best_seed_episode": episode, "seeds": results}
   label = f"_{args.label}" if args.label else ""
-  common.write_results(f"time_to_score_{name}_{args.kind}{label}", summary)
+  common.write_results(f"time_to_score_{name}_{args.kind}{label}", {
+      "robot": args.robot, "episode_steps": cfg.episode_steps, "kind": args.kind,
+      "target": target, "minutes": minutes, "agent": cfg.agent, "agent_preset": cfg.preset,
+      "agent_overrides": cfg.agent_overrides, "train": dataclasses.asdict(cfg.train),
+      "device": f"{device.platform} {device.device_kind}", "best_seed": best,
+      "best_seed_episode": episode, "seeds": results})
   try:
-    rendered = render(out)
+    print("\n".join(render(out)))
   except Exception as error:  # no renderer here: episode.npz keeps the episode for later
-    rendered = [f"not rendered ({type(error).__name__}: {error}); run with --render-only {out}"]
-  steps = f" or {args.env_steps:,} env steps" if args.env_steps else ""
-  print(f"\n{args.robot}, {cfg.agent}, {args.kind} preset, target {target:g}, budget "
-        f"{minutes:g} min{steps}, {summary['device']}")
-  print(common.table(
-      ["seed", "time to target (s)", "env steps to target", "best", "final (20 episodes)"],
-      [[seed, "not reached" if s["target_wall_s"] is None else f"{s['target_wall_s']:.0f}",
-        "-" if s["target_env_steps"] is None else f"{s['target_env_steps']:,}",
-        f"{s['best_return']:,.0f}", f"{s['final_return']:,.0f}"] for seed, s in results.items()]))
-  print(f"files: {out}/score_curves.png, episode.npz; " + ", ".join(rendered))
+    print(f"not rendered ({type(error).__name__}: {error}); run with --render-only {out}")
 
 
 if __name__ == "__main__":

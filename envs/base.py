@@ -175,7 +175,9 @@ class LocomotionEnv(Env):
     self._n_parts = int(np.sum(kinds != free)) + len(self._part_bodies) + 1
     self._foot_geom, self._foot_half_length, self._foot_radius, self._foot_mask = (
         self._foot_geoms(model))
-    self._data0 = mjx.make_data(self.mjx_model, device=device)
+    # One compiled program, rather than MJX's eager one-op programs for each field.
+    self._data0 = jax.jit(lambda: mjx.make_data(self.mjx_model),
+                          out_shardings=jax.sharding.SingleDeviceSharding(device))()
 
   def edit_model(self, model: mujoco.MjModel) -> None:
     """Edits the MuJoCo model before the env is built; a no-op by default."""
@@ -241,6 +243,7 @@ class LocomotionEnv(Env):
 
   @property
   def dt(self) -> float:
+    """Seconds of simulated time per env step."""
     return self.control_dt
 
   @property
@@ -388,17 +391,21 @@ class LocomotionEnv(Env):
   # ---- What the NMA notebook inspects ----------------------------------------------------------------
 
   def action_spec(self) -> specs.BoundedArray:
+    """(A,) float32 actions in [-1, 1]."""
     return specs.BoundedArray((self.action_size,), np.dtype(np.float32), "action",
                               minimum=-np.ones(self.action_size, np.float32),
                               maximum=np.ones(self.action_size, np.float32))
 
   def observation_spec(self) -> specs.Array:
+    """(O,) float32 observations."""
     return specs.Array((self.observation_size,), np.dtype(np.float32), "observation")
 
   def reward_spec(self) -> specs.Array:
+    """A float32 reward per step."""
     return specs.Array((), np.dtype(np.float32), "reward")
 
   def spec(self) -> specs.EnvironmentSpec:
+    """The observation, action and reward specs together."""
     return specs.EnvironmentSpec(self.observation_spec(), self.action_spec(), self.reward_spec())
 
   def body_positions(self, state: State) -> dict[str, jax.Array]:

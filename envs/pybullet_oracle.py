@@ -19,7 +19,7 @@ BULLET_IDS = {"Hopper": "HopperBulletEnv", "Walker2D": "Walker2DBulletEnv",
 
 
 @contextlib.contextmanager
-def _quiet():
+def quiet():
   """Silences stdout and stderr, also what PyBullet's C code prints ("argv[0]=", its build)."""
   sys.stdout.flush()
   sys.stderr.flush()
@@ -48,7 +48,7 @@ def _import_locomotion_envs():
     package = types.ModuleType("pybullet_envs")
     package.__path__ = list(spec.submodule_search_locations)
     sys.modules.setdefault("pybullet_envs", package)
-    with _quiet():
+    with quiet():
       import gym  # noqa: F401  (prints a deprecation banner)
       from pybullet_envs import gym_locomotion_envs  # noqa: F401  (pybullet prints its build)
   return sys.modules["pybullet_envs.gym_locomotion_envs"]
@@ -57,7 +57,7 @@ def _import_locomotion_envs():
 def make(env_id: str, seed: int = 0):
   """PyBullet's env for one of our ids, reset once with `seed`."""
   module = _import_locomotion_envs()
-  with _quiet():
+  with quiet():
     env = getattr(module, BULLET_IDS[env_id])()
     env.seed(seed)
     env.reset()
@@ -114,7 +114,7 @@ def run_episodes(env, n_episodes: int, policy: str, seed: int) -> dict[str, np.n
   out = {"length": [], "return": [], **{n: [] for n in names}}
   act_size = env.action_space.shape[0]
   for _ in range(n_episodes):
-    with _quiet():
+    with quiet():
       env.reset()
     terms, total, done, t = [], 0.0, False, 0
     while not done and t < 1000:

@@ -189,7 +189,7 @@ def check_task(env: LocomotionEnv) -> None:
   `is_done` a scalar; compiles nothing."""
   name = type(env).__name__
   try:
-    state = jax.eval_shape(env.reset, jax.random.PRNGKey(0))
+    state = jax.eval_shape(env.reset, jax.ShapeDtypeStruct((2,), jnp.uint32))
   except Exception as error:  # noqa: BLE001 - the user's reward or termination code
     first = (str(error).strip().splitlines() or [""])[0]
     raise ValueError(f"the task {name} fails at reset: {type(error).__name__}: {first}") from None
@@ -209,8 +209,12 @@ def check_task(env: LocomotionEnv) -> None:
 
 
 def _reset_terms(env: LocomotionEnv) -> dict:
-  """The reward terms of a still step at the initial pose, on MuJoCo's C kinematics."""
+  """The reward terms of a still step at the initial pose, on MuJoCo's C kinematics, as one
+  compiled program."""
   data = mujoco.MjData(env.mj_model)
   mujoco.mj_kinematics(env.mj_model, data)
-  robot = env.robot(data, jnp.zeros(len(env.feet)))
-  return env.reward(robot, robot, jnp.zeros(env.action_size))
+
+  def terms():
+    robot = env.robot(data, jnp.zeros(len(env.feet)))
+    return env.reward(robot, robot, jnp.zeros(env.action_size))
+  return jax.jit(terms)()

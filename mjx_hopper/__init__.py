@@ -26,6 +26,10 @@ os.environ.update(_settings_before_start(platform.system(), os.environ))
 
 __version__ = "0.2.0"
 
+from mjx_hopper import compat as _compat  # noqa: E402
+
+_compat.install_module_paths()  # the old module paths (mjx_hopper.compat.MODULES)
+
 
 def xla_flags_with_cpu_devices(count: int) -> str:
   """$XLA_FLAGS with XLA:CPU split into `count` devices (replacing any count it sets); for a

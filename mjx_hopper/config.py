@@ -8,22 +8,19 @@ the command line is made from them (`mjx_hopper.cli`).
 from __future__ import annotations
 
 import dataclasses
-import functools
 import itertools
 import json
 from typing import Any
 
 import jax
 
-from mjx_hopper import agents, envs
+from mjx_hopper import agents, compat, envs
 from mjx_hopper.fields import setting
 from mjx_hopper.pbt import PBT
 from mjx_hopper.train import TrainConfig
 
 EVAL_ON = ("auto", "host", "train")
 TRAINER_DYNAMIC = ("replay_ratio",)  # the trainer's settings a sweep may vary
-# Old keyword names, still accepted: {old: new}.
-RENAMED = {"preset": "agent_preset", "time_delta": "log_every"}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -44,13 +41,13 @@ class RunConfig:
                              "notebook's acme settings)")
   agent_overrides: dict = setting({}, "agent settings that replace the preset's", flag=False)
   train: TrainConfig = setting(TrainConfig(), "the trainer's layout", flag=False)
-  total_env_steps: int = setting(1_000_000, "env steps to train for", aliases=("--steps",))
+  total_env_steps: int = setting(1_000_000, "env steps to train for")
   max_minutes: float | None = setting(None, "also stop (and save) after this much wall-clock "
                                      "time")
   stop_at_return: float | None = setting(None, "also stop once an evaluation of every member "
                                         "reaches this return")
-  episode_steps: int | None = setting(None, "the task's time limit (default: its own, 1000 for "
-                                     "the robots)")
+  episode_steps: int | None = setting(None, "the task's time limit in steps; None: the task's "
+                                     "own (1000 for the robots)")
   eval_every: int = setting(200_000, "env steps between evaluations")
   eval_episodes: int = setting(16, "episodes per evaluation")
   eval_on: str = setting("auto", "where evaluations run: host (the host's CPU, beside "
@@ -60,12 +57,11 @@ class RunConfig:
   seeds: tuple = setting((), "a sweep's seeds (default: just seed)", flag=False)
   grid: dict = setting({}, "a sweep's {dynamic setting: values}", flag=False)
   pbt: PBT | None = setting(None, "population-based training of a sweep's members", flag=False)
-  out_dir: str = setting("runs/train", "folder for log.csv, config.json and checkpoints/",
-                        aliases=("--out",))
+  out_dir: str = setting("runs/train", "folder for log.csv, config.json and checkpoints/")
   tensorboard_dir: str | None = setting(None, "also write log.csv's scalars here as "
-                                       "TensorBoard events", aliases=("--tensorboard",))
-  wandb: str | None = setting(None, "also log to this Weights & Biases project (pip install "
-                             "'mjx_hopper[wandb]')")
+                                       "TensorBoard events")
+  wandb: str | None = setting(None, "also log to this Weights & Biases project (the wandb "
+                             "extra: pip install -e '.[wandb]')")
   log_every: float = setting(10.0, "seconds between terminal lines")
   checkpoint_minutes: float = setting(10.0, "minutes between checkpoints")
   keep_checkpoints: int = setting(3, "checkpoints kept")
@@ -94,6 +90,7 @@ class RunConfig:
           self.agent, self.agent_preset, name, value, self.train, self.agent_overrides))
 
   def task(self) -> type[envs.LocomotionEnv]:
+    """The task's class, from `env` (a name, a `module:Class` path, a class or an instance)."""
     return envs.task_class(self.env)
 
   @property
@@ -154,9 +151,7 @@ class RunConfig:
     """The RunConfig that `to_json` saved (old field names included). `env`, when given, is
     its task (a class defined in a notebook cannot be imported by another process), which
     must be the saved one: another is a ValueError saying which."""
-    saved = {RENAMED.get(k, k): v for k, v in saved.items()}
-    if saved.get("agent_preset") == "seed":
-      saved["agent_preset"] = "acme"
+    saved = compat.saved_config(saved)
     fields = {f.name for f in dataclasses.fields(cls)}
     kwargs = {k: v for k, v in saved.items() if k in fields}
     if env is not None:
@@ -178,18 +173,7 @@ class RunConfig:
     return cls(**kwargs)
 
 
-def _accept_old_names(init):
-  """RunConfig's constructor, taking the old keyword names too (`RENAMED`)."""
-  @functools.wraps(init)
-  def wrapped(self, *args, **kwargs):
-    for old, new in RENAMED.items():
-      if old in kwargs:
-        kwargs[new] = kwargs.pop(old)
-    return init(self, *args, **kwargs)
-  return wrapped
-
-
-RunConfig.__init__ = _accept_old_names(RunConfig.__init__)
+RunConfig.__init__ = compat.keywords(RunConfig.__init__)  # the old keyword names
 
 
 def load(path: str) -> "RunConfig":
@@ -203,7 +187,7 @@ def load(path: str) -> "RunConfig":
   if not isinstance(saved, dict) or not {"env", "agent", "train"} <= set(saved):
     raise ValueError(f"--config {path} is not a run's config.json (it lacks env, agent or "
                      "train)")
-  known = {f.name for f in dataclasses.fields(RunConfig)} | set(RENAMED) | {
+  known = {f.name for f in dataclasses.fields(RunConfig)} | set(compat.KEYWORDS) | {
       "agent_config", "member_indices", "record", "versions", "checkpoint_format"}
   unknown = sorted(set(saved) - known)
   if unknown:

@@ -3,6 +3,7 @@ CPU beside training on an accelerator, and each member's best agent."""
 
 from __future__ import annotations
 
+import functools
 from typing import Any, NamedTuple
 
 import jax
@@ -23,6 +24,20 @@ class Pending(NamedTuple):
   started: Any = None    # the result's arrays, once started (JAX computes them asynchronously)
 
 
+class Done(NamedTuple):
+  """A finished evaluation: its per-episode results per member ("return" and "length", each
+  (members, episodes)), the agents it evaluated and the members diverged then."""
+  env_steps: int
+  result: dict
+  agent: Any
+  diverged: np.ndarray
+
+  @property
+  def returns(self) -> np.ndarray:
+    """(members,): each member's mean return."""
+    return self.result["return"].mean(-1)
+
+
 class Evaluator:
   """Evaluates every member's deterministic policy when asked, on the training's devices or,
   with `on_host`, on the host's CPU devices beside training."""
@@ -40,7 +55,7 @@ class Evaluator:
       self.host = NamedSharding(Mesh(np.array(cpus[:count]), ("host",)), P())
     self.episodes = episodes
     self.best = None         # each member's agent at its best evaluation
-    self.latest = None       # the latest evaluation taken: per-episode arrays per member
+    self.latest: Done | None = None  # the latest evaluation kept
     self.pending: list[Pending] = []
     # Every member's agents copied, and chosen member by member: the host loop's chunk uses
     # them too, to freeze a sweep's diverged members.
@@ -50,30 +65,29 @@ class Evaluator:
     self.program = None
 
   def compile_in(self, pool, agent_shapes) -> None:
-    """Compiles the evaluation in the thread pool `pool`, after what it holds already."""
-    self.program = pool.submit(self._compile, agent_shapes)
+    """Traces the evaluation here (tracing holds Python's lock) and compiles it in the thread
+    pool `pool`."""
+    self.program = pool.submit(self._lower(agent_shapes).compile)
 
-  def _compile(self, agent):
+  def _lower(self, agent):
     keys = jax.ShapeDtypeStruct((len(self.seeds), 2), jnp.uint32)
     if self.host is None:
-      return self.trainer.evaluate.lower(agent, keys).compile()
+      return self.trainer.evaluate.lower(agent, keys)
     devices = list(self.host.mesh.devices.flat)
     evaluate = train.make_evaluate(self.trainer.env, self.trainer.agent, self.episodes,
                                    len(self.seeds), devices)
     agent, keys = jax.tree.map(
         lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=self.host), (agent, keys))
-    return evaluate.lower(agent, keys).compile()
+    return evaluate.lower(agent, keys)
 
   def submit(self, env_steps: int, agent, diverged: np.ndarray) -> None:
     """Queues an evaluation of `agent` (every member's) at `env_steps`."""
     self.pending.append(Pending(env_steps, self.copy_agents(agent), diverged.copy()))
 
-  def collect(self, members, wait: bool) -> list[tuple[int, dict]]:
-    """The queued evaluations that are done, oldest first, as (env_steps, per-episode results
-    per member); with `wait`, all of them. Their returns go to `members`' record, and the
-    agents that beat a member's best are kept. On the training's devices every evaluation
-    waits; on the host, only those beyond MAX_PENDING do. None start before the program is
-    compiled, unless `wait`."""
+  def collect(self, wait: bool) -> list[Done]:
+    """The queued evaluations that are done, oldest first; with `wait`, all of them. On the
+    training's devices every evaluation waits; on the host, only those beyond MAX_PENDING do.
+    Those queued while the program compiled start here, once it is compiled (or with `wait`)."""
     if not self.pending or not (wait or self.program.done()):
       return []
     self.pending = [p if p.started is not None else p._replace(started=self._start(p))
@@ -83,26 +97,31 @@ class Evaluator:
     while self.pending and (wait or len(self.pending) > MAX_PENDING
                             or _finished(self.pending[0].started)):
       done = self.pending.pop(0)
-      result = jax.device_get(done.started)
-      better = members.evaluated(done.env_steps, result["return"].mean(-1), done.diverged)
-      self._keep_best(done.agent, better)
-      self.latest = result
-      out.append((done.env_steps, result))
+      out.append(Done(done.env_steps, jax.device_get(done.started), done.agent, done.diverged))
     return out
 
+  def keep(self, done: Done, better: np.ndarray) -> None:
+    """Keeps what a taken evaluation leaves: its results as the latest, and its agents of the
+    members that beat their best (`better`, from the members' record)."""
+    self.latest = done
+    if self.best is None:
+      self.best = done.agent  # members with no best yet hold this one meanwhile
+    elif better.any():
+      self.best = self.select_agents(better, done.agent, self.best)
+
   def _start(self, pending: Pending):
-    keys = jnp.stack([jax.random.fold_in(jax.random.PRNGKey(seed), pending.env_steps)
-                      for seed in self.seeds])
+    keys = _evaluation_keys(train.seed_bits(self.seeds), train.seed_bits(pending.env_steps))
     agent = pending.agent
     if self.host is not None:
       agent, keys = jax.device_put((agent, keys), self.host)
     return self.program.result()(agent, keys)
 
-  def _keep_best(self, agent, better: np.ndarray) -> None:
-    if self.best is None:
-      self.best = self.copy_agents(agent)  # members with no best yet hold this one meanwhile
-    elif better.any():
-      self.best = self.select_agents(better, agent, self.best)
+
+@jax.jit
+@functools.partial(jax.vmap, in_axes=(0, None))
+def _evaluation_keys(seed, env_steps):
+  """(members, 2): the key of each member's evaluation at `env_steps`, in one program."""
+  return jax.random.fold_in(jax.random.PRNGKey(seed), env_steps)
 
 
 def _finished(started) -> bool:

@@ -168,57 +168,18 @@ def _check_layers(arrays: dict, meta: dict) -> str | None:
 
 # ---- Writing: from an agent's parameters, or from a checkpoint (JAX) --------------------------
 
-def _dense(params: dict, **layer) -> tuple[dict, dict]:
-  """One layer: its arrays by kind ("w", "b", "ln_scale", "ln_bias") and its structure."""
-  arrays = {"w": np.asarray(params["kernel"], np.float32),
-            "b": np.asarray(params["bias"], np.float32)}
-  return arrays, layer
-
-
-def _mlp_layers(mlp: dict, num_layers: int, activate_final: bool, dtype: str) -> list:
-  """The layers of an agents.networks.LayerNormMLP of `num_layers` Dense layers: LayerNorm and
-  tanh after the first, ELU after the others but an unactivated last one (an output layer, in
-  float32)."""
-  out = []
-  for i in range(num_layers):
-    output = i == num_layers - 1 and i > 0 and not activate_final
-    arrays, layer = _dense(mlp[f"Dense_{i}"], dtype="float32" if output else dtype, norm=i == 0,
-                           activation="tanh" if i == 0 else "none" if output else "elu")
-    if i == 0:
-      arrays.update(ln_scale=np.asarray(mlp["LayerNorm_0"]["scale"], np.float32),
-                    ln_bias=np.asarray(mlp["LayerNorm_0"]["bias"], np.float32))
-    out.append((arrays, layer))
-  return out
-
-
-def _tanh_policy(params: dict, config) -> tuple[list, str]:
-  """D4PG's and DDPG's TanhPolicy: LayerNormMLP(policy_layers + (A,)), then tanh."""
-  mlp = params["params"]["LayerNormMLP_0"]
-  return _mlp_layers(mlp, len(config.policy_layers) + 1, False, config.compute_dtype), "tanh"
-
-
-def _gaussian_mean(params: dict, config) -> tuple[list, str]:
-  """MPO's and DMPO's GaussianPolicy's mean (its deterministic policy): an activated
-  LayerNormMLP(policy_layers), a float32 Dense, then tanh ("squash") or a clip to the bounds."""
-  layers = _mlp_layers(params["params"]["LayerNormMLP_0"], len(config.policy_layers), True,
-                       config.compute_dtype)
-  layers.append(_dense(params["params"]["Dense_0"], dtype="float32", norm=False,
-                       activation="none"))
-  return layers, "tanh" if config.action_bounds == "squash" else "clip"
-
-
-# Each agent's deterministic policy, from its state's `policy` params and its config.
-POLICIES = {"d4pg": _tanh_policy, "ddpg": _tanh_policy, "mpo": _gaussian_mean,
-            "dmpo": _gaussian_mean}
-
-
 def policy_of(agent: str, agent_config, policy_params, observation_size: int,
               action_size: int, **meta) -> Policy:
-  """The NumPy policy of agent `agent`'s policy params (its state's `policy`), with `meta`'s
-  other entries (task, evaluation, ...) recorded as given."""
-  if agent not in POLICIES:
-    raise ValueError(f"cannot export agent {agent!r}; exportable agents are {sorted(POLICIES)}")
-  layers, output = POLICIES[agent](policy_params, agent_config)
+  """The NumPy policy of agent `agent`'s policy params (its state's `policy`), as the agent's
+  registered `exported_policy` lays it out, with `meta`'s other entries (task, evaluation, ...)
+  recorded as given."""
+  from mjx_hopper import agents
+
+  exported_policy = agents.spec(agent).exported_policy
+  if exported_policy is None:
+    raise ValueError(f"cannot export agent {agent!r}: it was registered without an "
+                     "exported_policy (see agents.register)")
+  layers, output = exported_policy(policy_params, agent_config)
   arrays = {}
   for i, (named, _) in enumerate(layers):  # w0, b0, ln0_scale, ln0_bias, w1, ...
     arrays.update({(f"ln{i}_{k[3:]}" if k.startswith("ln_") else f"{k}{i}"): v
@@ -243,7 +204,7 @@ def export_checkpoint(directory: str, out: str, member: int | str | None = None,
                       which: str = "best", env: Any = None, print_fn=print) -> str:
   """Writes the policy of a checkpoint in `directory` to the file `out` and returns its path:
   the agent of the best evaluation, or with which="latest", the latest. `member` is as
-  `loop.extract` takes it (a member's index, or "best": the member of the best evaluation);
+  `runs.extract` takes it (a member's index, or "best": the member of the best evaluation);
   required for a sweep, optional for a single run. `env` is the run's task, for a class that
   cannot be imported (see `loop.resume`). Errors are one-line ValueErrors or
   FileNotFoundErrors, and nothing is written."""
@@ -361,3 +322,35 @@ def evaluate_file(path: str, episodes: int = 16, seed: int = 0, video_path: str 
     render.write_mp4(video_path, frames, fps=1 / task.dt)
     print_fn(f"video of episode 0 ({length} steps, return {returns[0]:.1f}): {video_path}")
   return result
+
+
+# ---- Shipped policies: one per robot, trained by benchmarks/pretrain.py -----------------------
+
+PRETRAINED = os.path.join(os.path.dirname(os.path.abspath(__file__)), "pretrained")
+
+
+def pretrained_path(robot: str) -> str:
+  """The path of robot `robot`'s shipped policy file; a one-line ValueError for another name."""
+  shipped = sorted(f[:-4] for f in os.listdir(PRETRAINED) if f.endswith(".npz")) \
+      if os.path.isdir(PRETRAINED) else []
+  if robot not in shipped:
+    raise ValueError(f"no pretrained policy for {robot!r}; the shipped ones are {shipped}")
+  return os.path.join(PRETRAINED, f"{robot}.npz")
+
+
+def pretrained(robot: str) -> Policy:
+  """The policy shipped with the package for `robot` (Hopper, Walker2D, HalfCheetah, Ant,
+  Humanoid), trained by this project's own gpu preset; NumPy alone runs it."""
+  return load(pretrained_path(robot))
+
+
+def fingerprint(env) -> dict:
+  """What a policy depends on of its task `env`: its model file's hash and its observation
+  and action sizes. A shipped file records it; a change means the file needs retraining."""
+  import hashlib
+
+  from mjx_hopper.envs.base import ASSETS
+  with open(os.path.join(ASSETS, env.xml_file), "rb") as f:
+    model = hashlib.sha256(f.read()).hexdigest()[:16]
+  return {"model_sha256": model, "observation_size": env.observation_size,
+          "action_size": env.action_size}

@@ -69,10 +69,9 @@ def check_types(cfg) -> None:
       object.__setattr__(cfg, field.name, converted)
 
 
-def setting(default, help: str, flag: bool = True, aliases: tuple[str, ...] = ()):
-  """A dataclass field with its help text; the command line offers it as --name (and
-  `aliases`) when `flag`."""
-  meta = {"help": help, "flag": flag, "aliases": aliases}
+def setting(default, help: str, flag: bool = True):
+  """A dataclass field with its help text; the command line offers it as --name when `flag`."""
+  meta = {"help": help, "flag": flag}
   if isinstance(default, dict):
     return dataclasses.field(default_factory=dict, metadata=meta)
   return dataclasses.field(default=default, metadata=meta)

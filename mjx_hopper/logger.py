@@ -91,6 +91,7 @@ class Logger:
     self.tensorboard = _tensorboard_writer(tensorboard_dir, start_step)
 
   def write(self, row: dict, force: bool = False) -> None:
+    """Logs one row to every sink: log.csv, TensorBoard, W&B, and the terminal line."""
     row = {k: _plain(v) for k, v in row.items()}
     self.rows.append(row)
     self.latest.update({k: v for k, v in row.items() if _is_number(v)
@@ -119,6 +120,7 @@ class Logger:
                     if key in self.latest)
 
   def close(self) -> None:
+    """Flushes and closes TensorBoard's writer and the W&B run."""
     if self.tensorboard is not None:
       self.tensorboard.close()
     if self.wandb is not None:
@@ -184,8 +186,8 @@ def _wandb_run(project: str | None, config: dict | None, csv_path: str | None, p
   try:
     import wandb
   except ImportError:
-    raise Unavailable("logging to Weights & Biases needs wandb: pip install "
-                      "'mjx_hopper[wandb]'") from None
+    raise Unavailable("logging to Weights & Biases needs wandb: in the mjx_hopper checkout, "
+                      "pip install -e '.[wandb]'") from None
   folder = os.environ.get("WANDB_DIR") or (os.path.dirname(os.path.abspath(csv_path))
                                             if csv_path else None)
   try:

@@ -7,8 +7,8 @@ steps, checkpoints and progress.
 
 from __future__ import annotations
 
-import concurrent.futures
 import dataclasses
+import functools
 import json
 import math
 import os
@@ -17,22 +17,24 @@ import time
 from typing import Any, Callable
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 from tqdm.auto import tqdm
 
-from mjx_hopper import agents, checkpoint, parallel, pbt, runlock, sweep, train
+from mjx_hopper import (agents, checkpoint, compat, parallel, pbt, runlock, runs, start, sweep,
+                        train)
 from mjx_hopper.config import RunConfig
-from mjx_hopper.evaluator import MAX_PENDING, Evaluator
+from mjx_hopper.evaluator import Evaluator
 from mjx_hopper.logger import Logger
 from mjx_hopper.members import Members
-from mjx_hopper.runs import build, check_which, init
 
 ProgressFn = Callable[[int, dict], Any]
 
 
 @dataclasses.dataclass
 class Result:
+  """What a run returns: its final state and trainer, its logged rows, its last evaluation, and
+  each member's best agent and return."""
+
   state: train.TrainState
   trainer: train.Trainer
   history: list[dict]            # every logged row (train and eval)
@@ -43,7 +45,7 @@ class Result:
   def policy(self, which: str = "best", member: int = 0):
     """Member `member`'s agent state without the member axis: at its best evaluation (before
     any, the latest), or with which="latest", the latest."""
-    check_which(which)
+    runs.check_which(which)
     agent = self.state.agent if which == "latest" or self.best is None else self.best
     return jax.tree.map(lambda x: x[member], agent)
 
@@ -71,6 +73,17 @@ def run(cfg: RunConfig, checkpoint_dir: str | None = None, progress: bool = True
   return result
 
 
+def resume(directory: str, progress: bool = True, print_fn=print, env: Any = None,
+           progress_fn: ProgressFn | None = None, **changes) -> Result:
+  """Continues the run checkpointed in `directory` with its saved config. `changes` replace
+  fields that may change between a run and its resumption (total_env_steps, max_minutes, ...);
+  one the saved state depends on is refused, naming it. `env` is the run's task, for one that
+  cannot be imported (defined in a notebook)."""
+  cfg = runs.saved_config(directory, print_fn, env)
+  return run(dataclasses.replace(cfg, **changes), checkpoint_dir=directory, progress=progress,
+             print_fn=print_fn, progress_fn=progress_fn)
+
+
 @dataclasses.dataclass
 class _Parts:
   """One call of `run`: its config and the parts that own each step between chunks."""
@@ -90,47 +103,60 @@ class _Parts:
   def env_steps(self, state) -> int:
     return train.iterations(state) * self.trainer.config.steps_per_iteration
 
+  def pbt_due(self, before: int, env_steps: int) -> bool:
+    """Whether PBT steps after the chunk from `before` to `env_steps`: at every `pbt.every`-th
+    evaluation, but not at the run's end."""
+    if self.cfg.pbt is None:
+      return False
+    period = self.cfg.eval_every * self.cfg.pbt.every
+    return env_steps // period > before // period and env_steps < self.cfg.total_env_steps
+
 
 def _train(p: _Parts, state: train.TrainState, progress: bool, stop) -> train.TrainState:
-  """Chunks until the run's end, a stop request, its deadline or its target."""
+  """Chunks until the run's env steps or deadline, a stop (a signal, or progress_fn's False),
+  its target, or every member diverged."""
   cfg, members, evaluator = p.cfg, p.members, p.evaluator
   env_steps = p.env_steps(state)
   bar = _progress_bar(cfg.total_env_steps, env_steps) if progress and not p.until.reached(
       env_steps) else None
   next_eval = (env_steps // cfg.eval_every + 1) * cfg.eval_every
-  pbt_period = cfg.eval_every * cfg.pbt.every if cfg.pbt else 0
-  while not (p.until.reached(env_steps) or stop.requested or members.done()):
+  stopped = False  # by progress_fn
+  while not (stopped or stop.requested or p.until.reached(env_steps) or members.done()):
     before, t0 = env_steps, time.perf_counter()
-    state, metrics = p.chunk(state)
+    state, metrics, agents_before = p.chunk(state)
     env_steps = p.env_steps(state)
-    state = p.chunk.check(state, metrics, env_steps)
+    members.check(env_steps, metrics, p.chunk.finite(state.agent))
+    state = p.chunk.freeze(state, agents_before, members.diverged)
     rate = (env_steps - before) * len(members) / (time.perf_counter() - t0)
-    _log_train(p, state, env_steps, rate, metrics)
+    stopped = _log_train(p, state, env_steps, rate, metrics)
     if members.all_diverged():
       break  # this state is not evaluated, and never saved
-    last = p.until.reached(env_steps)
-    due = env_steps >= next_eval or last
-    if due:
+    last = stopped or p.until.reached(env_steps)
+    if env_steps >= next_eval or last:
       next_eval += cfg.eval_every
       evaluator.submit(env_steps, state.agent, members.diverged)
-    # A run's last evaluation and PBT's (which needs the returns) wait; the others do not.
-    _log_evaluations(p, evaluator.collect(members, wait=due and (last or bool(pbt_period))))
-    if (due and pbt_period and env_steps // pbt_period > before // pbt_period
-        and env_steps < cfg.total_env_steps):
-      state = p.pbt_step(state, evaluator.latest["return"].mean(-1), env_steps, members)
-    if p.saver.due():
-      _log_evaluations(p, evaluator.collect(members, wait=True))  # a checkpoint holds them
+    pbt_now = p.pbt_due(before, env_steps)
+    saving = p.saver.due()
+    # The last evaluation, PBT's (which needs the returns) and a checkpoint's (which holds
+    # them) wait; the others do not.
+    for done in evaluator.collect(wait=last or pbt_now or saving):
+      better = members.evaluated(done.env_steps, done.returns, done.diverged)
+      evaluator.keep(done, better)
+      stopped |= _log_evaluation(p, done)
+    if pbt_now:
+      state = p.pbt_step(state, evaluator.latest.returns, env_steps, members)
+    if saving:
       p.saver.save(state, evaluator.best, members)
-    if bar is not None:
-      bar.update(min(env_steps, cfg.total_env_steps) - bar.n)
-      bar.set_postfix_str(p.display.status(rate, p.logger))
+    _show(bar, p, env_steps, rate)
   _close(p, state, bar)
   return state
 
 
 def _close(p: _Parts, state: train.TrainState, bar) -> None:
-  """After the last chunk: the evaluations still due, the bar, the last checkpoint."""
-  _log_evaluations(p, p.evaluator.collect(p.members, wait=True))
+  """After the last chunk: the evaluations still running, the bar, the last checkpoint."""
+  for done in p.evaluator.collect(wait=True):
+    p.evaluator.keep(done, p.members.evaluated(done.env_steps, done.returns, done.diverged))
+    _log_evaluation(p, done)
   if bar is not None:
     bar.close()
   if not p.members.all_diverged():
@@ -150,27 +176,28 @@ def _open(cfg: RunConfig, checkpoint_dir: str | None, say, process, progress_fn)
   out_dir = _out_dir(cfg, process)
   os.makedirs(out_dir, exist_ok=True)
   checkpoint_dir = checkpoint_dir or os.path.join(out_dir, "checkpoints")
-  trainer = build(cfg, len(mine))
+  trainer = runs.build(cfg, len(mine))
   members = Members(mine, indices, single=len(everyone) == 1, pbt=cfg.pbt is not None,
                     target=cfg.stop_at_return, say=say)
   evaluator = Evaluator(trainer, mine, cfg.eval_episodes, cfg.evaluates_on_host())
+  fresh = functools.partial(runs.init, cfg, trainer, mine)
+  started = functools.cache(lambda: start.start(trainer, fresh, evaluator))
+  if not os.path.isdir(checkpoint_dir) or not os.listdir(checkpoint_dir):
+    started()  # a fresh run: compiling from here, while the checkpoints and the log open
   saved_config = {**cfg.to_json(), "member_indices": indices}
   per_iteration = trainer.config.steps_per_iteration
   saver = checkpoint.Saver(checkpoint.manager(checkpoint_dir, cfg.keep_checkpoints),
                            saved_config, cfg.checkpoint_minutes, per_iteration, say)
-  chunk = None
-  if (saver.mngr.latest_step() or 0) * per_iteration < cfg.total_env_steps:
-    chunk = _compile(trainer, cfg, mine, evaluator)
+  training = (saver.mngr.latest_step() or 0) * per_iteration < cfg.total_env_steps
   resumed = checkpoint.resume(
-      saver.mngr, init(cfg, trainer, mine), saved_config, say,
+      saver.mngr, started().state.result() if training else fresh(), saved_config, say,
       defaults={"agent_config": _field_defaults(cfg.agent_config()), "env_settings": {}})
   members.restore(resumed.record)
   evaluator.best = resumed.best
   with open(os.path.join(out_dir, "config.json"), "w") as f:  # once resuming is agreed
     json.dump(saved_config, f, indent=1)
   env_steps = train.iterations(resumed.state) * per_iteration
-  if chunk is None and env_steps < cfg.total_env_steps:  # an older step was read
-    chunk = _compile(trainer, cfg, mine, evaluator)
+  chunk = started() if env_steps < cfg.total_env_steps else None  # or an older step was read
   display = sweep.Report(cfg.grid, members, say)
   logger = Logger(os.path.join(out_dir, "log.csv"), cfg.log_every, display.logger_print,
                   agents.learner_fields(cfg.agent), cfg.tensorboard_dir, start_step=env_steps,
@@ -189,45 +216,35 @@ def _out_dir(cfg: RunConfig, process) -> str:
           else cfg.out_dir)
 
 
-def _compile(trainer: train.Trainer, cfg: RunConfig, members: list[dict], evaluator):
-  """The training chunk's compile, started in a thread (it is the user's first wait), and the
-  evaluation's after it: evaluations due before that is compiled wait in its queue."""
-  shapes = jax.tree.map(
-      lambda sharding, part: jax.tree.map(
-          lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sharding), part),
-      trainer.shardings, jax.eval_shape(lambda: init(cfg, trainer, members)))
-  lowered = trainer.train_chunk.lower(shapes)  # tracing holds Python's lock: before the pool
-  pool = concurrent.futures.ThreadPoolExecutor(1)  # one program after the other
-  chunk = pool.submit(lowered.compile)
-  evaluator.compile_in(pool, shapes.agent)
-  pool.shutdown(wait=False)
-  return chunk
-
-
 class _Chunk:
-  """Runs one compiled chunk: (state, its metrics on the host); `check` then freezes a sweep's
-  members that diverged in it at their agents before it."""
+  """Runs one compiled chunk, and freezes a sweep's members that diverged in it at their agents
+  before it."""
 
-  def __init__(self, program, evaluator: Evaluator, members: Members):
-    self.program, self.members = program, members
+  def __init__(self, started: start.Started | None, evaluator: Evaluator, members: Members):
+    self.program, self._finite = (started.chunk, started.finite) if started else (None, None)
+    self.single = members.single
     self._copy, self._select = evaluator.copy_agents, evaluator.select_agents
 
   def __call__(self, state: train.TrainState):
-    self.before = None if self.members.single else self._copy(state.agent)
+    """(state after the chunk, its metrics on the host, a sweep's agents before it (None for a
+    single run, which stops when it diverges))."""
+    before = None if self.single else self._copy(state.agent)
     state, metrics = self.program.result()(state)
-    return state, jax.device_get(metrics)
+    return state, jax.device_get(metrics), before
 
-  def check(self, state: train.TrainState, metrics: dict, env_steps: int):
-    """Marks the members that went non-finite in the chunk, and freezes them."""
-    self.members.check(env_steps, metrics, jax.device_get(_finite_members(state.agent)))
-    if self.before is not None and self.members.diverged.any():
-      state = state._replace(agent=self._select(self.members.diverged, self.before,
-                                                state.agent))
-    return state
+  def finite(self, agent) -> np.ndarray:
+    """(members,): whether every float of each member's `agent` is finite."""
+    return jax.device_get(self._finite.result()(agent))
+
+  def freeze(self, state: train.TrainState, before, diverged: np.ndarray) -> train.TrainState:
+    """`state` with the agents of the `diverged` members taken back to `before`."""
+    if before is None or not diverged.any():
+      return state
+    return state._replace(agent=self._select(diverged, before, state.agent))
 
 
 class _Until:
-  """When the run ends: at its env steps, its deadline, or when progress_fn says so."""
+  """When the run ends: at its env steps or its deadline."""
 
   def __init__(self, cfg: RunConfig, t_start: float):
     self.t_start, self.total = t_start, cfg.total_env_steps
@@ -235,9 +252,6 @@ class _Until:
 
   def elapsed(self) -> float:
     return time.perf_counter() - self.t_start
-
-  def stop(self) -> None:
-    self.deadline = -math.inf
 
   def reached(self, env_steps: int) -> bool:
     return env_steps >= self.total or time.perf_counter() >= self.deadline
@@ -287,44 +301,53 @@ class _UserCode:
     return False
 
 
-def _log_train(p: _Parts, state, env_steps: int, rate: float, metrics: dict) -> None:
-  """A chunk's rows, one per member, and a sweep's terminal line."""
+def _log_train(p: _Parts, state, env_steps: int, rate: float, metrics: dict) -> bool:
+  """Logs a chunk: a row per member, and a sweep's terminal line. Returns whether progress_fn
+  asked to stop."""
   updates = np.asarray(jax.device_get(state.updates))
-  _log(p, env_steps, [{"kind": "train", **p.members.tags(m), "env_steps": env_steps,
-                       "updates": int(updates[m]), "wall_s": p.until.elapsed(),
-                       "steps_per_s": rate, **{k: float(v[m]) for k, v in metrics.items()}}
-                      for m in range(len(p.members))])
+  rows = [{"kind": "train", **p.members.tags(m), "env_steps": env_steps,
+           "updates": int(updates[m]), "wall_s": p.until.elapsed(), "steps_per_s": rate,
+           **{k: float(v[m]) for k, v in metrics.items()}} for m in range(len(p.members))]
   if not p.members.all_diverged():
     p.display.trained(env_steps, rate, metrics["episode_return"], p.cfg.log_every)
+  return _log(p, env_steps, rows)
 
 
-def _log_evaluations(p: _Parts, done: list[tuple[int, dict]]) -> None:
-  """Each finished evaluation's rows, one per member, and a sweep's terminal line."""
-  for env_steps, result in done:
-    _log(p, env_steps, [{"kind": "eval", **p.members.tags(m), "env_steps": env_steps,
-                         "wall_s": p.until.elapsed(),
-                         "eval_return": float(np.mean(result["return"][m])),
-                         "eval_return_std": float(np.std(result["return"][m])),
-                         "eval_length": float(np.mean(result["length"][m]))}
-                        for m in range(len(p.members))])
-    p.display.evaluated(env_steps, result["return"].mean(-1))
+def _log_evaluation(p: _Parts, done) -> bool:
+  """Logs a finished evaluation: a row per member, and a sweep's terminal line. Returns whether
+  progress_fn asked to stop."""
+  returns = done.result["return"]
+  rows = [{"kind": "eval", **p.members.tags(m), "env_steps": done.env_steps,
+           "wall_s": p.until.elapsed(), "eval_return": float(np.mean(returns[m])),
+           "eval_return_std": float(np.std(returns[m])),
+           "eval_length": float(np.mean(done.result["length"][m]))}
+          for m in range(len(p.members))]
+  p.display.evaluated(done.env_steps, done.returns)
+  return _log(p, done.env_steps, rows)
 
 
-def _log(p: _Parts, env_steps: int, rows: list[dict]) -> None:
-  """Writes `rows` to the logger, then hands them to progress_fn: a False from it ends the
-  run after this chunk's evaluation."""
+def _log(p: _Parts, env_steps: int, rows: list[dict]) -> bool:
+  """Writes `rows` to the logger, then hands them to progress_fn. Returns whether it returned
+  False."""
   for row in rows:
     p.logger.write(row, force=row["kind"] == "eval")
-  if p.progress_fn is not None:
-    metrics = dict(rows[0]) if p.members.single else {
-        k: rows[0][k] if k == "kind" else np.array([row[k] for row in rows]) for k in rows[0]}
-    if p.progress_fn(env_steps, metrics) is False:
-      p.until.stop()
+  if p.progress_fn is None:
+    return False
+  metrics = dict(rows[0]) if p.members.single else {
+      k: rows[0][k] if k == "kind" else np.array([row[k] for row in rows]) for k in rows[0]}
+  return p.progress_fn(env_steps, metrics) is False
+
+
+def _show(bar, p: _Parts, env_steps: int, rate: float) -> None:
+  """Moves the progress bar (if any) to `env_steps`."""
+  if bar is not None:
+    bar.update(min(env_steps, p.cfg.total_env_steps) - bar.n)
+    bar.set_postfix_str(p.display.status(rate, p.logger))
 
 
 def _finish(p: _Parts, state: train.TrainState, stop) -> Result:
   """The run's last lines (a sweep's ranking and curves first) and its Result."""
-  evaluation = p.evaluator.latest
+  evaluation = None if p.evaluator.latest is None else p.evaluator.latest.result
   if p.members.single and evaluation is not None:
     evaluation = jax.tree.map(lambda x: x[0], evaluation)  # a single run is one member
   p.display.finish(p.logger.rows, os.path.dirname(p.logger.csv_path))
@@ -360,14 +383,6 @@ def _header(cfg: RunConfig, trainer: train.Trainer, count: int, single: bool) ->
           f"{'' if single else ' per member'}")
 
 
-@jax.jit
-def _finite_members(tree) -> jax.Array:
-  """(members,): whether every float of each member's part of `tree` is finite."""
-  checks = [jnp.isfinite(x).reshape(x.shape[0], -1).all(1) for x in jax.tree.leaves(tree)
-            if jnp.issubdtype(x.dtype, jnp.floating) and x.size]
-  return jnp.stack(checks).all(0)
-
-
 def _field_defaults(config) -> dict:
   """A config dataclass's fields' default values."""
   return {f.name: f.default for f in dataclasses.fields(config)
@@ -391,8 +406,8 @@ def _above_progress_bars(print_fn: Callable[[str], None]) -> Callable[[str], Non
   return say
 
 
-join_processes = parallel.join_processes
-from mjx_hopper.runs import extract, load_policy, restore, resume  # noqa: E402  (re-exports)
+def __getattr__(name: str):
+  return compat.moved(__name__, name)  # this module's old names
 
-__all__ = ["MAX_PENDING", "Result", "RunConfig", "build", "extract", "init", "join_processes",
-           "load_policy", "restore", "resume", "run"]
+
+__all__ = ["Result", "RunConfig", "resume", "run"]

@@ -56,6 +56,7 @@ class Members:
             "diverged": int(self.diverged[position])}
 
   def name(self, position: int) -> str:
+    """How the terminal names the member at `position`: "member I " in a sweep, "" alone."""
     return "" if self.single else f"member {self.indices[position]} "
 
   def check(self, env_steps: int, metrics: dict, finite_params) -> None:
@@ -99,6 +100,7 @@ class Members:
       self.values[m] = {**self.values[m], **{k: _plain(v[m]) for k, v in new_values.items()}}
 
   def all_diverged(self) -> bool:
+    """Whether every member went non-finite."""
     return bool(self.diverged.all())
 
   def done(self) -> bool:

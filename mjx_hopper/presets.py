@@ -20,6 +20,9 @@ KINDS = ("gpu", "cpu")
 
 @dataclasses.dataclass(frozen=True)
 class Preset:
+  """A robot's measured settings for one kind of machine: its agent, trainer layout,
+  evaluation period, and the score and time it is benchmarked against."""
+
   agent: str                # the agent, with its named preset and overrides
   agent_preset: str
   agent_overrides: dict

@@ -35,6 +35,8 @@ class Transition(NamedTuple):
 
 
 class ReplayState(NamedTuple):
+  """A ring buffer of steps, rows x num_envs, with where the next insert goes."""
+
   steps: Step           # leaves (rows, num_envs, ...)
   position: jax.Array   # () int32 row the next insert starts at
   filled: jax.Array     # () int32 rows holding data, at most `rows`
@@ -62,6 +64,7 @@ def insert(state: ReplayState, steps: Step) -> ReplayState:
 
 
 def can_sample(state: ReplayState, n_step: int) -> jax.Array:
+  """() bool: whether the buffer holds the `n_step` rows a sample needs."""
   return state.filled >= n_step
 
 

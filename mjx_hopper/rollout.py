@@ -19,6 +19,7 @@ def random_policy(action_size: int) -> Policy:
 
 
 def zero_policy(action_size: int) -> Policy:
+  """A policy whose every action is zero: the robot unactuated."""
   return lambda obs, key: jnp.zeros(action_size)
 
 
@@ -110,3 +111,45 @@ def make_stepper(env: LocomotionEnv, num_envs: int, steps: int):
     return state, rewards.sum()
 
   return jax.jit(init), jax.jit(run, donate_argnums=0)
+
+
+def demo(env_id, num_envs: int = 1024, steps: int = 500, seed: int = 0, out: str = "runs/demo",
+         print_fn=print) -> str:
+  """Steps `num_envs` envs of `env_id` (a name, class or instance) `steps` times with random
+  actions, printing env steps/s, then films one random-action episode. Returns the mp4's path."""
+  import os
+  import time
+
+  import numpy as np
+
+  from mjx_hopper import envs
+  from mjx_hopper.envs import render
+
+  env = envs.make(env_id)
+  envs.check_task(env)
+  name = envs.task_id(type(env)).rpartition(":")[2]
+  print_fn(f"{name}: observation {env.observation_size}, action {env.action_size}, control dt "
+           f"{env.dt} s; devices: {jax.devices()}")
+  chunk = 50
+  init, run = make_stepper(env, num_envs, chunk)
+  key = jax.random.PRNGKey(seed)
+  state = init(key)
+  t0 = time.perf_counter()
+  run = run.lower(state, key).compile()
+  print_fn(f"compiled a {chunk}-step chunk of {num_envs} envs in {time.perf_counter() - t0:.1f} s")
+  t0 = time.perf_counter()
+  for i in range(max(1, steps // chunk)):
+    state, reward = run(state, jax.random.fold_in(key, i))
+    jax.block_until_ready(reward)
+    done = (i + 1) * chunk * num_envs
+    print_fn(f"  {done:>10,} env steps  {done / (time.perf_counter() - t0):>10,.0f} env steps/s  "
+             f"mean reward {float(reward) / (chunk * num_envs):+.3f}")
+  stats = jax.jit(lambda k: episodes(env, random_policy(env.action_size), k, 1,
+                                     record_qpos=True))(key)
+  length = int(stats["length"][0])
+  os.makedirs(out, exist_ok=True)
+  path = render.write_mp4(os.path.join(out, f"{name.lower()}_random.mp4"),
+                          env.render(np.asarray(stats["qpos"][:length + 1])), fps=1 / env.dt)
+  print_fn(f"random-action episode: {length} steps, return {float(stats['return'][0]):.1f}; "
+           f"video: {path}")
+  return path

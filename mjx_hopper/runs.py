@@ -1,6 +1,6 @@
 """Making a run's trainer and state, and getting a saved run back: `restore` (the whole state),
-`resume` (go on training), `load_policy` (one member's agent) and `extract` (one member of a
-sweep as a single run)."""
+`load_policy` (one member's agent) and `extract` (one member of a sweep as a single run).
+`loop.resume` goes on training one."""
 
 from __future__ import annotations
 
@@ -31,8 +31,8 @@ def build(cfg: RunConfig, num_members: int | None = None) -> train.Trainer:
 def init(cfg: RunConfig, trainer: train.Trainer, members: list[dict]) -> train.TrainState:
   """The fresh TrainState of `members` (from `cfg.members()`), each from its own seed's key and
   with its own swept values: a member starts as the single run of its settings."""
-  keys = jnp.stack([jax.random.PRNGKey(m["seed"]) for m in members])
-  return trainer.init(keys, {name: [m[name] for m in members] for name in cfg.grid})
+  return trainer.init([m["seed"] for m in members],
+                      {name: [m[name] for m in members] for name in cfg.grid})
 
 
 def check_which(which: str) -> None:
@@ -48,48 +48,66 @@ def restore(directory: str, print_fn=print, env: Any = None):
   return _restore(directory, print_fn, env)[:3]
 
 
-def resume(directory: str, progress: bool = True, print_fn=print, env: Any = None,
-           progress_fn=None, **changes):
-  """Continues the run checkpointed in `directory` with its saved config. `changes` replace
-  fields that may change between a run and its resumption (total_env_steps, max_minutes, ...);
-  one the saved state depends on is refused, naming it. `env` as in `restore`."""
-  from mjx_hopper.loop import run  # the host loop, which imports this module
+def saved_config(directory: str, print_fn=print, env: Any = None) -> RunConfig:
+  """The RunConfig of the newest readable checkpoint in `directory`; `env` as in `restore`."""
   mngr = open_checkpoints(directory)
-  cfg = checkpoint.load_newest(mngr, lambda step: _saved_run(mngr, step, env)[0], print_fn)[1]
-  return run(dataclasses.replace(cfg, **changes), checkpoint_dir=directory, progress=progress,
-             print_fn=print_fn, progress_fn=progress_fn)
+  return checkpoint.load_newest(mngr, lambda step: _saved_run(mngr, step, env)[0], print_fn)[1]
 
 
-def load_policy(directory: str, member: int = 0, env: Any = None, which: str = "best",
+def load_policy(directory: str, member: int | str = 0, env: Any = None, which: str = "best",
                 print_fn=print):
-  """(RunConfig, agent state, Trainer) of the newest readable checkpoint in `directory`: member
-  `member`'s agent without the member axis, at its best evaluation (or which="latest"), read
-  without the replay. Says which policy it loaded."""
+  """(RunConfig, agent state, Trainer) of the newest readable checkpoint in `directory`: the
+  agent of the member at position `member` (or "best": the member of the best evaluation)
+  without the member axis, at its best evaluation (or which="latest"), read without the
+  replay. Says which policy it loaded."""
   check_which(which)
   mngr = open_checkpoints(directory)
 
   def load(step):
     cfg, members, saved = _saved_run(mngr, step, env)
-    if not 0 <= member < len(members):
-      raise checkpoint.ConfigMismatch(f"member {member} is not in {directory}: it holds "
+    position = _position(directory, saved, member)
+    if not 0 <= position < len(members):
+      raise checkpoint.ConfigMismatch(f"member {position} is not in {directory}: it holds "
                                       f"{len(members)} member(s), 0 to {len(members) - 1}")
     trainer = build(cfg, len(members))
     like = jax.eval_shape(lambda k: init(cfg, trainer, members).agent, 0)
     best = which == "best" and checkpoint.has_best(mngr, step)
     agent_state = checkpoint.restore_agent(mngr, step, like, "best" if best else "agent")
     record = saved.get("record", {})
-    score = record.get("best_return", [None] * len(members))[member] if best else None
+    score = record.get("best_return", [None] * len(members))[position] if best else None
     if score is not None:
       print_fn(f"the policy of its best evaluation: return {score:.1f} at "
-               f"{record['best_env_steps'][member]:,} env steps")
+               f"{record['best_env_steps'][position]:,} env steps")
     elif best:
       print_fn("the policy of its first evaluation (none of its evaluations was finite)")
     else:
       print_fn(f"the latest policy, at {step * trainer.config.steps_per_iteration:,} env steps"
                + ("" if which == "latest" else " (no evaluation was saved yet)"))
-    return cfg, jax.tree.map(lambda x: x[member], agent_state), trainer
+    return cfg, jax.tree.map(lambda x: x[position], agent_state), trainer
 
   return checkpoint.load_newest(mngr, load)[1]
+
+
+def evaluate_checkpoint(directory: str, member: int | str = 0, episodes: int = 16,
+                        seed: int = 0, video_path: str | None = None, which: str = "best",
+                        env: Any = None, print_fn=print) -> dict:
+  """Evaluates a checkpoint's policy (as `load_policy` picks it) over `episodes` episodes, and
+  with `video_path`, films episode 0 as an mp4. Returns the per-episode "return" and "length"."""
+  cfg, agent_state, trainer = load_policy(directory, member, env, which, print_fn)
+  result = jax.device_get(jax.jit(lambda s, k: train.evaluate(
+      trainer.env, trainer.agent, s, k, episodes, record_qpos=video_path is not None))(
+          agent_state, jax.random.PRNGKey(seed)))
+  returns = np.asarray(result["return"])
+  print_fn(f"{cfg.task_id} / {cfg.agent}: return {returns.mean():.1f} +- {returns.std():.1f}, "
+           f"length {np.mean(result['length']):.0f} over {episodes} episodes")
+  if video_path is not None:
+    from mjx_hopper.envs import render
+    length = int(result["length"][0])
+    qpos = np.asarray(result.pop("qpos")[:length + 1])
+    frames = render.render_frames(trainer.env.mj_model, qpos)
+    render.write_mp4(video_path, frames, fps=1 / trainer.env.dt)
+    print_fn(f"video of episode 0 ({length} steps, return {returns[0]:.1f}): {video_path}")
+  return result
 
 
 def extract(directory: str, member: int | str, out_dir: str, print_fn=print,
@@ -119,6 +137,15 @@ def best_position(directory: str, record: dict) -> int:
     raise ValueError(f"{directory}: no evaluation was saved yet, so no member is the best; "
                      "give a member's index")
   return int(np.argmax(scores))
+
+
+def _position(directory: str, saved: dict, member: int | str) -> int:
+  """`member` (a position, or "best") as a position; no older step has a best where the newest
+  has none."""
+  try:
+    return best_position(directory, saved.get("record", {})) if member == "best" else member
+  except ValueError as error:
+    raise checkpoint.ConfigMismatch(str(error)) from None
 
 
 def _restore(directory: str, print_fn, env: Any, with_best: bool = False):

@@ -1,13 +1,13 @@
 """Batch sweeps: S members (seeds x values of dynamic settings) trained at once, as the leading
 axis of one TrainState in one compiled program.
 
-    from mjx_hopper import loop, sweep
+    from mjx_hopper import curves, loop, runs, sweep
     cfg = loop.RunConfig(env="Hopper", agent="d4pg", seeds=(0, 1, 2, 3),
                          grid={"learning_rate": (1e-4, 3e-4)}, out_dir="runs/sweep")
     result = loop.run(cfg)                       # 8 members; log.csv has one row per member
     print(sweep.ranking(result.history, cfg.grid))   # loop.run prints it, and
-    sweep.plot(result.history, cfg.grid, "runs/sweep/curves.png")  # writes this, itself
-    loop.extract("runs/sweep/checkpoints", member=3, out_dir="runs/member3")
+    curves.plot(result.history, cfg.grid, "runs/sweep/curves.png")  # writes this, itself
+    runs.extract("runs/sweep/checkpoints", member=3, out_dir="runs/member3")
 
 A single run is a sweep of one member (no seeds or grid). Only dynamic settings can be swept:
 the agent's `Config.DYNAMIC` (learning rates, discount, n-step, sigma, vmin/vmax, MPO's
@@ -16,7 +16,7 @@ compilation serves every value. Structural settings (network sizes, atoms, sampl
 batch_size, ...) shape the program: sweeping them is refused with an error that says to run one
 sweep per value.
 
-Population-based training (`RunConfig(pbt=sweep.PBT())`, `mjx-hopper sweep --pbt`): every
+Population-based training (`RunConfig(pbt=pbt.PBT())`, `mjx-hopper sweep --pbt`): every
 `PBT.every` evaluations, the worst members take a copy of a better member's agent and perturb
 the grid's settings within bounds (docs/pbt.md). A member whose learning goes non-finite is marked diverged: frozen at its
 last finite agent, or under PBT, the first to be replaced.
@@ -24,16 +24,14 @@ last finite agent, or under PBT, the first to be replaced.
 
 from __future__ import annotations
 
-import math
 import os
 import time
 
 import numpy as np
 
-from mjx_hopper.config import (TRAINER_DYNAMIC, check_grid, check_value,  # noqa: F401
-                               dynamic_settings, members)
+from mjx_hopper import compat, curves
+from mjx_hopper.curves import group_label, mean_interval
 from mjx_hopper.logger import RETURNS
-from mjx_hopper.pbt import PBT, exploit_explore  # noqa: F401
 from mjx_hopper.runs import check_which
 
 
@@ -67,14 +65,14 @@ def ranking(rows: list[dict], grid: dict, which: str = "best") -> str:
   diverged = _diverged(rows)
   groups: dict[str, list[tuple[float, bool]]] = {}
   for member, value in sorted(scores.items()):
-    groups.setdefault(_group_label(meta[member], grid), []).append((value, member in diverged))
+    groups.setdefault(group_label(meta[member], grid), []).append((value, member in diverged))
   lines = ["| rank | setting | mean return | 95% interval | seeds | diverged |",
            "|---|---|---|---|---|---|"]
   # Settings whose members diverged rank after the others, however their frozen agents scored.
   order = sorted(groups.items(), key=lambda kv: (np.mean([d for _, d in kv[1]]),
                                                  -np.mean([v for v, _ in kv[1]])))
   for rank, (name, entries) in enumerate(order, 1):
-    mean, half = _mean_interval([v for v, _ in entries])
+    mean, half = mean_interval([v for v, _ in entries])
     lines.append(f"| {rank} | {name or '(all)'} | {mean:.1f} | ±{half:.1f} | "
                  f"{', '.join(f'{v:.0f}' for v, _ in entries)} | "
                  f"{sum(d for _, d in entries)} of {len(entries)} |")
@@ -92,49 +90,9 @@ def population_ranking(rows: list[dict], grid: dict, which: str = "best") -> str
   for rank, (member, value) in enumerate(order, 1):
     parent = int(float(latest[member]["parent"]))
     lines.append(f"| {rank} | {member}{' (diverged)' if member in diverged else ''} | "
-                 f"{value:.1f} | {_group_label(latest[member], grid)} | "
+                 f"{value:.1f} | {group_label(latest[member], grid)} | "
                  f"{'none' if parent == member else parent} |")
   return "\n".join(lines)
-
-
-def plot(rows: list[dict], grid: dict, path: str) -> str:
-  """Learning curves to a PNG: per value combination, the mean evaluation return over seeds
-  against env steps, with its 95% interval as a band. Returns the path."""
-  from matplotlib.figure import Figure  # not pyplot: a notebook's own plots stay inline
-
-  curves: dict[str, dict[float, list[float]]] = {}
-  for row in rows:
-    if row.get("kind") == "eval":
-      curve = curves.setdefault(_group_label(row, grid), {})
-      curve.setdefault(float(row["env_steps"]), []).append(float(row["eval_return"]))
-  fig = Figure(figsize=(7, 4.5))
-  ax = fig.subplots()
-  for name, curve in sorted(curves.items()):
-    steps = sorted(curve)
-    stats = np.array([_mean_interval(curve[s]) for s in steps])
-    ax.plot(steps, stats[:, 0], label=name or "mean over seeds")
-    ax.fill_between(steps, stats[:, 0] - stats[:, 1], stats[:, 0] + stats[:, 1], alpha=0.25)
-  ax.set_xlabel("env steps")
-  ax.set_ylabel("evaluation return")
-  ax.grid(alpha=0.3)
-  ax.legend(fontsize=8)
-  fig.tight_layout()
-  os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
-  fig.savefig(path, dpi=100)
-  return path
-
-
-def _group_label(row: dict, grid: dict) -> str:
-  """A log row's swept values as text (the CSV gives them back as strings)."""
-  return " ".join(f"{name}={float(row[name]):g}" for name in grid)
-
-
-def _mean_interval(values: list[float]) -> tuple[float, float]:
-  """Mean and the half-width of its 95% interval (normal approximation; 0 for one value)."""
-  values = np.asarray(values, np.float64)
-  if len(values) < 2:
-    return float(values.mean()), 0.0
-  return float(values.mean()), float(1.96 * values.std(ddof=1) / math.sqrt(len(values)))
 
 
 def plot_population(rows: list[dict], grid: dict, path: str) -> str:
@@ -213,12 +171,17 @@ class Report:
     return f"best {values[best]:,.1f} ({name}), mean {np.nanmean(values):,.1f}{lost}"
 
   def finish(self, rows: list[dict], out_dir: str) -> None:
-    """A sweep's ranking and learning curves; a PBT run's ranking and lineage."""
-    if self.single:
-      return
+    """The learning curves (a PBT run's lineage instead), and a sweep's ranking."""
     if self.members.pbt:
       self.say("ranking by the best evaluation:\n" + population_ranking(rows, self.grid))
       self.say(f"lineage: {plot_population(rows, self.grid, os.path.join(out_dir, 'pbt.png'))}")
-    else:
+      return
+    if not self.single:
       self.say("ranking by the best evaluation (mean over seeds):\n" + ranking(rows, self.grid))
-      self.say(f"learning curves: {plot(rows, self.grid, os.path.join(out_dir, 'curves.png'))}")
+    path = curves.plot(rows, self.grid, os.path.join(out_dir, "curves.png"))
+    if path is not None:
+      self.say(f"learning curves: {path}")
+
+
+def __getattr__(name: str):
+  return compat.moved(__name__, name)  # this module's old names

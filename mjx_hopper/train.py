@@ -40,14 +40,16 @@ class TrainConfig:
   replay_ratio: float = setting(4.0, "samples drawn per transition inserted")
   replay_size: int = setting(1_000_000, "transitions kept in the replay")
   min_replay: int = setting(20_000, "transitions collected before learning starts")
-  iterations_per_chunk: int = setting(25, "iterations per compiled chunk", aliases=("--chunk",))
+  iterations_per_chunk: int = setting(25, "iterations per compiled chunk")
 
   @property
   def steps_per_iteration(self) -> int:
+    """Env steps one iteration collects: num_envs x unroll_length."""
     return self.num_envs * self.unroll_length
 
   @property
   def updates_per_iteration(self) -> int:
+    """Learner updates per iteration: replay_ratio x its env steps / batch_size, rounded."""
     return round(self.replay_ratio * self.steps_per_iteration / self.batch_size)
 
   def check(self, num_devices: int = 1) -> None:
@@ -96,8 +98,9 @@ class TrainState(NamedTuple):
 class Trainer(NamedTuple):
   """Compiled functions of one (env, agent, config, number of members S).
 
-  init(keys (S, 2), hparams=None) -> TrainState; hparams: {name: (S,)} of the agent's dynamic
-    settings and "replay_ratio", defaulting to the config's.
+  init(seeds (S,), hparams=None) -> TrainState: each member from jax.random.PRNGKey(seed);
+    hparams: {name: (S,)} of the agent's dynamic settings and "replay_ratio", defaulting to the
+    config's.
   train_chunk(state) -> (state, metrics (S,)): the agent's metrics averaged over the chunk,
     "episodes" ended, their mean "episode_return" (NaN if none) and "learning".
   evaluate(agent_states, keys) -> "return", "length" (S, episodes).
@@ -136,6 +139,7 @@ class Layout(NamedTuple):
     return AXIS if self.group_size > 1 else None
 
   def device_index(self):
+    """This device's place among its member's devices (0 for a member on one device)."""
     return jax.lax.axis_index(AXIS) if self.axis else 0
 
   def total(self, x):
@@ -195,8 +199,8 @@ def _make_init(env: LocomotionEnv, agent: Agent, cfg: TrainConfig, where: Layout
   """Trainer.init: the members' fresh TrainState, placed on the mesh."""
   train_env = AutoReset(env)
 
-  def init_member(key, hp):
-    agent_key, env_key, key = jax.random.split(key, 3)
+  def init_member(seed, hp):
+    agent_key, env_key, key = jax.random.split(jax.random.PRNGKey(seed), 3)
     hp = dict(hp)
     ratio = hp.pop("replay_ratio")
     env_state = jax.vmap(train_env.reset)(jax.random.split(env_key, cfg.num_envs))
@@ -210,19 +214,19 @@ def _make_init(env: LocomotionEnv, agent: Agent, cfg: TrainConfig, where: Layout
 
   compiled_init = jax.jit(jax.vmap(init_member), out_shardings=where.shardings)
 
-  def init(keys, hparams=None):
-    keys = jnp.asarray(keys)
-    keys = keys[None] if keys.ndim == 1 else keys
-    if keys.shape[0] != num_members:
-      raise ValueError(f"init takes {num_members} keys (one per member), got {keys.shape[0]}")
-    defaults = {**agent.hparams, "replay_ratio": jnp.asarray(cfg.replay_ratio, jnp.float32)}
+  def init(seeds, hparams=None):
+    # NumPy until the one compiled call: eager JAX here would compile programs of its own.
+    seeds = np.atleast_1d(np.asarray(seeds))
+    if seeds.shape != (num_members,) or not np.issubdtype(seeds.dtype, np.integer):
+      raise ValueError(f"init takes {num_members} integer seeds (one per member), got {seeds!r}")
+    defaults = {**agent.hparams, "replay_ratio": np.float32(cfg.replay_ratio)}
     unknown = sorted(set(hparams or {}) - set(defaults))
     if unknown:
       raise ValueError(f"unknown dynamic settings {unknown}; this agent's are {sorted(defaults)}")
     values = {**defaults, **(hparams or {})}
-    batched = {k: jnp.broadcast_to(jnp.asarray(v, defaults[k].dtype), (num_members,))
+    batched = {k: np.broadcast_to(np.asarray(v, defaults[k].dtype), (num_members,))
                for k, v in values.items()}
-    return compiled_init(keys, batched)
+    return compiled_init(seed_bits(seeds), batched)
   return init
 
 
@@ -270,12 +274,13 @@ def _learn(agent: Agent, cfg: TrainConfig, where: Layout, dynamic_updates: bool,
 
 def _metric_shapes(env: LocomotionEnv, agent: Agent):
   """The shapes of one update's metrics."""
-  example = replay.Transition(jnp.zeros((1, env.observation_size)),
-                              jnp.zeros((1, env.action_size)), jnp.zeros(1), jnp.zeros(1),
-                              jnp.zeros((1, env.observation_size)))
-  key0 = jax.random.PRNGKey(0)
-  return jax.eval_shape(lambda s: agent.update(s, example, key0)[1],
-                        jax.eval_shape(agent.init, key0))
+  def shape(*dims):
+    return jax.ShapeDtypeStruct(dims, jnp.float32)
+  example = replay.Transition(shape(1, env.observation_size), shape(1, env.action_size),
+                              shape(1), shape(1), shape(1, env.observation_size))
+  key = jax.ShapeDtypeStruct((2,), jnp.uint32)
+  return jax.eval_shape(lambda s, batch, k: agent.update(s, batch, k)[1],
+                        jax.eval_shape(agent.init, key), example, key)
 
 
 def _make_chunk(env: LocomotionEnv, agent: Agent, cfg: TrainConfig, where: Layout,
@@ -333,6 +338,12 @@ def _make_chunk(env: LocomotionEnv, agent: Agent, cfg: TrainConfig, where: Layou
                     out_specs=(where.specs, P(MEMBERS)), check_vma=False),
       in_shardings=(where.shardings,), out_shardings=(where.shardings, per_member_out),
       donate_argnums=0)
+
+
+def seed_bits(seeds) -> np.ndarray:
+  """Integer seeds as the uint32 that jax.random.PRNGKey and fold_in keep of them, for a
+  compiled program to take as NumPy."""
+  return (np.asarray(seeds, np.int64) % 2**32).astype(np.uint32)
 
 
 def iterations(state: TrainState) -> int:

@@ -5,18 +5,15 @@ import dataclasses
 import os
 from importlib.metadata import version
 
-# Two devices; and (jaxlib < 0.11) XLA:CPU's loop emitters instead of its fusion emitters,
-# which compile MJX's physics a quarter to a third faster (docs/benchmark-history.md, "XLA:CPU's
-# fusion emitters"), as the suite's time is mostly compiling. Users keep XLA's default: the
-# programs' speed depends on the robot (docs/benchmark-history.md). And single-threaded matrix
-# products within a device: XLA:CPU splits a product over its thread pool only in single-device
-# programs, which changes the order of its sums, so a sweep member would not be bit-identical
-# to its single run on one device (test_sweep.py). And LLVM's optimisation level 1 instead of
-# 2: a Hopper rollout compiles in 0.83x the CPU time and runs at 0.85x the speed, and the suite
-# took 1,136 CPU-s against 1,371-1,420 (BENCHMARKS.md, "Test-suite time"). Level 0 compiles in
-# half the time but runs 5.5x slower, which costs the tests' 1,000-step episodes more than it
-# saves.
-# jaxlib 0.11 dropped the loop emitters and refuses to start with their flag.
+# Two devices, so that batches are sharded. The suite's time is mostly compiling, so: XLA:CPU's
+# loop emitters instead of its fusion emitters, which compile MJX's physics faster (users keep
+# XLA's default, whose programs' speed depends on the robot; jaxlib 0.11 dropped the loop
+# emitters and refuses their flag), and LLVM's optimisation level 1, which compiles faster for
+# a little speed (level 0 runs too slowly for the tests' 1,000-step episodes). And
+# single-threaded matrix products within a device: XLA:CPU splits a product over its thread
+# pool only in single-device programs, which changes the order of its sums, so a sweep member
+# would not be bit-identical to its single run on one device (test_sweep.py). The measurements
+# behind each choice are in the commits that made it.
 LOOP_EMITTERS = ("--xla_cpu_use_fusion_emitters=false"
                  if tuple(map(int, version("jaxlib").split(".")[:2])) < (0, 11) else "")
 TEST_XLA_FLAGS = (f"--xla_force_host_platform_device_count=2 {LOOP_EMITTERS} "
@@ -32,7 +29,7 @@ import jax  # noqa: E402
 import pytest  # noqa: E402
 
 import mjx_hopper  # noqa: E402
-from mjx_hopper import loop  # noqa: E402
+from mjx_hopper import config, runs  # noqa: E402
 
 mjx_hopper.use_compile_cache()
 
@@ -47,23 +44,24 @@ def _frozen(x):
   return x
 
 
-def build_key(cfg: loop.RunConfig, num_members: int | None = None) -> tuple:
-  """Everything `loop.build(cfg, num_members)` builds its trainer from: the env and its episode
+def build_key(cfg: config.RunConfig, num_members: int | None = None) -> tuple:
+  """Everything `runs.build(cfg, num_members)` builds its trainer from: the env and its episode
   length, the agent and its config, the train config, the evaluation's episodes, the number of
   members and whether their update counts are dynamic (out_dir, budgets and seeds are not)."""
-  return (cfg.env, _frozen(cfg.env_settings), cfg.episode_steps, cfg.agent, _frozen(dataclasses.asdict(cfg.agent_config())),
-          cfg.train_config(), cfg.eval_episodes, num_members or len(cfg.members()),
-          "replay_ratio" in cfg.grid)
+  return (cfg.env, _frozen(cfg.env_settings), cfg.episode_steps, cfg.agent,
+          _frozen(dataclasses.asdict(cfg.agent_config())), cfg.train_config(), cfg.eval_episodes,
+          num_members or len(cfg.members()), "replay_ratio" in cfg.grid)
 
 
 @pytest.fixture(scope="session", autouse=True)
 def shared_builds():
-  """`loop.build` memoised on `build_key` for a test worker's whole session: `loop.run`,
-  `loop.restore`, `loop.load_policy` and the in-process CLI reuse one trainer per config, across
-  the test files that the worker runs, instead of tracing it again (about 15 s of CPU per
-  trainer, even when its programs come from the compile cache). A trainer is pure functions, so
-  a run is the same with a trainer built once or again."""
-  built, build = {}, loop.build
+  """`runs.build`, through which every path builds its trainer (`loop.run` and `loop.resume`,
+  `runs.restore`, `runs.load_policy`, `runs.extract`, `export.export_checkpoint` and the
+  in-process CLI), memoised on `build_key` for a test worker's whole session: each config's
+  trainer is traced once, across the test files that the worker runs (tracing one takes about
+  15 s of CPU, even when its programs come from the compile cache). A trainer is pure
+  functions, so a run is the same with a trainer built once or again."""
+  built, build = {}, runs.build
 
   def cached(cfg, num_members=None):
     key = build_key(cfg, num_members)
@@ -71,26 +69,23 @@ def shared_builds():
       built[key] = build(cfg, num_members)
     return built[key]
   with pytest.MonkeyPatch.context() as patch:
-    patch.setattr(loop, "build", cached)
+    patch.setattr(runs, "build", cached)
     yield
 
 
-# Each test file's seconds from an empty compile cache on the 2-core CPU (2026-11-25, `pytest
-# --durations=0 --junitxml`), for the order in which the two test workers take the files:
-# longest first, so that neither is left with a long file at the end while the other idles
-# (scripts/test.sh turns off xdist's own order, by number of tests). A file not listed goes last.
-# The notebook's and test_tasks.py's: estimates from the slowest tests' durations of a run with
-# the notebook's trained events.
-FILE_SECONDS = {"test_notebooks.py": 306, "test_sweep.py": 340, "test_brax.py": 177,
-                "test_train.py": 145, "test_episodes.py": 142, "test_tasks.py": 100,
-                "test_checkpoint.py": 78, "test_export.py": 100, "test_gymnasium.py": 40,
-                "test_env_api.py": 76, "test_observation.py": 57, "test_dpg.py": 42,
-                "test_mpo.py": 37, "test_presets.py": 31, "test_render.py": 20,
-                "test_notebook_helpers.py": 20}
+# The test files that take longest from an empty compile cache (`pytest --durations=0`),
+# longest first: the two test workers take files in this order, so that neither is left with a
+# long file at the end while the other idles (scripts/test.sh turns off xdist's own order, by
+# number of tests). A file not listed goes after them.
+LONGEST_FIRST = ("test_sweep.py", "test_notebooks.py", "test_brax.py", "test_pretrained.py", "test_train.py",
+                 "test_episodes.py", "test_tasks.py", "test_export.py", "test_checkpoint.py",
+                 "test_env_api.py", "test_observation.py", "test_dpg.py", "test_gymnasium.py",
+                 "test_mpo.py", "test_presets.py", "test_render.py", "test_notebook_helpers.py")
 
 
 def pytest_collection_modifyitems(items):
-  items.sort(key=lambda item: -FILE_SECONDS.get(item.path.name, 0))  # stable: tests keep order
+  rank = {name: i for i, name in enumerate(LONGEST_FIRST)}
+  items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: tests keep order
 
 
 ROBOTS = ("Hopper", "Walker2D", "HalfCheetah", "Ant", "Humanoid")

@@ -19,7 +19,7 @@ import pytest
 from etils import epath
 
 import mjx_hopper
-from mjx_hopper import agents, checkpoint, cli, loop, train
+from mjx_hopper import agents, checkpoint, cli, loop, runs, train
 from checkpoint_worker import CONFIG, state
 from test_train import TINY_ARGS
 
@@ -292,19 +292,19 @@ TRAIN = [*TINY_ARGS, "--agent", "d4pg", "--set", "num_atoms=11"]
 
 
 def train_in_fresh_process(out, steps):
-  subprocess.run([sys.executable, "-m", "mjx_hopper.cli", *TRAIN, "--steps", str(steps),
-                  "--out", str(out)], check=True, stdout=subprocess.DEVNULL)
+  subprocess.run([sys.executable, "-m", "mjx_hopper.cli", *TRAIN, "--total-env-steps", str(steps),
+                  "--out-dir", str(out)], check=True, stdout=subprocess.DEVNULL)
 
 
 def test_resume_is_bit_exact_in_fresh_processes(tmp_path):
   # The straight run here (it compiles the programs, which the compile cache then gives the
   # fresh processes); the split run in two fresh processes, the second resuming the first's.
   # The straight run's trainer (conftest.shared_builds) restores both checkpoints.
-  cli.main([*TRAIN, "--steps", "160", "--out", str(tmp_path / "straight")])
+  cli.main([*TRAIN, "--total-env-steps", "160", "--out-dir", str(tmp_path / "straight")])
   train_in_fresh_process(tmp_path / "split", 80)
   train_in_fresh_process(tmp_path / "split", 160)   # resumes at 80 env steps
-  straight = loop.restore(str(tmp_path / "straight" / "checkpoints"))[1]
-  split = loop.restore(str(tmp_path / "split" / "checkpoints"))[1]
+  straight = runs.restore(str(tmp_path / "straight" / "checkpoints"))[1]
+  split = runs.restore(str(tmp_path / "split" / "checkpoints"))[1]
   assert train.iterations(straight) == train.iterations(split) == 20
   assert int(straight.updates[0]) > 0
   # Params, target params, optimizer states, replay, env states, keys and counters.

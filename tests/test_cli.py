@@ -7,7 +7,7 @@ import json
 
 import pytest
 
-from mjx_hopper import cli, presets
+from mjx_hopper import cli, flags, loop, presets
 from mjx_hopper.config import RunConfig
 from mjx_hopper.train import TrainConfig
 
@@ -19,43 +19,49 @@ def parse(*argv):
 def test_every_run_flag_comes_from_a_field():
   base = presets.agent_run_config("Humanoid", "gpu", "d4pg")
   parser = cli.build_parser({"train": base, "sweep": base})
-  commands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
-  actions = {a.dest: a for a in commands.choices["train"]._actions}
-  flags = cli._run_flags()
-  assert {f.name for _, f in flags} == (
+  train = parser.parse_args(["train"]).parser
+  actions = {a.option_strings[0]: a for a in train._actions if a.option_strings}
+  fields = flags.fields()
+  assert {f.name for _, f in fields} == (
       {f.name for f in dataclasses.fields(RunConfig) if f.metadata["flag"]}
       | {f.name for f in dataclasses.fields(TrainConfig)})
-  for owner, field in flags:
-    action = actions[field.name]
-    assert cli.flag_name(field) in action.option_strings
+  for owner, field in fields:
+    action = actions[flags.flag_name(field)]
+    assert action.dest == field.name
     assert action.help.startswith(field.metadata["help"])
     value = getattr(base if owner is RunConfig else base.train, field.name)
     assert action.help.endswith(f"(default: {value})"), field.name
+    assert action.help.count("default") == 1, action.help  # a field's help states none
     assert action.type is {"int": int, "float": float}.get(str(field.type).split(" |")[0], str)
     assert action.default is argparse.SUPPRESS
 
 
-def test_only_flags_given_replace_the_preset_in_any_order():
+def test_only_flags_given_replace_the_preset_in_any_order(capsys):
   walker = presets.run_config("Walker2D", "gpu")
-  one = cli._run_config(parse("--num-envs", "256", "--env", "Walker2D", "--preset", "gpu",
-                              "--steps", "5000"))
-  two = cli._run_config(parse("--preset", "gpu", "--total-env-steps", "5000", "--env",
+  one = flags.run_config(parse("--num-envs", "256", "--env", "Walker2D", "--preset", "gpu",
+                              "--total-env-steps", "5000"))
+  two = flags.run_config(parse("--preset", "gpu", "--total-env-steps", "5000", "--env",
                               "Walker2D", "--num-envs", "256"))
   assert one == two
   assert one.train == dataclasses.replace(walker.train, num_envs=256)
   assert one.total_env_steps == 5000 and one.eval_every == walker.eval_every
-  # Old flag names are aliases of the field's.
-  old = cli._run_config(parse("--chunk", "7", "--out", "runs/x", "--log-every", "3"))
+  # Old flag names (mjx_hopper.compat) still work, say so, and are not offered in --help.
+  capsys.readouterr()
+  old = flags.run_config(parse("--chunk", "7", "--out", "runs/x", "--log-every", "3"))
   assert (old.train.iterations_per_chunk, old.out_dir, old.log_every) == (7, "runs/x", 3.0)
+  assert capsys.readouterr().err.splitlines() == [
+      "mjx-hopper: --chunk is now --iterations-per-chunk; the old name goes in mjx_hopper 0.5.0",
+      "mjx-hopper: --out is now --out-dir; the old name goes in mjx_hopper 0.5.0"]
+  assert "--chunk" not in parse().parser.format_help()
 
 
 def test_a_saved_config_is_restated_and_flags_override_it(tmp_path):
   cfg = presets.run_config("Hopper", "cpu", total_env_steps=1234, out_dir="runs/a")
   path = tmp_path / "config.json"
   path.write_text(json.dumps({**cfg.to_json(), "member_indices": [0]}))
-  again = cli._run_config(parse("--config", str(path)))
+  again = flags.run_config(parse("--config", str(path)))
   assert again.to_json() == cfg.to_json()
-  moved = cli._run_config(parse("--out-dir", "runs/b", "--config", str(path), "--seed", "3"))
+  moved = flags.run_config(parse("--out-dir", "runs/b", "--config", str(path), "--seed", "3"))
   assert (moved.out_dir, moved.seed, moved.total_env_steps) == ("runs/b", 3, 1234)
 
 
@@ -67,7 +73,7 @@ def test_a_bad_config_file_is_refused_in_one_line(tmp_path, content, message):
   path = tmp_path / "bad.json"
   path.write_text(content if isinstance(content, str) else json.dumps(content))
   with pytest.raises(ValueError, match=message):
-    cli._run_config(parse("--config", str(path)))
+    flags.run_config(parse("--config", str(path)))
 
 
 def test_a_config_with_an_unknown_setting_or_a_sweep_is_refused(tmp_path):
@@ -75,21 +81,69 @@ def test_a_config_with_an_unknown_setting_or_a_sweep_is_refused(tmp_path):
   path = tmp_path / "config.json"
   path.write_text(json.dumps({**cfg.to_json(), "learning_rat": 1}))
   with pytest.raises(ValueError, match=r"unknown settings \['learning_rat'\]"):
-    cli._run_config(parse("--config", str(path)))
+    flags.run_config(parse("--config", str(path)))
   path.write_text(json.dumps(dataclasses.replace(cfg, seeds=(0, 1)).to_json()))
   with pytest.raises(ValueError, match="is a sweep's config: run it with mjx-hopper sweep"):
-    cli._run_config(parse("--config", str(path)))
-  sweep = cli._run_config(cli.build_parser().parse_args(["sweep", "--config", str(path)]),
+    flags.run_config(parse("--config", str(path)))
+  sweep = flags.run_config(cli.build_parser().parse_args(["sweep", "--config", str(path)]),
                           "sweep")
   assert sweep.seeds == (0, 1)
 
 
-def test_help_shows_the_presets_values(capsys):
-  with pytest.raises(SystemExit):
-    cli.main(["train", "--env", "Humanoid", "--preset", "gpu", "--help"])
+@pytest.mark.parametrize("argv", [["train", "--env", "Humanoid", "--preset", "gpu", "--help"],
+                                  ["train", "-h", "--preset", "gpu", "--env", "Humanoid"]])
+def test_help_shows_the_presets_values_wherever_it_is_asked(capsys, argv):
+  cli.main(argv)
   text = " ".join(capsys.readouterr().out.split())
   assert "transitions per update (default: 8192)" in text
   assert "(default: Humanoid)" in text
+  assert "usage: mjx-hopper train" in text
+  episode_steps = text[text.index("--episode-steps EPISODE_STEPS "):].split(" --")[0]
+  assert episode_steps.count("default") == 1, episode_steps
+
+
+def test_each_command_is_a_function_registered_once():
+  parser = cli.build_parser()
+  argv = {"train": [], "sweep": [], "settings": [], "demo": [], "plot": ["runs/a"],
+          "extract": ["--checkpoint", "c", "--member", "best", "--out", "o"],
+          "eval": ["--checkpoint", "c", "--member", "best"],
+          "export": ["--checkpoint", "c", "--out", "p.npz"]}
+  assert set(argv) == set(cli.COMMANDS)
+  for name, rest in argv.items():
+    args = parser.parse_args([name, *rest])
+    assert args.func is cli.COMMANDS[name][0] and args.command == name
+  # `best` means the member of the best evaluation wherever a member is taken.
+  assert {parser.parse_args([name, *rest]).member for name, rest in argv.items()
+          if name in ("extract", "eval")} == {"best"}
+
+
+@pytest.mark.parametrize("argv", [["--cpu-devices", "3", "settings"], ["settings", "--cpu-devices",
+                                                                      "3"]])
+def test_global_flags_go_before_or_after_the_command(argv):
+  assert cli.build_parser().parse_args(argv).cpu_devices == 3
+
+
+def test_the_global_flag_defaults_to_one_device_per_core():
+  import os
+  assert cli.build_parser().parse_args(["settings"]).cpu_devices == (os.cpu_count() or 1)
+
+
+@pytest.mark.parametrize("argv, line", [
+    (["extract", "--checkpoint", "nowhere", "--member", "best", "--out", "o"],
+     "mjx-hopper extract: no checkpoint directory 'nowhere'"),
+    (["eval", "--checkpoint", "nowhere"], "mjx-hopper eval: no checkpoint directory 'nowhere'"),
+    (["settings", "--agent", "d5pg"], "mjx-hopper settings: unknown agent 'd5pg'"),
+    (["train", "--set", "sigma"], "mjx-hopper train: --set takes name=value, got 'sigma'"),
+    (["sweep", "--seeds", "0"], "mjx-hopper sweep: --seeds must be >= 1, got 0"),
+    (["demo", "--steps", "0"], "mjx-hopper demo: --num-envs and --steps must be >= 1"),
+    (["settings", "--cpu-devices", "0"], "mjx-hopper settings: --cpu-devices must be >= 1, got 0"),
+    (["plot", "nowhere"], "mjx-hopper plot: nowhere holds no log.csv"),
+])
+def test_a_users_error_is_one_line_naming_the_command(argv, line):
+  with pytest.raises(SystemExit) as stop:
+    cli.main(argv)
+  message = str(stop.value.code)
+  assert message.startswith(line) and "\n" not in message, message
 
 
 def test_settings_lists_every_setting(capsys):
@@ -106,6 +160,6 @@ def test_the_command_line_restates_a_config_without_replacing_its_task(tmp_path,
   path = tmp_path / "config.json"
   path.write_text(json.dumps(cfg.to_json()))
   runs = []
-  monkeypatch.setattr(cli, "train", lambda args: runs.append(cli._run_config(args)))
+  monkeypatch.setattr(loop, "run", lambda cfg, **kwargs: runs.append(cfg))
   cli.main(["--cpu-devices", "2", "train", "--config", str(path)])
   assert (runs[0].task_id, runs[0].total_env_steps) == ("Walker2D", 1234)

@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from mjx_hopper import distributional
+from mjx_hopper.agents import distributional
 
 
 def reference_projection(support, probs, reward, discount):

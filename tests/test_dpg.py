@@ -11,7 +11,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from mjx_hopper import agents, networks, replay
+from mjx_hopper import agents, replay
+from mjx_hopper.agents import networks
 from mjx_hopper.agents import d4pg, ddpg
 from test_distributional import reference_projection
 

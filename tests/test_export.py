@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import mjx_hopper
-from mjx_hopper import agents, checkpoint, export, loop
+from mjx_hopper import agents, checkpoint, export, loop, runs
 from checkpoint_worker import CONFIG, state as fake_state
 from test_train import TINY
 
@@ -154,7 +154,7 @@ def test_export_of_a_run_acts_as_its_policy_and_records_its_task(run_dir, tmp_pa
   directory = str(run_dir / "checkpoints")
   out = export.export_checkpoint(directory, str(tmp_path / "policy.npz"), print_fn=lines.append)
   policy = export.load(out)
-  cfg, agent_state, trainer = loop.load_policy(directory, print_fn=lambda _: None)
+  cfg, agent_state, trainer = runs.load_policy(directory, print_fn=lambda _: None)
   obs = observations()
   np.testing.assert_allclose(policy(obs), np.asarray(jax.jit(trainer.agent.policy)(
       agent_state, obs)), rtol=0, atol=1e-5)
@@ -183,7 +183,7 @@ def test_an_exported_file_evaluates_and_films_as_its_checkpoint(run_dir, tmp_pat
   video = str(tmp_path / "policy.mp4")
   result = export.evaluate_file(path, episodes=2, seed=3, video_path=video,
                                 print_fn=lines.append)
-  cfg, agent_state, trainer = loop.load_policy(directory, print_fn=lambda _: None)
+  cfg, agent_state, trainer = runs.load_policy(directory, print_fn=lambda _: None)
   from mjx_hopper import train
   want = jax.device_get(jax.jit(lambda s, k: train.evaluate(
       trainer.env, trainer.agent, s, k, 2))(agent_state, jax.random.PRNGKey(3)))

@@ -11,10 +11,11 @@ import pytest
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 LEAVES = ("agents", "envs")  # installed as mjx_hopper.agents, mjx_hopper.envs
-# What agents/ and envs/ may import from mjx_hopper/; everything else there is the host layer
+# What agents/ and envs/ may import from mjx_hopper/ (compat: the old names, which import
+# nothing of the host layer until one is used); everything else there is the host layer
 # (loop, config, evaluator, members, pbt, runs, sweep, checkpoint, logger, cli, notebook,
 # presets, export, ...), which uses the leaves and never the reverse.
-SHARED = {"agents", "envs", "fields", "parallel"}
+SHARED = {"agents", "compat", "envs", "fields", "parallel"}
 
 HISTORY = re.compile(r"\b\d{4}-\d{2}-\d{2}\b|H100|H200|\b2 cores\b|\b2-core\b|BENCHMARKS\.md"
                      r"|history\.md", re.IGNORECASE)
@@ -159,3 +160,72 @@ def test_no_history_in_comments_or_docstrings(path):
   assert not hits, (f"{path.relative_to(ROOT)} has history (dates, machine names, benchmark-page "
                     "links) in comments or docstrings; figures belong in benchmarks/results/:\n"
                     + "\n".join(f"  line {line}: {text}" for line, text in hits))
+
+
+def _module_name(path: pathlib.Path) -> str:
+  """The dotted name a source file imports as (agents/ and envs/ install under mjx_hopper)."""
+  parts = list(path.relative_to(ROOT).with_suffix("").parts)
+  if parts[0] in LEAVES:
+    parts.insert(0, "mjx_hopper")
+  return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def import_graph(sources: dict[str, str], packages: set[str]) -> dict[str, set[str]]:
+  """{module: the modules of `sources` it imports}, at any depth of its code (a function's
+  imports too). `from a import b` is an import of the module a.b where there is one, else of a;
+  `packages` are the names whose source is an __init__.py."""
+  graph = {}
+  for name, source in sources.items():
+    package = name.split(".") if name in packages else name.split(".")[:-1]
+    found = set()
+    for node in ast.walk(ast.parse(source)):
+      if isinstance(node, ast.Import):
+        found |= {alias.name for alias in node.names}
+      elif isinstance(node, ast.ImportFrom):
+        base = ".".join(package[:len(package) - node.level + 1] + [node.module or ""]
+                        if node.level else [node.module])
+        base = base.rstrip(".")
+        found |= {f"{base}.{a.name}" if f"{base}.{a.name}" in sources else base
+                  for a in node.names}
+    graph[name] = {m for m in found if m in sources and m != name}
+  return graph
+
+
+def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+  """The cycles a depth-first walk of `graph` meets, each as modules from one back to itself;
+  none if and only if the graph has no cycle."""
+  found, state = [], {}  # state: 1 while on the walk's path, 2 once left
+
+  def visit(path: list[str]) -> None:
+    state[path[-1]] = 1
+    for nxt in sorted(graph[path[-1]]):
+      if state.get(nxt) == 1:
+        found.append(path[path.index(nxt):] + [nxt])
+      elif nxt not in state:
+        visit(path + [nxt])
+    state[path[-1]] = 2
+  for node in sorted(graph):
+    if node not in state:
+      visit([node])
+  return found
+
+
+def test_the_import_graph_finds_cycles_through_function_imports():
+  sources = {"p": "", "p.a": "from p import b", "p.b": "def f():\n  from . import c",
+             "p.c": "import p.a", "p.d": "from p.a import x"}
+  graph = import_graph(sources, {"p"})
+  assert graph == {"p": set(), "p.a": {"p.b"}, "p.b": {"p.c"}, "p.c": {"p.a"}, "p.d": {"p.a"}}
+  assert cycles(graph) == [["p.a", "p.b", "p.c", "p.a"]]
+  assert cycles({**graph, "p.c": set()}) == []
+
+
+def test_the_package_has_no_import_cycle():
+  files = _python_files("mjx_hopper", *LEAVES)
+  sources = {_module_name(path): path.read_text() for path in files}
+  packages = {_module_name(path) for path in files if path.name == "__init__.py"}
+  graph = import_graph(sources, packages)
+  assert graph["mjx_hopper.loop"] >= {"mjx_hopper.runs", "mjx_hopper.evaluator"}
+  found = cycles(graph)
+  assert not found, ("modules that import each other, at any depth of their code (a cycle "
+                     "works only while the order of imports allows it):\n"
+                     + "\n".join(" -> ".join(cycle) for cycle in found))

@@ -1,6 +1,7 @@
 """A new agent is one file and one line: an agent defined here, outside agents/, registered
-through `agents.register`, trains with `loop.run` as a sweep, checkpoints, resumes and is
-evaluated, and its learner metrics reach log.csv. No file of the package names it."""
+through `agents.register`, trains with `loop.run` as a sweep, checkpoints, resumes, is
+evaluated, exported and loaded, and its learner metrics reach log.csv. No file of the package
+names it."""
 
 import csv
 import dataclasses
@@ -8,10 +9,12 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 import optax
 import pytest
 
-from mjx_hopper import agents, loop, notebook
+from mjx_hopper import agents, export, loop, notebook
+from mjx_hopper.agents import networks
 from mjx_hopper.agents.base import Agent, CommonConfig, hparams
 
 
@@ -63,13 +66,20 @@ def make_linear(obs_size: int, action_size: int, cfg: LinearConfig) -> Agent:
   return Agent(init, act, policy, update, cfg.n_step, hparams(cfg))
 
 
+def linear_policy_layers(policy, cfg):
+  """The policy tanh(obs @ policy) as one exported layer, then tanh."""
+  bias = np.zeros(policy.shape[1], np.float32)
+  return [networks.exported_dense({"kernel": policy, "bias": bias}, "float32", False, "none")
+          ], "tanh"
+
+
 PRESETS = {"cpu": LinearConfig(learning_rate=1e-3), "gpu": LinearConfig(learning_rate=1e-3)}
 
 
 @pytest.fixture(scope="module")
 def linear():
   agents.register("linear", make_linear, PRESETS, (("linear_loss", "linear loss {}"),),
-                  tiny={"n_step": 2})
+                  tiny={"n_step": 2}, exported_policy=linear_policy_layers)
   yield "linear"
   agents._AGENTS.pop("linear")
 
@@ -89,6 +99,13 @@ def test_a_registered_agent_trains_sweeps_checkpoints_and_resumes(linear, tmp_pa
   resumed = loop.resume(str(tmp_path / "checkpoints"), progress=False, total_env_steps=120)
   assert "resumed from" in capsys.readouterr().out
   assert resumed.history[-1]["env_steps"] == 120
+  # Exported from its checkpoint, it acts with NumPy as its own policy does.
+  path = export.export_checkpoint(str(tmp_path / "checkpoints"), str(tmp_path / "policy.npz"),
+                                  member=2)
+  policy, state = export.load(path), resumed.policy("best", member=2)
+  obs = np.random.default_rng(0).normal(size=(4, policy.observation_size)).astype(np.float32)
+  assert policy.meta["agent"] == linear
+  np.testing.assert_allclose(policy(obs), np.tanh(obs @ np.asarray(state.policy)), rtol=1e-6)
 
 
 def test_the_terminal_line_shows_its_learner_metrics(linear, tmp_path, capsys):
@@ -97,6 +114,17 @@ def test_the_terminal_line_shows_its_learner_metrics(linear, tmp_path, capsys):
   loop.run(cfg, progress=False)
   last = [l for l in capsys.readouterr().out.splitlines() if l.startswith("[train]")][-1]
   assert "| linear loss " in last
+
+
+def test_an_agent_without_an_exported_policy_trains_but_is_not_exported():
+  agents.register("unexported", make_linear, PRESETS)
+  try:
+    state = agents.make("unexported", 3, 2).init(jax.random.PRNGKey(0))
+    with pytest.raises(ValueError, match="cannot export agent 'unexported': it was registered "
+                                         "without an exported_policy"):
+      export.policy_of("unexported", PRESETS["cpu"], state.policy, 3, 2)
+  finally:
+    agents._AGENTS.pop("unexported")
 
 
 def test_an_agent_without_its_presets_is_refused():

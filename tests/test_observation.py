@@ -45,7 +45,7 @@ def test_reset_observation_matches_bullet(robot, init_state):
   env, bullet = make_env(robot), make_bullet(robot)
   for seed in range(3):
     bullet.seed(seed)
-    with pybullet_oracle._quiet():
+    with pybullet_oracle.quiet():
       bullet_obs = bullet.reset()
     qpos = np.array(env.mj_model.qpos0)
     qpos[env._qadr] = [j.get_position() for j in bullet.robot.ordered_joints]

@@ -4,7 +4,7 @@ import dataclasses
 
 import pytest
 
-from mjx_hopper import agents, cli, envs, loop, presets, train
+from mjx_hopper import agents, cli, envs, flags, loop, presets, train
 from test_train import TINY  # a tiny Hopper run: 4 envs, eval every 40 env steps
 
 
@@ -45,10 +45,10 @@ def test_bad_preset_names(env, kind, message):
     presets.get(env, kind)
 
 
-def run_config(*flags):
-  """The RunConfig that `mjx-hopper train FLAGS` trains."""
-  args = cli.build_parser().parse_args(["train", *flags])
-  return cli._run_config(args)
+def run_config(*argv):
+  """The RunConfig that `mjx-hopper train ARGV` trains."""
+  args = cli.build_parser().parse_args(["train", *argv])
+  return flags.run_config(args)
 
 
 def test_cli_starts_from_the_robot_preset():

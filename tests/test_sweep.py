@@ -5,7 +5,6 @@ import csv
 import dataclasses
 import os
 import signal
-import socket
 import subprocess
 import sys
 
@@ -13,7 +12,8 @@ import jax
 import numpy as np
 import pytest
 
-from mjx_hopper import checkpoint, cli, loop, sweep, train
+from mjx_hopper import checkpoint, cli, loop, runs, train
+from mjx_hopper.pbt import PBT, exploit_explore
 from test_train import TINY, TINY_ARGS, member
 
 
@@ -46,7 +46,7 @@ def assert_close(a, b, rtol):
 def single():
   """The trainer of a single TINY run on one device. A member's seed and swept values are
   data, init's inputs, so this one program is every member's single run."""
-  base = loop.build(TINY, 1)
+  base = runs.build(TINY, 1)
   return train.make_trainer(base.env, base.agent, TINY.train, TINY.eval_episodes,
                             devices=jax.local_devices()[:1])
 
@@ -54,20 +54,20 @@ def single():
 def single_run(single, chosen, chunks=2):
   """Host (state, metrics) of the single run of one member's seed and swept values."""
   hparams = {name: [value] for name, value in chosen.items() if name != "seed"}
-  return run_chunks(single, single.init(jax.random.PRNGKey(chosen["seed"]), hparams), chunks)
+  return run_chunks(single, single.init([chosen["seed"]], hparams), chunks)
 
 
 def test_member_is_bit_identical_to_its_single_run(single):
   # Two members on the two CPU devices, one each: each runs the program of a single run on one
   # device, from its own seed's keys, with its learning rate as an array of the same program.
   cfg = dataclasses.replace(TINY, seeds=(1,), grid={"learning_rate": (1e-3, 3e-4)})
-  trainer = loop.build(cfg)
+  trainer = runs.build(cfg)
   members = cfg.members()
-  state, metrics = run_chunks(trainer, loop.init(cfg, trainer, members))
+  state, metrics = run_chunks(trainer, runs.init(cfg, trainer, members))
   # Member 1 has TINY's own learning rate: its single run is started as `loop.run(TINY)` starts
   # one; member 0's gets its learning rate through init.
   assert members[1] == {"seed": 1, "learning_rate": TINY.agent_config().learning_rate}
-  user_path = run_chunks(single, loop.init(dataclasses.replace(TINY, seed=1), single,
+  user_path = run_chunks(single, runs.init(dataclasses.replace(TINY, seed=1), single,
                                            [{"seed": 1}]))
   for i, (one, one_metrics) in enumerate([single_run(single, members[0]), user_path]):
     assert_same(member(state, i), member(one))
@@ -113,15 +113,15 @@ def test_sweep_writes_results_resumes_exactly_and_extracts(single, tmp_path, cap
   assert (tmp_path / "straight" / "curves.png").stat().st_size > 10_000
 
   # Member 2 (seed 0, sigma 0.3) becomes a single run's checkpoint.
-  target = loop.extract(str(tmp_path / "straight" / "checkpoints"), 2, str(tmp_path / "m2"))
-  one_cfg, one_state, _ = loop.restore(target)
+  target = runs.extract(str(tmp_path / "straight" / "checkpoints"), 2, str(tmp_path / "m2"))
+  one_cfg, one_state, _ = runs.restore(target)
   assert (one_cfg.seed, one_cfg.agent_overrides["sigma"], one_cfg.seeds, one_cfg.grid) == (
       0, 0.3, (), {})
   assert_same(member(one_state), member(straight.state, 2))
   with pytest.raises(ValueError, match="already holds a checkpoint"):
-    loop.extract(str(tmp_path / "straight" / "checkpoints"), 2, str(tmp_path / "m2"))
+    runs.extract(str(tmp_path / "straight" / "checkpoints"), 2, str(tmp_path / "m2"))
   with pytest.raises(ValueError, match=r"member 7 is not in .*: it holds members \[0, 1, 2, 3\]"):
-    loop.extract(str(tmp_path / "straight" / "checkpoints"), 7, str(tmp_path / "m7"))
+    runs.extract(str(tmp_path / "straight" / "checkpoints"), 7, str(tmp_path / "m7"))
 
 
 @pytest.mark.parametrize("grid, message", [
@@ -149,19 +149,13 @@ def test_bad_seeds_and_cli_spec(capsys):
 
 def test_replay_ratio_and_n_step_sweep_each_member_their_own():
   cfg = dataclasses.replace(TINY, grid={"replay_ratio": (1.0, 2.0), "n_step": (1, 3)})
-  trainer = loop.build(cfg)
+  trainer = runs.build(cfg)
   assert trainer.agent.n_step == 3  # the replay reads the longest window
-  state, _ = run_chunks(trainer, loop.init(cfg, trainer, cfg.members()), chunks=1)
+  state, _ = run_chunks(trainer, runs.init(cfg, trainer, cfg.members()), chunks=1)
   # Learning starts at iteration 3 of 5: 3 iterations of 1 or 2 updates per iteration.
   ratios = [m["replay_ratio"] for m in cfg.members()]
   assert list(state.updates) == [3 * int(r) for r in ratios]  # 8 transitions, batch 8
   assert list(state.agent.hparams["n_step"]) == [m["n_step"] for m in cfg.members()]
-
-
-def free_port():
-  with socket.socket() as s:
-    s.bind(("127.0.0.1", 0))
-    return s.getsockname()[1]
 
 
 @pytest.mark.slow
@@ -170,23 +164,22 @@ def test_two_processes_give_one_process_results(tmp_path):
   # with two devices (this one) trains both, one per device: the same program per member.
   # TINY's evaluation and atoms, so that this process's run is the trainer of
   # test_member_is_bit_identical_to_its_single_run's two members, already compiled.
-  args = [*TINY_ARGS[2:], "--seeds", "2", "--steps", "40", "--eval-episodes",
+  args = [*TINY_ARGS[2:], "--seeds", "2", "--total-env-steps", "40", "--eval-episodes",
           str(TINY.eval_episodes), "--set", f"num_atoms={TINY.agent_overrides['num_atoms']}"]
   args[args.index("train")] = "sweep"
-  address = f"127.0.0.1:{free_port()}"
   procs = [subprocess.Popen([sys.executable, "-m", "mjx_hopper.cli", "--cpu-devices", "1", *args,
-                             "--out", str(tmp_path / "two"), "--coordinator", address,
+                             "--out-dir", str(tmp_path / "two"),
                              "--num-processes", "2", "--process-id", str(i)],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
            for i in range(2)]
   for proc in procs:
     out, _ = proc.communicate(timeout=600)
     assert proc.returncode == 0, out
-  cli.main(["--cpu-devices", "2", *args, "--out", str(tmp_path / "one")])
-  _, both, _ = loop.restore(str(tmp_path / "one" / "checkpoints"))
+  cli.main(["--cpu-devices", "2", *args, "--out-dir", str(tmp_path / "one")])
+  _, both, _ = runs.restore(str(tmp_path / "one" / "checkpoints"))
   for i in range(2):
     folder = tmp_path / "two" / f"process{i}"
-    _, mine, _ = loop.restore(str(folder / "checkpoints"))
+    _, mine, _ = runs.restore(str(folder / "checkpoints"))
     assert_same(member(mine), member(both, i))
     with open(folder / "log.csv") as f:
       assert {int(r["member"]) for r in csv.DictReader(f)} == {i}  # its own members' results
@@ -228,7 +221,7 @@ def reference_pbt_step(returns, diverged, values, ranges, quanta, pbt, rng):
 
 
 def test_exploit_explore_matches_a_plain_reference_on_random_populations():
-  pbt = sweep.PBT(fraction=0.3, factors=(0.5, 0.8, 1.25, 2.0))
+  pbt = PBT(fraction=0.3, factors=(0.5, 0.8, 1.25, 2.0))
   ranges = {"learning_rate": (1e-5, 1e-2), "n_step": (1, 7), "replay_ratio": (0.5, 8.0)}
   quanta = {"n_step": 1, "replay_ratio": 0.25}
   draw = np.random.default_rng(0)
@@ -240,7 +233,7 @@ def test_exploit_explore_matches_a_plain_reference_on_random_populations():
     values = {"learning_rate": 10 ** draw.uniform(-5, -2, S).astype(np.float32),
               "n_step": draw.integers(1, 8, S).astype(np.int32),
               "replay_ratio": (draw.integers(2, 33, S) * 0.25).astype(np.float32)}
-    sources, new = sweep.exploit_explore(pbt, returns, diverged, values, ranges, quanta,
+    sources, new = exploit_explore(pbt, returns, diverged, values, ranges, quanta,
                                          np.random.default_rng(trial))
     want_sources, want = reference_pbt_step(returns, diverged, values, ranges, quanta, pbt,
                                             np.random.default_rng(trial))
@@ -259,14 +252,14 @@ def test_exploit_explore_matches_a_plain_reference_on_random_populations():
 
 def test_exploit_explore_copies_only_healthy_members():
   # Three of four diverged: the one healthy member is every copy's source, whatever the ranks.
-  pbt = sweep.PBT(fraction=0.5)
-  sources, new = sweep.exploit_explore(
+  pbt = PBT(fraction=0.5)
+  sources, new = exploit_explore(
       pbt, np.array([100.0, 5.0, 3.0, 1.0]), np.array([False, True, True, True]),
       {"sigma": np.array([0.3, 0.1, 0.2, 0.4], np.float32)}, {"sigma": (0.1, 0.4)}, {},
       np.random.default_rng(0))
   assert list(sources) == [0, 0, 0, 0]
   assert set(np.round(new["sigma"][1:], 6)) <= {0.24, 0.375}
-  everyone_lost = sweep.exploit_explore(pbt, np.ones(4), np.ones(4, bool),
+  everyone_lost = exploit_explore(pbt, np.ones(4), np.ones(4, bool),
                                         {"sigma": np.ones(4, np.float32)}, {"sigma": (0.1, 1.0)},
                                         {}, np.random.default_rng(0))
   assert list(everyone_lost[0]) == [0, 1, 2, 3]
@@ -274,16 +267,16 @@ def test_exploit_explore_copies_only_healthy_members():
 
 def test_bad_pbt_specs():
   with pytest.raises(ValueError, match=r"PBT's fraction must be in \(0, 0.5\], got 0.7"):
-    sweep.PBT(fraction=0.7)
+    PBT(fraction=0.7)
   with pytest.raises(ValueError, match="PBT perturbs the grid's settings"):
-    dataclasses.replace(TINY, seeds=(0, 1), pbt=sweep.PBT())
+    dataclasses.replace(TINY, seeds=(0, 1), pbt=PBT())
   with pytest.raises(ValueError, match="PBT cannot perturb 'sigma': the grid has one value"):
-    dataclasses.replace(TINY, seeds=(0, 1), grid={"sigma": (0.3,)}, pbt=sweep.PBT())
+    dataclasses.replace(TINY, seeds=(0, 1), grid={"sigma": (0.3,)}, pbt=PBT())
   with pytest.raises(ValueError, match="PBT needs at least 2 members"):
-    dataclasses.replace(TINY, pbt=sweep.PBT(bounds={"sigma": (0.1, 0.5)}), grid={"sigma": (0.3,)})
+    dataclasses.replace(TINY, pbt=PBT(bounds={"sigma": (0.1, 0.5)}), grid={"sigma": (0.3,)})
   with pytest.raises(ValueError, match="learning_rate must be > 0"):
     dataclasses.replace(TINY, grid={"learning_rate": (1e-3, 1e-2)},
-                        pbt=sweep.PBT(bounds={"learning_rate": (-1.0, 1e-2)}))
+                        pbt=PBT(bounds={"learning_rate": (-1.0, 1e-2)}))
   with pytest.raises(SystemExit, match="--pbt-every set"):
     cli.main([*TINY_ARGS[:2], "sweep", *TINY_ARGS[3:], "--pbt-every", "3"])
 
@@ -302,9 +295,9 @@ def test_a_diverged_member_is_frozen_and_the_others_go_on_unchanged(single, tmp_
   sane, _ = single_run(single, cfg.members()[0], chunks=3)
   assert_same(member(result.state, 0), member(sane))
   # Member 1 diverged in its first chunk: its agent stays the one it started with.
-  trainer = loop.build(cfg)
+  trainer = runs.build(cfg)
   assert_same(member(result.state.agent, 1),
-              member(loop.init(cfg, trainer, cfg.members()).agent, 1))
+              member(runs.init(cfg, trainer, cfg.members()).agent, 1))
   with open(tmp_path / "log.csv") as f:
     rows = list(csv.DictReader(f))
   assert {r["diverged"] for r in rows if r["member"] == "1"} == {"1"}
@@ -314,7 +307,7 @@ def test_a_diverged_member_is_frozen_and_the_others_go_on_unchanged(single, tmp_
 
 
 def test_pbt_replaces_a_diverged_member_resumes_exactly_and_extracts(tmp_path, capsys):
-  cfg = dataclasses.replace(ABSURD, pbt=sweep.PBT(every=1), out_dir=str(tmp_path / "straight"))
+  cfg = dataclasses.replace(ABSURD, pbt=PBT(every=1), out_dir=str(tmp_path / "straight"))
   straight = loop.run(cfg, progress=False)
   out = capsys.readouterr().out
   assert "[pbt] 40 env steps: member 1 copies member 0, with learning_rate=0.001" in out
@@ -336,10 +329,10 @@ def test_pbt_replaces_a_diverged_member_resumes_exactly_and_extracts(tmp_path, c
   assert all(1e-3 <= float(r[3]) <= 1.25e-3 for r in evals[1:])
   assert (tmp_path / "straight" / "pbt.png").stat().st_size > 10_000
   # The best member becomes a single run that eval and train take.
-  target = loop.extract(str(tmp_path / "straight" / "checkpoints"), "best",
+  target = runs.extract(str(tmp_path / "straight" / "checkpoints"), "best",
                         str(tmp_path / "best"))
   best = int(np.argmax(straight.best_return))
-  one_cfg, agent, _ = loop.load_policy(target)
+  one_cfg, agent, _ = runs.load_policy(target)
   assert one_cfg.grid == {} and one_cfg.pbt is None
   assert one_cfg.agent_overrides["learning_rate"] == float(logs["straight"][-1 - (1 - best)][3])
   assert_same(agent, member(straight.best, best))
@@ -350,12 +343,11 @@ def test_pbt_over_two_processes_keeps_a_population_per_process(tmp_path):
   # Members (sigma, learning_rate): 0 (0.1, 1e-3), 1 (0.1, 1e30), 2 (0.3, 1e-3), 3 (0.3, 1e30);
   # process 0 trains 0 and 1, process 1 trains 2 and 3. Each replaces its own diverged member
   # with a copy of its own sane one: no member crosses processes.
-  args = [*TINY_ARGS[2:], "--steps", "80", "--set", "num_atoms=11", "--set", "sigma=0.1,0.3",
+  args = [*TINY_ARGS[2:], "--total-env-steps", "80", "--set", "num_atoms=11", "--set", "sigma=0.1,0.3",
           "--set", "learning_rate=1e-3,1e30", "--pbt", "--pbt-every", "1"]
   args[args.index("train")] = "sweep"
-  address = f"127.0.0.1:{free_port()}"
   procs = [subprocess.Popen([sys.executable, "-m", "mjx_hopper.cli", "--cpu-devices", "1", *args,
-                             "--out", str(tmp_path), "--coordinator", address,
+                             "--out-dir", str(tmp_path),
                              "--num-processes", "2", "--process-id", str(i)],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
            for i in range(2)]

@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from mjx_hopper import cli, envs, loop, notebook, presets, train
+from mjx_hopper import cli, envs, loop, notebook, presets, runs, train
 from mjx_hopper.envs.events import AntLongJump, HighJump
 from test_train import TINY_ARGS
 
@@ -21,7 +21,7 @@ from test_train import TINY_ARGS
 JUMP = dataclasses.replace(
     notebook.tiny(presets.agent_run_config(HighJump, "cpu", "d4pg",
                                            env_settings={"height_weight": 10.0})),
-    time_delta=0.0)
+    log_every=0.0)
 
 
 def test_a_task_is_named_by_class_instance_path_or_registered_name():
@@ -98,7 +98,7 @@ def test_bad_rewards_are_refused_before_any_compile(task, message, monkeypatch):
     raise AssertionError("the trainer was built")
   monkeypatch.setattr(train, "make_trainer", no_compile)
   with pytest.raises(ValueError, match=message):
-    loop.build(dataclasses.replace(JUMP, env=task, env_settings={}))
+    runs.build(dataclasses.replace(JUMP, env=task, env_settings={}))
 
 
 def test_a_reward_that_turns_nan_mid_episode_ends_the_episode():
@@ -155,7 +155,7 @@ def test_another_task_or_setting_is_refused_and_nothing_changes(jump_run):
              progress=False)
   with pytest.raises(ValueError, match=r"not mjx_hopper.envs.events:HighJump "
                                        r"\(episode_steps=30, height_weight=3.0\)"):
-    loop.load_policy(ckpt, env=HighJump(height_weight=3.0, episode_steps=30))
+    runs.load_policy(ckpt, env=HighJump(height_weight=3.0, episode_steps=30))
   assert _files(out) == before
 
 
@@ -174,19 +174,19 @@ def test_a_notebook_class_is_passed_again_in_a_new_process(jump_run, tmp_path, m
   with pytest.raises(ValueError, match="cannot import; pass the class itself again"):
     loop.resume(str(tmp_path / "checkpoints"))
   monkeypatch.setattr(sys.modules["__main__"], "NotebookJump", NotebookJump, raising=False)
-  _, agent_state, trainer = loop.load_policy(str(tmp_path / "checkpoints"))  # a notebook ran
+  _, agent_state, trainer = runs.load_policy(str(tmp_path / "checkpoints"))  # a notebook ran
   assert type(trainer.env) is NotebookJump                                   # its cell again
   monkeypatch.delattr(sys.modules["__main__"], "NotebookJump")
   monkeypatch.delitem(envs.tasks._SEEN, "__main__:NotebookJump")
-  _, _, trainer = loop.load_policy(str(tmp_path / "checkpoints"), env=NotebookJump)
+  _, _, trainer = runs.load_policy(str(tmp_path / "checkpoints"), env=NotebookJump)
   assert type(trainer.env) is NotebookJump
 
 
 def test_the_cli_trains_evaluates_and_records_a_task_by_path(tmp_path, capsys):
   args = [a for a in TINY_ARGS if a != "Hopper"]
   args[args.index("--env")] = "--env=mjx_hopper.envs.events:HighJump"
-  cli.main([*args, "--set", "num_atoms=11", "--env-set", "height_weight=10.0", "--steps", "80",
-            "--out", str(tmp_path)])  # JUMP on the command line: its trainer is reused
+  cli.main([*args, "--set", "num_atoms=11", "--env-set", "height_weight=10.0",
+            "--total-env-steps", "80", "--out-dir", str(tmp_path)])  # JUMP on the command line: its trainer is reused
   saved = json.loads((tmp_path / "config.json").read_text())
   assert (saved["env"], saved["env_settings"]) == ("mjx_hopper.envs.events:HighJump",
                                                     {"height_weight": 10.0})
@@ -197,7 +197,7 @@ def test_the_cli_trains_evaluates_and_records_a_task_by_path(tmp_path, capsys):
   assert video.stat().st_size
   with pytest.raises(SystemExit, match="mjx-hopper train: the task HighJump's setting "
                                        "height_weight takes a value of type float"):
-    cli.main([*args, "--env-set", "height_weight=tall", "--out", str(tmp_path / "bad")])
+    cli.main([*args, "--env-set", "height_weight=tall", "--out-dir", str(tmp_path / "bad")])
 
 
 @pytest.mark.parametrize("command, value, message", [
@@ -209,7 +209,7 @@ def test_the_cli_trains_evaluates_and_records_a_task_by_path(tmp_path, capsys):
 ])
 def test_a_set_value_of_the_wrong_type_is_a_one_line_error(command, value, message, tmp_path):
   with pytest.raises(SystemExit, match=message):
-    cli.main(["--cpu-devices", "2", command, "--set", value, "--out", str(tmp_path)])
+    cli.main(["--cpu-devices", "2", command, "--set", value, "--out-dir", str(tmp_path)])
   assert not (tmp_path / "checkpoints").exists()
 
 
@@ -217,7 +217,7 @@ def test_a_set_value_of_the_wrong_type_is_a_one_line_error(command, value, messa
 def test_a_sweep_trains_an_ant_event(tmp_path):
   cfg = dataclasses.replace(
       notebook.tiny(presets.agent_run_config(AntLongJump, "cpu", "d4pg")),
-      seeds=(0, 1), grid={"sigma": (0.2, 0.4)}, time_delta=0.0, out_dir=str(tmp_path))
+      seeds=(0, 1), grid={"sigma": (0.2, 0.4)}, log_every=0.0, out_dir=str(tmp_path))
   result = loop.run(cfg, progress=False)
   assert isinstance(result.trainer.env, AntLongJump)
   evals = [row for row in result.history if row["kind"] == "eval"]

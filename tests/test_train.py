@@ -9,34 +9,35 @@ import jax
 import numpy as np
 import pytest
 
-from mjx_hopper import checkpoint, cli, envs, evaluator, logger, loop, notebook, parallel, train
+from mjx_hopper import (checkpoint, cli, envs, evaluator, logger, loop, notebook, parallel, runs,
+                        train)
 
 # The notebook's short mode (notebook.tiny): the run of the notebook's own cells and of
 # test_notebook_helpers, so that they share its compiled programs (and, in one test worker,
 # its trainer: conftest.shared_builds).
 TINY = dataclasses.replace(
-    notebook.tiny(loop.RunConfig(env="Hopper", agent="d4pg", preset="cpu")), time_delta=0.0)
+    notebook.tiny(loop.RunConfig(env="Hopper", agent="d4pg", agent_preset="cpu")), log_every=0.0)
 
 
 # TINY's settings on the command line, for a given agent.
 TINY_ARGS = ["--cpu-devices", "2", "train", "--env", "Hopper", "--preset", "cpu",
              "--set", "policy_layers=(16,)", "--set", "critic_layers=(16,)", "--set", "n_step=3",
              "--num-envs", "4", "--unroll-length", "2", "--batch-size", "8", "--replay-ratio",
-             "2", "--replay-size", "64", "--min-replay", "24", "--chunk", "5",
+             "2", "--replay-size", "64", "--min-replay", "24", "--iterations-per-chunk", "5",
              "--episode-steps", "30", "--eval-episodes", "2", "--eval-every", "40",
              "--no-progress", "--log-every", "0"]
 
 
 @pytest.fixture(scope="module")
 def trainer():
-  return loop.build(TINY)  # the trainer that loop.run(TINY) below reuses
+  return runs.build(TINY)  # the trainer that loop.run(TINY) below reuses
 
 
 @pytest.fixture(scope="module")
 def two_chunks(trainer):
   """Host copies of the (one member's) state after one and two chunks, and the second chunk's
   metrics."""
-  first, _ = trainer.train_chunk(trainer.init(jax.random.PRNGKey(0)))
+  first, _ = trainer.train_chunk(trainer.init([0]))
   first_host = member(first)
   second, metrics = trainer.train_chunk(first)  # donates `first`
   return first_host, member(second), member(metrics)
@@ -76,7 +77,7 @@ def test_stored_steps_chain_within_episodes(two_chunks):
 
 
 def test_state_is_sharded_and_params_replicated(trainer):
-  state = trainer.init(jax.random.PRNGKey(0))
+  state = trainer.init([0])
   state, _ = trainer.train_chunk(state)
   assert len(jax.devices()) == 2
   assert state.env.obs.addressable_shards[0].data.shape == (1, 2, 15)
@@ -115,12 +116,12 @@ def test_meshes_and_envs_avoid_shardy_where_it_crashes(monkeypatch, version, dev
 
 def test_same_seed_same_run(trainer, two_chunks):
   first, _, _ = two_chunks
-  again, _ = trainer.train_chunk(trainer.init(jax.random.PRNGKey(0)))
+  again, _ = trainer.train_chunk(trainer.init([0]))
   jax.tree.map(np.testing.assert_array_equal, member(again), first)
 
 
 def test_evaluate_runs_whole_episodes(trainer):
-  state = trainer.init(jax.random.PRNGKey(0))
+  state = trainer.init([0])
   result = jax.device_get(trainer.evaluate(state.agent, jax.random.PRNGKey(1)[None]))
   assert result["return"].shape == (1, TINY.eval_episodes)
   assert ((result["length"] >= 1) & (result["length"] <= 30)).all()
@@ -187,7 +188,7 @@ def test_run_logs_checkpoints_and_resumes(tmp_path, capsys):
   assert np.mean(again["return"][0]) == pytest.approx(float(best["eval_return"]), rel=1e-5)
   directory = str(tmp_path / "run" / "checkpoints")
   for which, want in (("best", longer.best), ("latest", longer.state.agent)):
-    _, agent, _ = loop.load_policy(directory, which=which)
+    _, agent, _ = runs.load_policy(directory, which=which)
     jax.tree.map(np.testing.assert_array_equal, agent, member(want))
   assert f"return {longer.best_return[0]:.1f} at {int(best['env_steps']):,} env steps" in (
       capsys.readouterr().out)
@@ -213,7 +214,7 @@ def test_run_logs_checkpoints_and_resumes(tmp_path, capsys):
     ("dmpo", ["--set", "num_samples=4", "--set", "num_atoms=11"]),
 ])
 def test_every_agent_trains_from_the_same_cli(tmp_path, capsys, agent, extra):
-  cli.main([*TINY_ARGS, "--agent", agent, *extra, "--steps", "80", "--out", str(tmp_path)])
+  cli.main([*TINY_ARGS, "--agent", agent, *extra, "--total-env-steps", "80", "--out-dir", str(tmp_path)])
   # The terminal lines are short: the agent's learner figures, not every logged field.
   last = [line for line in capsys.readouterr().out.splitlines() if line.startswith("[train]")][-1]
   for _, text in logger.LEARNER_FIELDS[agent]:
@@ -242,11 +243,11 @@ def test_a_run_that_diverges_stops_and_keeps_its_last_finite_checkpoint(tmp_path
   chunk, calls = loop._Chunk.__call__, []
 
   def poisoned(self, state):
-    state, metrics = chunk(self, state)
+    state, metrics, before = chunk(self, state)
     calls.append(state)
     if len(calls) == 3:
       metrics = {**metrics, "critic_loss": np.full_like(metrics["critic_loss"], np.nan)}
-    return state, metrics
+    return state, metrics, before
   monkeypatch.setattr(loop._Chunk, "__call__", poisoned)
   cfg = dataclasses.replace(TINY, out_dir=str(tmp_path), total_env_steps=400,
                             checkpoint_minutes=0.0)
@@ -322,7 +323,7 @@ def test_evaluations_on_the_host_run_beside_training(tmp_path, monkeypatch):
   for the rest. The returns are those of the run that evaluates on its training's devices (both
   on the two CPU devices here), to the tolerance of another program (30 steps of contacts
   amplify rounding); the best agent is the same, and the trainer's own evaluation takes it."""
-  assert loop.MAX_PENDING == 3
+  assert evaluator.MAX_PENDING == 3
   cfg = dataclasses.replace(TINY, total_env_steps=200)  # an evaluation due after every chunk
   _evaluations_compiled_first_and_never_finished(monkeypatch)
 
@@ -355,11 +356,11 @@ def test_host_evaluations_pending_at_a_divergence_or_a_checkpoint_still_count(tm
   chunk, calls = loop._Chunk.__call__, []
 
   def poisoned(self, state):  # the third chunk's critic loss goes NaN
-    state, metrics = chunk(self, state)
+    state, metrics, before = chunk(self, state)
     calls.append(1)
     if len(calls) == 3:
       metrics = {**metrics, "critic_loss": np.full_like(metrics["critic_loss"], np.nan)}
-    return state, metrics
+    return state, metrics, before
   _evaluations_compiled_first_and_never_finished(monkeypatch)
   monkeypatch.setattr(loop._Chunk, "__call__", poisoned)
   cfg = dataclasses.replace(TINY, eval_on="host", out_dir=str(tmp_path / "diverges"),

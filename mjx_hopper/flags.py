@@ -1,0 +1,166 @@
+"""train's and sweep's flags, one per setting of the config, and the RunConfig they describe: a
+base config (the robot's preset, or a saved config.json), with only the flags given replacing
+its values."""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import dataclasses
+import sys
+
+from mjx_hopper import compat, config, presets
+from mjx_hopper.config import RunConfig
+from mjx_hopper.pbt import PBT
+from mjx_hopper.train import TrainConfig
+
+
+def fields() -> list:
+  """(owner, field) of every setting offered as a flag: RunConfig's, then TrainConfig's."""
+  return [(owner, f) for owner in (RunConfig, TrainConfig) for f in dataclasses.fields(owner)
+          if f.metadata.get("flag")]
+
+
+def flag_name(field) -> str:
+  """A config field's flag: its name with dashes, `--total-env-steps` for `total_env_steps`."""
+  return "--" + field.name.replace("_", "-")
+
+
+class _Flag(argparse.Action):
+  """Stores a flag's value; an old name of the flag (`compat.FLAGS`) says so on stderr."""
+
+  def __call__(self, parser, namespace, values, option_string=None):
+    compat.flag(option_string, lambda line: print(f"mjx-hopper: {line}", file=sys.stderr))
+    setattr(namespace, self.dest, values)
+
+
+def add_run_flags(t: argparse.ArgumentParser, base, sweep: bool = False) -> None:
+  """train's and sweep's flags: one per setting of the config (its help, type and, as shown,
+  the value `base` holds), and the conveniences that become settings. Only flags given
+  explicitly replace the base config's values."""
+  t.add_argument("-h", "--help", action="store_true",
+                 help="show this help, with the values of the run the other flags describe")
+  for owner, f in fields():
+    now = None if base is None else getattr(
+        base if owner is type(base) else base.train, f.name)
+    kind = {"int": int, "float": float}.get(str(f.type).split(" |")[0], str)
+    t.add_argument(flag_name(f), dest=f.name, type=kind, default=argparse.SUPPRESS,
+                   help=f.metadata["help"] + ("" if base is None else f" (default: {now})"))
+    for old in [name for name, (new, _) in compat.FLAGS.items() if new == flag_name(f)]:
+      t.add_argument(old, dest=f.name, action=_Flag, type=kind, default=argparse.SUPPRESS,
+                     help=argparse.SUPPRESS)
+  t.add_argument("--preset", default=None,
+                 help="the robot's settings: cpu or gpu (mjx_hopper.presets); default cpu")
+  t.add_argument("--config", default=None, metavar="FILE",
+                 help="start from a run's saved config.json instead of a preset")
+  t.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                 help=("an agent setting for every member, or a dynamic one's values to sweep "
+                       "(name=v1,v2 becomes the grid); `mjx-hopper settings` lists them")
+                 if sweep else "an agent setting (becomes agent_overrides), e.g. --set "
+                 "sigma=0.2; `mjx-hopper settings` lists them")
+  t.add_argument("--env-set", action="append", default=[], metavar="NAME=VALUE",
+                 help="a constructor setting of the task (becomes env_settings), e.g. "
+                      "--env-set height_weight=5.0")
+  t.add_argument("--checkpoint-dir", default=None,
+                 help="checkpoints (default OUT_DIR/checkpoints); resumes when it holds one")
+  t.add_argument("--no-progress", action="store_true", help="no progress bar")
+  if sweep:
+    _add_sweep_flags(t)
+
+
+def _add_sweep_flags(w: argparse.ArgumentParser) -> None:
+  w.add_argument("--seeds", type=int, default=None,
+                 help="members per setting: seeds SEED to SEED+N-1 (becomes the config's "
+                      "seeds; default 1, or a --config's seeds)")
+  w.add_argument("--distributed", action="store_true",
+                 help="a sweep over processes, each told its place by its launcher (SLURM, "
+                      "Open MPI): each trains its share of the members")
+  w.add_argument("--coordinator", action=_Flag, default=None, help=argparse.SUPPRESS)
+  w.add_argument("--num-processes", type=int, default=None, help="a sweep over processes")
+  w.add_argument("--process-id", type=int, default=None, help="this process's index")
+  w.add_argument("--pbt", action="store_true",
+                 help="population-based training: the worst members copy the best and "
+                      "perturb the swept settings (docs/pbt.md)")
+  w.add_argument("--pbt-every", type=int, default=None, metavar="N",
+                 help="evaluations between PBT steps (default 2)")
+  w.add_argument("--pbt-fraction", type=float, default=None, metavar="F",
+                 help="the worst F of the members copy one of the best F (default 0.25)")
+  w.add_argument("--pbt-bounds", action="append", default=[], metavar="NAME=LOW,HIGH",
+                 help="bounds of a swept setting under PBT (default: the grid's smallest and "
+                      "largest value)")
+
+
+def base_config(args: argparse.Namespace, command: str) -> RunConfig:
+  """The config a run starts from: a saved config (--config), else the robot's preset
+  (--preset) of the agent (--agent) on the task (--env)."""
+  if args.config is not None:
+    for flag in ("preset", "agent_preset"):
+      if getattr(args, flag, None) is not None:
+        raise ValueError(f"--{flag.replace('_', '-')} and --config both choose the settings: "
+                         "give one of them")
+    cfg = config.load(args.config)
+    if command == "train" and (cfg.seeds or cfg.grid or cfg.pbt):
+      raise ValueError(f"{args.config} is a sweep's config: run it with mjx-hopper sweep "
+                       "--config")
+    return cfg
+  base = presets.agent_run_config(getattr(args, "env", "Hopper"), args.preset or "cpu",
+                                  getattr(args, "agent", "d4pg"))
+  return dataclasses.replace(base, out_dir="runs/sweep") if command == "sweep" else base
+
+
+def run_config(args: argparse.Namespace, command: str = "train") -> RunConfig:
+  """The RunConfig of train's (and sweep's) flags: the base config (`base_config`), then every
+  flag given explicitly, --set and --env-set."""
+  base = base_config(args, command)
+  given = {f.name: getattr(args, f.name) for _, f in fields() if hasattr(args, f.name)}
+  train_names = {f.name for f in dataclasses.fields(TrainConfig)}
+  train_given = {k: v for k, v in given.items() if k in train_names}
+  run_given = {k: v for k, v in given.items() if k not in train_names}
+  fixed, grid = overrides(args.set), {}
+  if command == "sweep":
+    dynamic = config.dynamic_settings(run_given.get("agent", base.agent),
+                                      run_given.get("agent_preset", base.agent_preset))
+    grid = {name: value for name, value in fixed.items() if isinstance(value, tuple) and (
+        name in dynamic or any(isinstance(v, tuple) for v in value))}
+    fixed = {name: value for name, value in fixed.items() if name not in grid}
+  if "replay_ratio" in fixed:
+    train_given["replay_ratio"] = fixed.pop("replay_ratio")
+  sweep = {}
+  if command == "sweep":
+    seed = run_given.get("seed", base.seed)
+    seeds = (tuple(range(seed, seed + args.seeds)) if args.seeds is not None
+             else base.seeds or (seed,))
+    sweep = dict(seeds=seeds, grid={**base.grid, **grid}, pbt=pbt(args) or base.pbt)
+  return dataclasses.replace(
+      base, **run_given, **sweep, train=dataclasses.replace(base.train, **train_given),
+      env_settings={**base.env_settings, **overrides(args.env_set, "--env-set")},
+      agent_overrides={**base.agent_overrides, **fixed})
+
+
+def overrides(pairs: list[str], flag: str = "--set") -> dict:
+  """name=value pairs as a dict; values are parsed as Python literals when they can be (a
+  sweep's name=v1,v2 is a tuple)."""
+  out = {}
+  for pair in pairs:
+    name, sep, value = pair.partition("=")
+    if not sep:
+      raise ValueError(f"{flag} takes name=value, got {pair!r}")
+    try:
+      out[name] = ast.literal_eval(value)
+    except (ValueError, SyntaxError):
+      out[name] = value
+  return out
+
+
+def pbt(args: argparse.Namespace) -> PBT | None:
+  """The PBT of sweep's --pbt flags (None without --pbt)."""
+  given = [flag for flag, value in (("--pbt-every", args.pbt_every),
+                                    ("--pbt-fraction", args.pbt_fraction),
+                                    ("--pbt-bounds", args.pbt_bounds)) if value]
+  if not args.pbt:
+    if given:
+      raise ValueError(f"{', '.join(given)} set(s) population-based training: add --pbt")
+    return None
+  settings = dict(every=args.pbt_every, fraction=args.pbt_fraction,
+                  bounds=overrides(args.pbt_bounds, "--pbt-bounds"))
+  return PBT(**{k: v for k, v in settings.items() if v is not None})
