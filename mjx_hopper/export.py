@@ -124,20 +124,21 @@ def load(path: str) -> Policy:
 def _arrays(path: str) -> dict[str, np.ndarray]:
   """The arrays of the .npz file at `path`, read with allow_pickle=False; a one-line ValueError
   for any other file (FileNotFoundError where there is none)."""
+  unreadable = (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error)
   expected = f"{path} is not a policy file written by `mjx-hopper export` (an .npz)"
   try:
-    with np.load(path, allow_pickle=False) as f:
-      if not isinstance(f, np.lib.npyio.NpzFile):
-        raise ValueError(f"{expected}: it holds one array")
-      return {k: f[k] for k in f.files}
+    f = np.load(path, allow_pickle=False)
   except FileNotFoundError:
     raise FileNotFoundError(f"no policy file {path!r}") from None
-  except AttributeError:  # np.load returned a plain array, which is no context manager
-    raise ValueError(f"{expected}: it holds one array") from None
-  except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as error:
-    if str(error).startswith(expected):
-      raise
-    raise ValueError(f"{expected}: it is not a readable .npz file ({type(error).__name__})"
+  except unreadable as error:
+    raise ValueError(f"{expected}: NumPy cannot read it ({type(error).__name__})") from None
+  if not isinstance(f, np.lib.npyio.NpzFile):
+    raise ValueError(f"{expected}: it holds one array")
+  try:
+    with f:
+      return {k: f[k] for k in f.files}
+  except unreadable as error:  # a damaged archive, or arrays of Python objects
+    raise ValueError(f"{expected}: its arrays cannot be read ({type(error).__name__})"
                      ) from None
 
 
