@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import mjx_hopper
-from mjx_hopper import agents, checkpoint, cli, export, loop, runs
+from mjx_hopper import agents, checkpoint, cli, export, loop, runlock, runs
 from checkpoint_worker import CONFIG, state as fake_state
 from test_train import TINY
 
@@ -185,6 +185,20 @@ def run_dir(tmp_path_factory):
   out = tmp_path_factory.mktemp("run")
   loop.run(dataclasses.replace(TINY, out_dir=str(out)), progress=False, print_fn=lambda _: None)
   return out
+
+
+def test_a_run_in_progress_is_read_without_taking_its_lock(run_dir, tmp_path):
+  """eval, export and extract read a folder whose lock a live run holds (this process: taking
+  the lock again would be refused), and leave the lock as it is."""
+  directory, quiet = str(run_dir / "checkpoints"), lambda _: None
+  with runlock.hold(str(run_dir), quiet) as lock:
+    with open(lock) as f:
+      held = f.read()
+    export.export_checkpoint(directory, str(tmp_path / "policy.npz"), print_fn=quiet)
+    loop.load_policy(directory, print_fn=quiet)
+    loop.extract(directory, 0, str(tmp_path / "member0"), print_fn=quiet)
+    with open(lock) as f:
+      assert f.read() == held
 
 
 def test_export_of_a_run_acts_as_its_policy_and_records_its_task(run_dir, tmp_path):
