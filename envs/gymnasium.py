@@ -12,6 +12,11 @@ are separate flags. The vector env resets an ended episode in the same step
 
 Seeds follow the JAX env: `reset(seed=s)` starts the episode of `env.reset(PRNGKey(s))`, and a
 vector env's `reset(seed=s)` those of `jax.vmap(AutoReset(env).reset)(split(PRNGKey(s), n))`.
+
+Importing this module registers the robots in Gymnasium's registry as "mjx_hopper/<robot>-v0":
+
+    gymnasium.make("mjx_hopper.envs.gymnasium:mjx_hopper/Hopper-v0", episode_steps=300)
+    gymnasium.make_vec("mjx_hopper/Hopper-v0", num_envs=256)   # once this module is imported
 """
 
 from __future__ import annotations
@@ -30,7 +35,9 @@ import numpy as np
 
 from mjx_hopper import parallel
 from mjx_hopper.envs.base import LocomotionEnv
-from mjx_hopper.envs.tasks import make
+from mjx_hopper.envs.tasks import BUILT_IN, make
+
+NAMESPACE = "mjx_hopper"
 from mjx_hopper.envs.wrappers import AutoReset
 
 
@@ -73,6 +80,12 @@ def _check_action(env: LocomotionEnv, action, shape: tuple[int, ...]) -> np.ndar
   action = np.asarray(action, np.float32)
   if action.shape != shape:
     raise ValueError(f"{type(env).__name__} takes actions of shape {shape}, got {action.shape}")
+  bad = ~np.isfinite(action)
+  if bad.any():
+    at = tuple(int(i) for i in np.argwhere(bad)[0])
+    more = f" (and {bad.sum() - 1} more)" if bad.sum() > 1 else ""
+    raise ValueError(f"{type(env).__name__} takes finite actions, got {action[at]} at index "
+                     f"{at}{more}")
   return action
 
 
@@ -165,3 +178,18 @@ class GymnasiumVectorEnv(gymnasium.vector.VectorEnv):
         final[i] = final_obs[i]
       info = {"final_obs": final, "_final_obs": ended}
     return obs, reward, terminated, truncated, info
+
+
+def register() -> None:
+  """Registers each robot as "mjx_hopper/<robot>-v0" in Gymnasium's registry, for
+  `gymnasium.make` (its keywords are `to_gymnasium`'s settings and render_mode) and
+  `gymnasium.make_vec` (the vector env, in one compiled call). The time limit is the task's own
+  `episode_steps`: no TimeLimit wrapper is added."""
+  for robot in BUILT_IN:
+    env_id = f"{NAMESPACE}/{robot}-v0"
+    if env_id not in gymnasium.registry:
+      gymnasium.register(env_id, entry_point=f"{__name__}:to_gymnasium",
+                         vector_entry_point=f"{__name__}:to_gymnasium", kwargs={"task": robot})
+
+
+register()

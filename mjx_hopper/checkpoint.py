@@ -6,14 +6,25 @@ at each member's best evaluation so far, once there is one) and "config" (JSON: 
 env, agent, package versions, the checkpoint's format version, and the run's `record` of its
 members: their best evaluations, divergence and, under PBT, lineage). Keeping the agent apart lets
 `restore_agent` load a policy without reading the replay.
+
+A save that fails (a full disk, no permission, a vanished mount) is a SaveFailed: its partial
+files are removed and every earlier step is left as it was. `Saver` holds a run's policy for it.
 """
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import importlib.metadata
 import json
+import logging
 import os
+import re
+import shutil
 import signal
+import sys
+import threading
+import time
 import zlib
 from typing import Any, NamedTuple
 
@@ -39,6 +50,19 @@ class FormatMismatch(ConfigMismatch):
   """A checkpoint whose layout this version cannot read (an older or a newer format)."""
 
 
+class SaveFailed(ValueError):
+  """A checkpoint step that could not be written, or would not fit. Its partial files are
+  removed; `last_good`, the newest step saved before it (None: none), is intact. `lost` says
+  what that leaves unsaved (by default, which step is intact)."""
+
+  def __init__(self, directory: str, step: int | None, reason: str, last_good: int | None,
+               lost: str | None = None):
+    self.directory, self.step, self.reason, self.last_good = directory, step, reason, last_good
+    lost = lost or ("no step is saved there" if last_good is None
+                    else f"step {last_good}, saved before it, is intact")
+    super().__init__(f"checkpoint step {step} was not saved in {directory}: {reason}; {lost}")
+
+
 PACKAGES = ("mjx_hopper", "jax", "jaxlib", "mujoco", "mujoco-mjx", "flax", "optax",
             "orbax-checkpoint", "brax")
 
@@ -57,6 +81,7 @@ def versions() -> dict[str, str]:
 
 def manager(directory: str, max_to_keep: int = 3) -> ocp.CheckpointManager:
   """A CheckpointManager over `directory` (created if missing), saving asynchronously."""
+  _quiet_failed_saves()
   options = ocp.CheckpointManagerOptions(max_to_keep=max_to_keep,
                                          enable_async_checkpointing=True)
   return ocp.CheckpointManager(os.path.abspath(directory), options=options,
@@ -100,11 +125,20 @@ def _files(step_dir: str) -> dict[str, tuple[int, int]]:
 def finish(mngr: ocp.CheckpointManager) -> None:
   """Waits for the save in flight, then records the files of every finished step that has no
   manifest yet (and drops the manifests of steps that are gone), so that a damaged step can be
-  told apart file by file later."""
-  mngr.wait_until_finished()
+  told apart file by file later. A save that failed is a SaveFailed (see `_failed`)."""
+  try:
+    mngr.wait_until_finished()
+    _write_manifests(mngr)
+  except Exception as error:  # noqa: BLE001 - orbax and tensorstore wrap OSErrors in their own
+    raise _failed(mngr, None, error) from None
+
+
+def _write_manifests(mngr: ocp.CheckpointManager) -> None:
   folder = os.path.join(mngr.directory, MANIFESTS)
-  os.makedirs(folder, exist_ok=True)
   steps = {str(step) for step in mngr.all_steps()}
+  if not steps and not os.path.isdir(folder):
+    return
+  os.makedirs(folder, exist_ok=True)
   for name in os.listdir(folder):
     if name.removesuffix(".json") not in steps:
       os.remove(os.path.join(folder, name))
@@ -141,9 +175,11 @@ def save(mngr: ocp.CheckpointManager, state: train.TrainState, config: dict,
          best=None) -> int:
   """Starts saving `state` (and `best`, the agent's pytree at its best evaluations, when given)
   as step = its iteration count, after finishing the previous save (see `finish`); returns the
-  step. Call `finish(mngr)` before relying on it."""
+  step. Call `finish(mngr)` before relying on it. A SaveFailed where the previous save failed,
+  or where this one cannot fit on the disk (checked before anything is written) or start."""
   finish(mngr)
   step = train.iterations(state)
+  _check_space(mngr, step, (state, best))
   agent, trainer = _split(state)
   items = dict(agent=ocp.args.StandardSave(_nonempty(agent)),
                trainer=ocp.args.StandardSave(_nonempty(trainer)),
@@ -151,8 +187,116 @@ def save(mngr: ocp.CheckpointManager, state: train.TrainState, config: dict,
                                          "checkpoint_format": FORMAT}))
   if best is not None:
     items["best"] = ocp.args.StandardSave(_nonempty(best))
-  mngr.save(step, args=ocp.args.Composite(**items))
+  try:
+    mngr.save(step, args=ocp.args.Composite(**items))
+  except Exception as error:  # noqa: BLE001 - as in `finish`
+    raise _failed(mngr, step, error) from None
   return step
+
+
+def _check_space(mngr: ocp.CheckpointManager, step: int, tree) -> None:
+  """A SaveFailed when the disk of `mngr`'s folder (where its free space can be read) has less
+  room than a step takes: as much as the newest step, else the arrays' own bytes."""
+  newest = mngr.latest_step()
+  needed = (_disk_bytes(os.path.join(mngr.directory, str(newest))) if newest is not None
+            else sum(x.nbytes for x in jax.tree.leaves(tree)))
+  try:
+    free = shutil.disk_usage(mngr.directory).free
+  except OSError:
+    return  # the save itself finds out
+  if free < needed:
+    raise SaveFailed(mngr.directory, step, f"a step takes about {_mb(needed)} and its disk has "
+                     f"{_mb(free)} free (nothing was written)", newest)
+
+
+def _disk_bytes(folder: str) -> int:
+  return sum(os.path.getsize(os.path.join(root, name))
+             for root, _, names in os.walk(folder) for name in names)
+
+
+def _mb(n: int) -> str:
+  return f"{n / 1e6:,.1f} MB"
+
+
+PARTIAL = ".orbax-checkpoint-tmp"  # in the names of orbax's folders of unfinished steps
+WRITERS_S = 60.0  # how long a failed save's other writer threads are waited for, each
+
+
+def _failed(mngr: ocp.CheckpointManager, step: int | None, error: Exception) -> SaveFailed:
+  """The SaveFailed of a save of `step` (None: the one in flight) that raised `error`, after
+  removing the step's partial files, which would otherwise confuse the next resume. Orbax's
+  other writer threads of the step may still be writing: they are waited for first."""
+  for thread in threading.enumerate():
+    if type(thread).__module__.startswith("orbax.") and thread is not threading.current_thread():
+      with contextlib.suppress(Exception):  # orbax's threads raise their error again on join
+        thread.join(WRITERS_S)
+  with contextlib.suppress(Exception):  # orbax keeps the error to raise at the next save
+    mngr.check_for_errors()
+  try:
+    names = os.listdir(mngr.directory)
+  except OSError:  # a vanished mount: nothing to remove
+    names = []
+  for name in names:
+    if PARTIAL in name:
+      if step is None and name.split(".")[0].isdigit():
+        step = int(name.split(".")[0])
+      shutil.rmtree(os.path.join(mngr.directory, name), ignore_errors=True)
+  steps = [s for s in mngr.all_steps() if s != step]
+  return SaveFailed(mngr.directory, step, _reason(error), max(steps) if steps else None)
+
+
+_OS_ERROR_CODE = re.compile(r"os_error_code='?(\d+)")  # how tensorstore reports an OSError
+
+
+def _reason(error: BaseException) -> str:
+  """Why a write failed, in a few words: the OS error found in `error` or its causes ("No space
+  left on device (ENOSPC)"), else `error`'s first line."""
+  cause = error
+  while cause is not None:
+    match = _OS_ERROR_CODE.search(str(cause))
+    code = cause.errno if isinstance(cause, OSError) else int(match.group(1)) if match else None
+    if code:
+      return f"{os.strerror(code)} ({errno.errorcode.get(code, code)})"
+    cause = cause.__cause__ or cause.__context__
+  return f"{type(error).__name__}: {_first_line(error)}"
+
+
+_quieted = False
+
+
+def _quiet_failed_saves() -> None:
+  """Leaves a failed save to SaveFailed's one line: drops orbax's logged tracebacks of it,
+  asyncio's "Future exception was never retrieved" for its writes, and what its writer threads
+  and coroutines raise after it. Once per process."""
+  global _quieted
+  if _quieted:
+    return
+  _quieted = True
+  logging.getLogger("absl").addFilter(_not_a_failed_save)
+  logging.getLogger("asyncio").addFilter(_not_a_failed_save)
+  hook = sys.unraisablehook
+
+  def unraisable(info):
+    if not _orbax_leftover(info.exc_value, info.object):
+      hook(info)
+  sys.unraisablehook = unraisable
+
+
+def _not_a_failed_save(record: logging.LogRecord) -> bool:
+  """False for orbax's (absl's) logged tracebacks and asyncio's unretrieved errors of a save."""
+  message = record.getMessage()
+  if record.name == "absl":
+    return not (record.exc_info and (message.startswith("[process=") or PARTIAL in message))
+  return not ("exception was never retrieved" in message.split("\n")[0]
+              and (PARTIAL in message or f"{os.sep}orbax{os.sep}" in message))
+
+
+def _orbax_leftover(error: BaseException | None, source) -> bool:
+  """Whether an error that Python could not raise is a failed save's: an orbax writer thread
+  calling back into its closed event loop, or an orbax coroutine left unfinished."""
+  code = getattr(source, "cr_code", None)
+  return ((isinstance(error, RuntimeError) and str(error) == "Event loop is closed")
+          or (code is not None and f"{os.sep}orbax{os.sep}" in code.co_filename))
 
 
 def _abstract(tree):
@@ -301,12 +445,90 @@ def resume(mngr: ocp.CheckpointManager, fresh: train.TrainState, config: dict,
   return Resumed(state, step, best, record)
 
 
+class Saver:
+  """A run's checkpoints: every `minutes`, and its last one, each with the run's `config` and
+  its members' record.
+
+  A save that fails (a full disk, no permission, a vanished mount) or cannot fit loses nothing
+  that was saved: it is said in one line (where, why, and the env steps not saved since the
+  last good checkpoint), its partial files are removed, and training goes on: the next save
+  tries again (said once). The run's last save is its last chance: `finish` raises its failure
+  as a SaveFailed, which ends the run.
+  """
+
+  def __init__(self, mngr: ocp.CheckpointManager, config: dict, minutes: float,
+               steps_per_iteration: int, say=print):
+    self.mngr, self.config, self.minutes = mngr, config, minutes
+    self.per_iteration, self.say = steps_per_iteration, say
+    self.last = time.monotonic()
+    self.pending = None   # the step being saved
+    self.failures = 0     # saves that failed since the last that worked
+    self.unsaved = None   # the run's last save's SaveFailed, which `finish` raises
+
+  def due(self) -> bool:
+    return time.monotonic() - self.last >= 60 * self.minutes
+
+  def save(self, state: train.TrainState, best, members, last: bool = False) -> None:
+    """Starts saving `state`, `best` (the agents at their best evaluations) and `members`'
+    record, once the previous save has finished. Saving the run's `last` state, a failure is
+    kept for `finish`."""
+    failed = self._wait()
+    if failed is not None:
+      self._report(failed, state)
+    try:
+      self.pending = save(self.mngr, state, {**self.config, "record": members.record()},
+                          best=best)
+    except SaveFailed as error:
+      if last:
+        self.unsaved = error
+      else:
+        self._report(error, state)
+    self.last = time.monotonic()
+
+  def finish(self, state: train.TrainState) -> None:
+    """Waits for the save in flight; a SaveFailed naming what is lost if the last one failed."""
+    failed = self.unsaved or self._wait()
+    self.unsaved = None
+    if failed is not None:
+      raise self._lost(failed, state) from None
+
+  def _wait(self) -> SaveFailed | None:
+    """The failure of the save in flight, once it ends; where it works after failures, says
+    so."""
+    step, self.pending = self.pending, None
+    try:
+      finish(self.mngr)
+    except SaveFailed as error:
+      return error
+    if step is not None and self.failures:
+      self.say(f"checkpoint step {step} is saved in {self.mngr.directory}, after "
+               f"{self.failures} failed save(s)")
+      self.failures = 0
+    return None
+
+  def _report(self, error: SaveFailed, state: train.TrainState) -> None:
+    then = "" if self.failures else (
+        f"; training goes on, and the next save tries again in {self.minutes:g} min")
+    self.failures += 1
+    self.say(f"WARNING: {self._lost(error, state)}{then}")
+
+  def _lost(self, error: SaveFailed, state: train.TrainState) -> SaveFailed:
+    """`error`, saying how many env steps of `state` are not saved since the newest good
+    checkpoint."""
+    steps = (train.iterations(state) - (error.last_good or 0)) * self.per_iteration
+    since = ("(no checkpoint of this run is saved)" if error.last_good is None else
+             f"since step {error.last_good}, which is intact")
+    return SaveFailed(error.directory, error.step, error.reason, error.last_good,
+                      f"{steps:,} env steps are not saved {since}")
+
+
 class StopRequest:
   """Within `with`, Ctrl-C and SIGTERM set `requested` instead of stopping the process, so the
-  loop can finish its chunk and save; a second Ctrl-C stops at once."""
+  loop can finish its chunk and save; a second Ctrl-C stops at once. `request` does the same
+  from code, with the reason the run's last line gives."""
 
   def __enter__(self):
-    self.requested = False
+    self.requested, self.reason = False, "stopped by a signal"
     self._previous = {}
     for sig in (signal.SIGINT, signal.SIGTERM):
       try:
@@ -314,6 +536,9 @@ class StopRequest:
       except ValueError:  # not the main thread: signals stay as they are
         pass
     return self
+
+  def request(self, reason: str) -> None:
+    self.requested, self.reason = True, reason
 
   def _handle(self, signum, frame):
     if self.requested and signum == signal.SIGINT:

@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import json
 import os
+import zipfile
+import zlib
 from typing import Any, Callable
 
 import numpy as np
@@ -91,20 +93,78 @@ class Policy:
 
 
 def load(path: str) -> Policy:
-  """The policy in an exported file (see `export_checkpoint`), as a NumPy function. A file of a
-  newer format, or one that is not an export, is a one-line ValueError."""
-  with np.load(path, allow_pickle=False) as f:
-    arrays = {k: f[k] for k in f.files}
+  """The policy in an exported file (see `export_checkpoint`), as a NumPy function. The file is
+  read without unpickling anything; one that is not an export, is damaged, or is of a newer
+  format is a one-line ValueError naming it."""
+  arrays = _arrays(path)
   if "meta" not in arrays:
-    raise ValueError(f"{path} is not a policy exported by mjx_hopper (it has no 'meta' entry)")
-  meta = json.loads(str(arrays.pop("meta")))
+    raise ValueError(f"{path} is not a policy exported by mjx_hopper: it holds the arrays "
+                     f"{sorted(arrays)[:8]} and no 'meta' entry")
+  try:
+    meta = json.loads(str(arrays.pop("meta")))
+  except ValueError:
+    meta = None
+  if not isinstance(meta, dict):
+    raise ValueError(f"{path} is not a policy exported by mjx_hopper: its 'meta' entry is not "
+                     "the JSON that export writes")
   found = meta.get("format", 0)
-  if not 1 <= found <= FORMAT:
+  if isinstance(found, int) and found > FORMAT:
     by = meta.get("versions", {}).get("mjx_hopper", "another version")
     raise ValueError(f"{path} has policy format {found} (written by mjx_hopper {by}), and "
                      f"mjx_hopper {mjx_hopper.__version__} reads format {FORMAT}: load it with "
                      f"mjx_hopper {by} or newer")
+  problem = (_check_layers(arrays, meta) if isinstance(found, int) and 1 <= found
+             else f"its format is {found!r}")
+  if problem:
+    raise ValueError(f"{path} is not a policy exported by mjx_hopper (format {FORMAT}): "
+                     f"{problem}")
   return Policy(arrays, meta, path)
+
+
+def _arrays(path: str) -> dict[str, np.ndarray]:
+  """The arrays of the .npz file at `path`, read with allow_pickle=False; a one-line ValueError
+  for any other file (FileNotFoundError where there is none)."""
+  unreadable = (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error)
+  expected = f"{path} is not a policy file written by `mjx-hopper export` (an .npz)"
+  try:
+    f = np.load(path, allow_pickle=False)
+  except FileNotFoundError:
+    raise FileNotFoundError(f"no policy file {path!r}") from None
+  except unreadable as error:
+    raise ValueError(f"{expected}: NumPy cannot read it ({type(error).__name__})") from None
+  if not isinstance(f, np.lib.npyio.NpzFile):
+    raise ValueError(f"{expected}: it holds one array")
+  try:
+    with f:
+      return {k: f[k] for k in f.files}
+  except unreadable as error:  # a damaged archive, or arrays of Python objects
+    raise ValueError(f"{expected}: its arrays cannot be read ({type(error).__name__})"
+                     ) from None
+
+
+def _check_layers(arrays: dict, meta: dict) -> str | None:
+  """What in `meta` or `arrays` an export of this format would not hold, or None."""
+  keys = ("agent", "compute_dtype", "observation_size", "action_size", "layers", "output")
+  missing = [k for k in keys if k not in meta]
+  if missing:
+    return f"its meta lacks {missing}"
+  size = meta["observation_size"]
+  try:
+    for i, layer in enumerate(meta["layers"]):
+      if not {"norm", "dtype", "activation"} <= set(layer):
+        return f"layer {i} lacks some of 'norm', 'dtype' and 'activation'"
+      names = [f"w{i}", f"b{i}"] + ([f"ln{i}_scale", f"ln{i}_bias"] if layer["norm"] else [])
+      if any(name not in arrays for name in names):
+        return f"layer {i} lacks some of the arrays {names}"
+      w = arrays[f"w{i}"]
+      if w.ndim != 2 or w.shape[0] != size or arrays[f"b{i}"].shape != (w.shape[1],):
+        return f"layer {i}'s weights {w.shape} do not take {size} inputs"
+      size = w.shape[1]
+  except (KeyError, TypeError):
+    return "its meta's layers are not laid out as export writes them"
+  if size != meta["action_size"]:
+    return f"its last layer gives {size} actions, and its meta says {meta['action_size']}"
+  return None
 
 
 # ---- Writing: from an agent's parameters, or from a checkpoint (JAX) --------------------------

@@ -50,6 +50,10 @@ KEEP_LATEST = ("episode_return",)
 Fields = Sequence[tuple[str, str]]
 
 
+class Unavailable(ValueError):
+  """An optional logging service (TensorBoard, W&B) that cannot start; says what to do."""
+
+
 class Logger:
   """Writes every row to `csv_path`, with `tensorboard_dir` to TensorBoard, and with
   `wandb_project` to a Weights & Biases run of that project (with `wandb_config`, the run's
@@ -163,7 +167,11 @@ def _tensorboard_writer(directory: str | None, start_step: int):
   checkpoint never saw."""
   if directory is None:
     return None
-  from tensorboardX import SummaryWriter
+  try:
+    from tensorboardX import SummaryWriter
+  except ImportError:
+    raise Unavailable("logging to TensorBoard needs tensorboardX: pip install tensorboardX, or "
+                      "leave out --tensorboard") from None
   logging.getLogger("tensorboardX.x2num").addFilter(_not_a_nan_notice)
   return SummaryWriter(directory, purge_step=start_step + 1 if start_step else None,
                        flush_secs=10, filename_suffix=f".{time.time_ns()}")
@@ -172,18 +180,24 @@ def _tensorboard_writer(directory: str | None, start_step: int):
 def _wandb_run(project: str | None, config: dict | None, csv_path: str | None, print_fn):
   """A Weights & Biases run of `project` with `config` (None without a project), its files in
   $WANDB_DIR, else beside `csv_path`. It leaves the terminal's output alone and says where the
-  run is in one line."""
+  run is in one line. Without the package or a login, an Unavailable error says what to do."""
   if project is None:
     return None
   try:
     import wandb
   except ImportError:
-    raise ImportError("logging to Weights & Biases needs wandb: in the mjx_hopper checkout, "
+    raise Unavailable("logging to Weights & Biases needs wandb: in the mjx_hopper checkout, "
                       "pip install -e '.[wandb]'") from None
   folder = os.environ.get("WANDB_DIR") or (os.path.dirname(os.path.abspath(csv_path))
                                             if csv_path else None)
-  run = wandb.init(project=project, config=config, dir=folder,
-                   settings=wandb.Settings(console="off", silent=True))
+  try:
+    run = wandb.init(project=project, config=config, dir=folder,
+                     settings=wandb.Settings(console="off", silent=True))
+  except wandb.errors.Error as error:  # no API key, a refused one, no connection
+    first = (str(error).strip().splitlines() or [type(error).__name__])[0]
+    raise Unavailable(f"Weights & Biases cannot start a run of project {project!r} ({first}): "
+                      "log in with `wandb login` (or set WANDB_API_KEY), or log offline with "
+                      "WANDB_MODE=offline and upload later with `wandb sync`") from None
   run.define_metric("env_steps")
   run.define_metric("*", step_metric="env_steps")
   folder = os.path.dirname(run.dir)

@@ -20,7 +20,8 @@ import jax
 import numpy as np
 from tqdm.auto import tqdm
 
-from mjx_hopper import agents, checkpoint, compat, parallel, pbt, runs, start, sweep, train
+from mjx_hopper import (agents, checkpoint, compat, parallel, pbt, runlock, runs, start, sweep,
+                        train)
 from mjx_hopper.config import RunConfig
 from mjx_hopper.evaluator import Evaluator
 from mjx_hopper.logger import Logger
@@ -58,14 +59,18 @@ def run(cfg: RunConfig, checkpoint_dir: str | None = None, progress: bool = True
   `out_dir`/checkpoints); a run whose checkpoint_dir holds one resumes from it. Ctrl-C or
   SIGTERM saves after the chunk in flight. `progress_fn(env_steps, metrics)` is called after
   every chunk and every evaluation with log.csv's fields (a sweep's: one value per member);
-  returning False ends the run as `max_minutes` does. `process` = (index, count) trains this
-  process's share of a sweep's members.
+  returning False ends the run as `max_minutes` does, and an exception from it (or from a
+  logger's sink) ends it as Ctrl-C does, then is raised. `process` = (index, count) trains this
+  process's share of a sweep's members. The run holds `out_dir`'s lock (`runlock`) throughout.
   """
-  parts, state = _open(cfg, checkpoint_dir, _above_progress_bars(print_fn), process,
-                       progress_fn)
-  with checkpoint.StopRequest() as stop, parts.logger:
-    state = _train(parts, state, progress, stop)
-  return _finish(parts, state, stop)
+  say = _above_progress_bars(print_fn)
+  with runlock.hold(_out_dir(cfg, process), say):
+    parts, state = _open(cfg, checkpoint_dir, say, process, progress_fn)
+    with checkpoint.StopRequest() as stop, parts.logger, _UserCode(parts, stop) as user:
+      state = _train(parts, state, progress, stop)
+    result = _finish(parts, state, stop)
+  user.raise_error()
+  return result
 
 
 def resume(directory: str, progress: bool = True, print_fn=print, env: Any = None,
@@ -88,7 +93,7 @@ class _Parts:
   evaluator: Evaluator
   chunk: Callable
   pbt_step: Callable | None
-  saver: "_Saver"
+  saver: checkpoint.Saver
   logger: Logger
   display: sweep.Report
   until: "_Until"
@@ -155,8 +160,8 @@ def _close(p: _Parts, state: train.TrainState, bar) -> None:
   if bar is not None:
     bar.close()
   if not p.members.all_diverged():
-    p.saver.save(state, p.evaluator.best, p.members)
-  checkpoint.finish(p.saver.mngr)
+    p.saver.save(state, p.evaluator.best, p.members, last=True)
+  p.saver.finish(state)
 
 
 def _open(cfg: RunConfig, checkpoint_dir: str | None, say, process, progress_fn):
@@ -168,8 +173,7 @@ def _open(cfg: RunConfig, checkpoint_dir: str | None, say, process, progress_fn)
   mine = [everyone[i] for i in indices]
   if cfg.pbt is not None and len(mine) < 2:
     raise ValueError(f"PBT needs at least 2 members per process; this one has {len(mine)}")
-  out_dir = (os.path.join(cfg.out_dir, f"process{process[0]}") if process and process[1] > 1
-             else cfg.out_dir)
+  out_dir = _out_dir(cfg, process)
   os.makedirs(out_dir, exist_ok=True)
   checkpoint_dir = checkpoint_dir or os.path.join(out_dir, "checkpoints")
   trainer = runs.build(cfg, len(mine))
@@ -181,9 +185,9 @@ def _open(cfg: RunConfig, checkpoint_dir: str | None, say, process, progress_fn)
   if not os.path.isdir(checkpoint_dir) or not os.listdir(checkpoint_dir):
     started()  # a fresh run: compiling from here, while the checkpoints and the log open
   saved_config = {**cfg.to_json(), "member_indices": indices}
-  saver = _Saver(checkpoint.manager(checkpoint_dir, cfg.keep_checkpoints), saved_config,
-                 cfg.checkpoint_minutes)
   per_iteration = trainer.config.steps_per_iteration
+  saver = checkpoint.Saver(checkpoint.manager(checkpoint_dir, cfg.keep_checkpoints),
+                           saved_config, cfg.checkpoint_minutes, per_iteration, say)
   training = (saver.mngr.latest_step() or 0) * per_iteration < cfg.total_env_steps
   resumed = checkpoint.resume(
       saver.mngr, started().state.result() if training else fresh(), saved_config, say,
@@ -204,6 +208,12 @@ def _open(cfg: RunConfig, checkpoint_dir: str | None, say, process, progress_fn)
   parts = _Parts(cfg, trainer, members, evaluator, _Chunk(chunk, evaluator, members), pbt_step,
                  saver, logger, display, _Until(cfg, t_start), progress_fn, say)
   return parts, resumed.state
+
+
+def _out_dir(cfg: RunConfig, process) -> str:
+  """The folder of this process's log, config and (by default) checkpoints."""
+  return (os.path.join(cfg.out_dir, f"process{process[0]}") if process and process[1] > 1
+          else cfg.out_dir)
 
 
 class _Chunk:
@@ -247,19 +257,48 @@ class _Until:
     return env_steps >= self.total or time.perf_counter() >= self.deadline
 
 
-class _Saver:
-  """Checkpoints every `minutes`, each with the members' record."""
+class _UserCode:
+  """Calls the user's code between chunks (progress_fn, the logger's sinks) so that its first
+  exception ends the run as Ctrl-C does: the chunk is finished and saved (unless its state is
+  no longer finite), then `raise_error` raises it. Any other error leaving the loop first waits
+  for the save in flight and names the newest checkpoint."""
 
-  def __init__(self, mngr, config: dict, minutes: float):
-    self.mngr, self.config, self.minutes = mngr, config, minutes
-    self.last = time.monotonic()
+  def __init__(self, parts: _Parts, stop: checkpoint.StopRequest):
+    self.parts, self.stop, self.error = parts, stop, None
+    if parts.progress_fn is not None:
+      parts.progress_fn = self._guard(parts.progress_fn, "progress_fn")
+    parts.logger.write = self._guard(parts.logger.write, "the logger")
 
-  def due(self) -> bool:
-    return time.monotonic() - self.last >= 60 * self.minutes
+  def _guard(self, call: Callable, name: str) -> Callable:
+    def guarded(*args, **kwargs):
+      try:
+        return call(*args, **kwargs)
+      except Exception as error:  # noqa: BLE001 - raised once the state is saved
+        if self.error is None:
+          self.error = error
+          self.stop.request(f"stopped by {name}'s {type(error).__name__}")
+    return guarded
 
-  def save(self, state: train.TrainState, best, members: Members) -> None:
-    checkpoint.save(self.mngr, state, {**self.config, "record": members.record()}, best=best)
-    self.last = time.monotonic()
+  def raise_error(self) -> None:
+    if self.error is not None:
+      raise self.error
+
+  def __enter__(self) -> "_UserCode":
+    return self
+
+  def __exit__(self, kind, error, traceback) -> bool:
+    if isinstance(error, (Exception, KeyboardInterrupt)) and not isinstance(
+        error, checkpoint.SaveFailed):
+      mngr = self.parts.saver.mngr
+      try:
+        checkpoint.finish(mngr)
+        kept = mngr.latest_step()
+        self.parts.say(f"the run stopped at an error: {mngr.directory} holds "
+                       + (f"its checkpoint step {kept}, which resumes it" if kept is not None
+                          else "no checkpoint of it"))
+      except checkpoint.SaveFailed as failed:
+        self.parts.say(f"the run stopped at an error; {failed}")
+    return False
 
 
 def _log_train(p: _Parts, state, env_steps: int, rate: float, metrics: dict) -> bool:
@@ -319,7 +358,7 @@ def _finish(p: _Parts, state: train.TrainState, stop) -> Result:
           + (f"the last finite checkpoint is step {kept} in {directory}, which loop.resume "
              "continues (a lower learning rate may avoid it)" if kept is not None
              else "no checkpoint was saved before it"))
-  why = "stopped by a signal" if stop.requested else p.members.outcome()
+  why = stop.reason if stop.requested else p.members.outcome()
   parts = [f"{why}: {p.env_steps(state):,} env steps in {p.until.elapsed():.0f} s"]
   if p.members.single and evaluation is not None:
     parts.append(f"evaluation return {np.mean(evaluation['return']):.1f} over "

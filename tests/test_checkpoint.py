@@ -1,10 +1,13 @@
-"""Checkpoints lose nothing: a kill -9 mid-save, a truncated or deleted file, a wrong config,
-a state laid out otherwise, a missing or empty directory; and a resumed run continues bit for
-bit, in fresh processes."""
+"""Checkpoints lose nothing: a kill -9 mid-save, a full disk, a truncated or deleted file, a
+wrong config, a state laid out otherwise, a missing or empty directory; and a resumed run
+continues bit for bit, in fresh processes."""
 
 import csv
 import dataclasses
+import errno
 import os
+import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -13,6 +16,7 @@ import time
 import jax
 import numpy as np
 import pytest
+from etils import epath
 
 import mjx_hopper
 from mjx_hopper import agents, checkpoint, cli, loop, runs, train
@@ -59,6 +63,93 @@ def test_killed_mid_save_keeps_the_previous_checkpoint(tmp_path):
   assert mngr.all_steps() == [1, 2]
   assert_same(checkpoint.resume(checkpoint.manager(str(directory)), state(0), CONFIG)[:2],
               (state(2), 2))
+
+
+def full_disk(monkeypatch):
+  """Orbax's writes of metadata files fail as on a full disk (they run in its writer threads)."""
+  def write_text(self, *args, **kwargs):
+    raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(self))
+  monkeypatch.setattr(epath.Path, "write_text", write_text)
+
+
+def test_a_failed_save_keeps_the_earlier_checkpoint_and_no_partial_files(tmp_path, monkeypatch,
+                                                                         capfd):
+  directory = tmp_path / "ckpt"
+  mngr = saved_steps(directory, 1)
+  capfd.readouterr()
+  with monkeypatch.context() as patch:
+    full_disk(patch)
+    with pytest.raises(checkpoint.SaveFailed) as failed:
+      checkpoint.save(mngr, state(2), CONFIG)
+      checkpoint.finish(mngr)
+  assert str(failed.value) == (f"checkpoint step 2 was not saved in {directory}: No space left "
+                               "on device (ENOSPC); step 1, saved before it, is intact")
+  assert sorted(os.listdir(directory)) == ["1", "manifests"]  # no *.orbax-checkpoint-tmp
+  err = capfd.readouterr().err  # orbax's tracebacks of it are left out
+  assert "Traceback" not in err and "never retrieved" not in err, err
+  # The earlier checkpoint resumes bit for bit, and the next save works.
+  assert_same(checkpoint.resume(checkpoint.manager(str(directory)), state(0), CONFIG)[:2],
+              (state(1), 1))
+  checkpoint.save(mngr, state(3), CONFIG)
+  checkpoint.finish(mngr)
+  assert mngr.all_steps() == [1, 3]
+
+
+class Record:
+  def record(self):
+    return {}
+
+
+def test_a_run_keeps_training_through_failed_saves_and_its_last_one_raises(tmp_path,
+                                                                          monkeypatch):
+  """The policy of docs/checkpoints.md: each failed save is one line (the first says that
+  training goes on), a failed last save is raised, and a save that works again says so."""
+  lines = []
+  saver = checkpoint.Saver(saved_steps(tmp_path, 1), CONFIG, 10, 8, lines.append)
+  where = f"checkpoint step {{}} was not saved in {tmp_path}: No space left on device (ENOSPC)"
+
+  def no_space(step, args):  # (the first test has orbax's own writer fail, at any moment)
+    os.makedirs(tmp_path / f"{step}.orbax-checkpoint-tmp" / "agent")
+    raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+  with monkeypatch.context() as patch:
+    patch.setattr(saver.mngr, "save", no_space)
+    saver.save(state(2), None, Record())
+    saver.save(state(3), None, Record())
+    saver.save(state(4), None, Record(), last=True)
+    with pytest.raises(checkpoint.SaveFailed, match=re.escape(
+        where.format(4) + "; 24 env steps are not saved since step 1, which is intact")):
+      saver.finish(state(4))
+  assert lines == [
+      f"WARNING: {where.format(2)}; 8 env steps are not saved since step 1, which is intact; "
+      "training goes on, and the next save tries again in 10 min",
+      f"WARNING: {where.format(3)}; 16 env steps are not saved since step 1, which is intact"]
+  assert sorted(os.listdir(tmp_path)) == ["1", "manifests"]
+  saver.save(state(5), None, Record())
+  saver.finish(state(5))
+  assert lines[2:] == [f"checkpoint step 5 is saved in {tmp_path}, after 2 failed save(s)"]
+  assert_same(checkpoint.resume(checkpoint.manager(str(tmp_path)), state(0), CONFIG)[:2],
+              (state(5), 5))
+
+
+def test_a_save_that_cannot_fit_is_refused_without_touching_the_folder(tmp_path, monkeypatch):
+  directory = tmp_path / "ckpt"
+  mngr = saved_steps(directory, 1)
+  before = sorted(os.walk(directory))
+  size = sum(os.path.getsize(os.path.join(root, name))
+             for root, _, names in os.walk(directory / "1") for name in names)
+  usage = shutil.disk_usage(directory)
+  monkeypatch.setattr(shutil, "disk_usage", lambda path: usage._replace(free=size - 1))
+  with pytest.raises(checkpoint.SaveFailed, match=(
+      rf"^checkpoint step 2 was not saved in {directory}: a step takes about "
+      rf"{size / 1e6:.1f} MB and its disk has {(size - 1) / 1e6:.1f} MB free \(nothing was "
+      r"written\); step 1, saved before it, is intact$")):
+    checkpoint.save(mngr, state(2), CONFIG)
+  assert sorted(os.walk(directory)) == before
+  # Without an earlier step, the estimate is the arrays' own bytes.
+  monkeypatch.setattr(shutil, "disk_usage", lambda path: usage._replace(free=1000))
+  with pytest.raises(checkpoint.SaveFailed, match="no step is saved there"):
+    checkpoint.save(checkpoint.manager(str(tmp_path / "empty")), state(1), CONFIG)
+  assert os.listdir(tmp_path / "empty") == []
 
 
 def newest_data_file(directory, step):

@@ -5,6 +5,7 @@ refused in one line, with nothing written."""
 import dataclasses
 import json
 import os
+import pickle
 import subprocess
 import sys
 
@@ -13,7 +14,7 @@ import numpy as np
 import pytest
 
 import mjx_hopper
-from mjx_hopper import agents, checkpoint, export, loop, runs
+from mjx_hopper import agents, checkpoint, cli, export, loop, runlock, runs
 from checkpoint_worker import CONFIG, state as fake_state
 from test_train import TINY
 
@@ -121,11 +122,48 @@ def test_bad_files_and_observations_are_one_line_errors(tmp_path):
                                        f"{export.FORMAT}: load it with mjx_hopper "):
     export.load(newer)
   np.savez(str(tmp_path / "other.npz"), w0=np.zeros(3))
-  with pytest.raises(ValueError, match="is not a policy exported by mjx_hopper"):
+  with pytest.raises(ValueError, match=r"other.npz is not a policy exported by mjx_hopper: it "
+                                       r"holds the arrays \['w0'\] and no 'meta' entry$"):
     export.load(str(tmp_path / "other.npz"))
+  with pytest.raises(ValueError, match=r"meta lacks \['agent', "):
+    export.load(str(saved_npz(tmp_path / "empty_meta.npz", meta=np.array('{"format": 1}'))))
+  cut = saved_npz(tmp_path / "wrong_width.npz", **{**arrays, "w1": arrays["w1"][:-1]},
+                  meta=np.array(json.dumps(meta)))
+  with pytest.raises(ValueError, match=r"layer 1's weights \(63, 64\) do not take 64 inputs"):
+    export.load(str(cut))
   with pytest.raises(ValueError, match=rf"takes observations of shape \({O},\) or \(N, {O}\), "
                                        r"got \(2, 14\)"):
     export.load(path)(np.zeros((2, 14)))
+
+
+def saved_npz(path, **arrays):
+  np.savez(str(path), **arrays)
+  return path
+
+
+def test_a_file_that_is_not_a_policy_is_refused_in_one_line_and_never_unpickled(tmp_path,
+                                                                                 capsys):
+  exported, _, _ = saved_policy(tmp_path)
+  with open(exported, "rb") as f:
+    whole = f.read()
+  files = {"garbage.npz": os.urandom(4096), "truncated.npz": whole[:len(whole) // 2],
+           "pickled.npz": pickle.dumps({"w0": np.zeros(3)})}
+  for name, data in files.items():
+    (tmp_path / name).write_bytes(data)
+  saved_npz(tmp_path / "objects.npz", meta=np.array([{"format": 1}], dtype=object))
+  np.save(tmp_path / "one.npy", np.zeros(3))
+  expected = "is not a policy file written by `mjx-hopper export` \\(an .npz\\): "
+  for name, why in [("garbage.npz", "NumPy cannot read it"), ("truncated.npz", "NumPy cannot "
+                    "read it"), ("pickled.npz", "NumPy cannot read it"),
+                    ("objects.npz", "its arrays cannot be read"), ("one.npy", "it holds one "
+                                                                              "array")]:
+    with pytest.raises(ValueError, match=f"^{tmp_path / name} {expected}{why}") as error:
+      export.load(str(tmp_path / name))
+    assert "\n" not in str(error.value) and "allow_pickle" not in str(error.value)
+  # The command line says the same in one line, before JAX builds anything.
+  with pytest.raises(SystemExit, match=f"^mjx-hopper eval: {tmp_path / 'garbage.npz'} "
+                                       f"{expected}NumPy cannot read it"):
+    cli.main(["--cpu-devices", "2", "eval", "--policy", str(tmp_path / "garbage.npz")])
 
 
 def test_a_task_from_a_notebook_asks_for_its_class(tmp_path):
@@ -147,6 +185,20 @@ def run_dir(tmp_path_factory):
   out = tmp_path_factory.mktemp("run")
   loop.run(dataclasses.replace(TINY, out_dir=str(out)), progress=False, print_fn=lambda _: None)
   return out
+
+
+def test_a_run_in_progress_is_read_without_taking_its_lock(run_dir, tmp_path):
+  """eval, export and extract read a folder whose lock a live run holds (this process: taking
+  the lock again would be refused), and leave the lock as it is."""
+  directory, quiet = str(run_dir / "checkpoints"), lambda _: None
+  with runlock.hold(str(run_dir), quiet) as lock:
+    with open(lock) as f:
+      held = f.read()
+    export.export_checkpoint(directory, str(tmp_path / "policy.npz"), print_fn=quiet)
+    loop.load_policy(directory, print_fn=quiet)
+    loop.extract(directory, 0, str(tmp_path / "member0"), print_fn=quiet)
+    with open(lock) as f:
+      assert f.read() == held
 
 
 def test_export_of_a_run_acts_as_its_policy_and_records_its_task(run_dir, tmp_path):

@@ -2,7 +2,9 @@
 observations, rewards and flags for the same seed and actions, and bad input is one line."""
 
 import importlib
+import subprocess
 import sys
+import warnings
 
 import jax
 import numpy as np
@@ -108,6 +110,38 @@ def test_bad_input_is_one_line(hopper12):
     envs.to_gymnasium(hopper12, episode_steps=5)
   with pytest.raises(ValueError, match="unknown env 'Hoppr'"):
     envs.to_gymnasium("Hoppr")
+  with pytest.raises(ValueError, match=r"^Hopper takes finite actions, got nan at index \(1,\)$"):
+    env.step(np.array([0.0, np.nan, 0.0]))
+  bad = np.zeros((2, 3))
+  bad[1, 2], bad[0, 0] = np.inf, np.nan
+  with pytest.raises(ValueError, match=r"^Hopper takes finite actions, got nan at index "
+                                       r"\(0, 0\) \(and 1 more\)$"):
+    vec.step(bad)
+
+
+def test_the_robots_are_in_gymnasiums_registry(hopper12):
+  env = gymnasium.make("mjx_hopper.envs.gymnasium:mjx_hopper/Hopper-v0",
+                       episode_steps=EPISODE_STEPS)
+  assert env.spec.id == "mjx_hopper/Hopper-v0" and env.unwrapped.env.episode_steps == 12
+  assert {f"mjx_hopper/{robot}-v0" for robot in envs.tasks.BUILT_IN} <= set(gymnasium.registry)
+  with warnings.catch_warnings(record=True) as caught:
+    warnings.simplefilter("always")
+    check_env(env.unwrapped)  # with its spec: its render modes and close are checked too
+  assert not [w for w in caught if "gymnasium" in w.filename], [str(w.message) for w in caught]
+  obs, _ = env.reset(seed=3)
+  np.testing.assert_array_equal(obs, envs.to_gymnasium(hopper12).reset(seed=3)[0])
+  vec = gymnasium.make_vec("mjx_hopper/Hopper-v0", num_envs=2, episode_steps=EPISODE_STEPS)
+  assert isinstance(vec.unwrapped, gymnasium.vector.VectorEnv) and vec.num_envs == 2
+  np.testing.assert_array_equal(vec.reset(seed=5)[0],
+                                envs.to_gymnasium(hopper12, num_envs=2).reset(seed=5)[0])
+
+
+def test_importing_the_package_imports_no_gymnasium():
+  program = ("import sys; import mjx_hopper, mjx_hopper.envs, mjx_hopper.loop; "
+             "print('gymnasium' in sys.modules)")
+  out = subprocess.run([sys.executable, "-c", program], capture_output=True, text=True,
+                       check=True).stdout
+  assert out.split() == ["False"]
 
 
 def test_without_gymnasium_the_error_names_the_extra(monkeypatch):

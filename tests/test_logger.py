@@ -17,7 +17,7 @@ from tensorboardX.record_writer import masked_crc32c
 from tqdm import tqdm
 
 from mjx_hopper import agents, loop
-from mjx_hopper.logger import LEARNER_FIELDS, Logger
+from mjx_hopper.logger import LEARNER_FIELDS, Logger, Unavailable
 
 NAN = float("nan")
 
@@ -267,7 +267,36 @@ def test_weights_and_biases_gets_every_scalar_and_the_config(tmp_path, monkeypat
 
 def test_weights_and_biases_without_wandb_names_the_extra(tmp_path, monkeypatch):
   monkeypatch.setitem(sys.modules, "wandb", None)  # import wandb raises ImportError
-  with pytest.raises(ImportError, match=r"^logging to Weights & Biases needs wandb: in the "
-                                        r"mjx_hopper checkout, pip install -e '\.\[wandb\]'$"):
+  with pytest.raises(Unavailable, match=r"^logging to Weights & Biases needs wandb: in "
+                                               r"the mjx_hopper checkout, pip install -e "
+                                               r"'\.\[wandb\]'$"):
     Logger(str(tmp_path / "run" / "log.csv"), wandb_project="mjx_hopper_test")
   assert os.listdir(tmp_path) == []  # not even the log's folder
+
+
+def test_weights_and_biases_without_a_login_says_how_in_one_line(tmp_path, monkeypatch):
+  """No API key anywhere (W&B would ask its server only with one): one line naming both ways
+  on, `wandb login` and WANDB_MODE=offline."""
+  wandb = pytest.importorskip("wandb")
+  for name in ("WANDB_API_KEY", "WANDB_MODE", "WANDB_DISABLED", "WANDB_DIR", "WANDB_SILENT"):
+    monkeypatch.delenv(name, raising=False)
+  for name in ("HOME", "WANDB_CONFIG_DIR", "WANDB_CACHE_DIR", "WANDB_DATA_DIR"):
+    monkeypatch.setenv(name, str(tmp_path / "home"))  # no ~/.netrc, no saved settings
+  monkeypatch.setenv("NETRC", str(tmp_path / "home" / ".netrc"))
+  try:
+    with pytest.raises(Unavailable) as error:
+      Logger(str(tmp_path / "run" / "log.csv"), wandb_project="mjx_hopper_test")
+  finally:
+    wandb.teardown()
+  assert str(error.value) == (
+      "Weights & Biases cannot start a run of project 'mjx_hopper_test' (No API key configured. "
+      "Use `wandb login` to log in.): log in with `wandb login` (or set WANDB_API_KEY), or log "
+      "offline with WANDB_MODE=offline and upload later with `wandb sync`")
+
+
+def test_tensorboard_without_its_writer_says_so_in_one_line(tmp_path, monkeypatch):
+  monkeypatch.setitem(sys.modules, "tensorboardX", None)
+  with pytest.raises(Unavailable, match=r"^logging to TensorBoard needs tensorboardX: pip "
+                                               r"install tensorboardX, or leave out "
+                                               r"--tensorboard$"):
+    Logger(None, tensorboard_dir=str(tmp_path / "tb"))

@@ -400,3 +400,58 @@ def test_progress_fn_sees_every_row_and_its_false_ends_the_run_cleanly(tmp_path)
   assert calls[-1][2] == pytest.approx(float(rows[-1]["eval_return"]))
   assert checkpoint.manager(str(tmp_path / "checkpoints")).all_steps() == [
       train.iterations(result.state)] == [10]
+
+
+class Broken(Exception):
+  """A bug in the user's code."""
+
+
+@pytest.mark.parametrize("where", ["progress_fn", "the logger"])
+def test_an_exception_from_user_code_saves_first_and_the_run_resumes_there(tmp_path, monkeypatch,
+                                                                           capsys, where):
+  """An exception from progress_fn, or from a logger's sink (W&B losing its connection, say),
+  ends the run as Ctrl-C does: its chunk is saved, then the exception is raised."""
+  progress_fn = None
+  if where == "progress_fn":
+    def progress_fn(env_steps, metrics):
+      if env_steps >= 80:
+        raise Broken("the user's callback")
+  else:
+    write_csv = logger.Logger._write_csv
+
+    def sink(self, row):
+      if row["env_steps"] >= 80:
+        raise Broken("a logger's sink")
+      write_csv(self, row)
+    monkeypatch.setattr(logger.Logger, "_write_csv", sink)
+  cfg = dataclasses.replace(TINY, total_env_steps=400, out_dir=str(tmp_path))
+  with pytest.raises(Broken):
+    loop.run(cfg, progress=False, progress_fn=progress_fn)
+  assert f"stopped by {where}'s Broken: 80 env steps in" in capsys.readouterr().out
+  directory = str(tmp_path / "checkpoints")
+  assert checkpoint.manager(directory).all_steps() == [10]  # (no periodic save was due)
+  monkeypatch.undo()
+  resumed = loop.resume(directory, progress=False, total_env_steps=120)
+  assert f"resumed from {directory}, step 10" in capsys.readouterr().out
+  assert train.iterations(resumed.state) == 15
+
+
+def test_an_error_in_the_chunk_names_the_checkpoint_that_resumes(tmp_path, monkeypatch, capsys):
+  """A chunk that fails (a reward's host callback, say) takes its state with it (the chunk
+  takes its input's memory); the run waits for the save in flight and names what is kept."""
+  chunk, calls = loop._Chunk.__call__, []
+
+  def failing(self, state):
+    calls.append(None)
+    if len(calls) == 3:
+      raise Broken("a reward's host callback")
+    return chunk(self, state)
+  monkeypatch.setattr(loop._Chunk, "__call__", failing)
+  cfg = dataclasses.replace(TINY, total_env_steps=400, out_dir=str(tmp_path),
+                            checkpoint_minutes=0.0)
+  with pytest.raises(Broken):
+    loop.run(cfg, progress=False)
+  directory = tmp_path / "checkpoints"
+  assert (f"the run stopped at an error: {directory} holds its checkpoint step 10, which "
+          "resumes it") in capsys.readouterr().out
+  assert sorted(os.listdir(directory)) == ["10", "5", "manifests"]
