@@ -4,6 +4,8 @@ import hashlib
 import os
 import platform
 
+from mjx_hopper import compat as _compat
+
 
 def _settings_before_start(system: str, environ) -> dict[str, str]:
   """The environment variables the package sets on import, because MuJoCo and XLA read them
@@ -25,8 +27,6 @@ def _settings_before_start(system: str, environ) -> dict[str, str]:
 os.environ.update(_settings_before_start(platform.system(), os.environ))
 
 __version__ = "0.2.0"
-
-from mjx_hopper import compat as _compat  # noqa: E402
 
 _compat.install_module_paths()  # the old module paths (mjx_hopper.compat.MODULES)
 

@@ -204,8 +204,8 @@ def evaluate(args: argparse.Namespace) -> None:
   episode 0."""
   from mjx_hopper import export as export_lib
   if args.pretrained is not None:
-    path = export_lib.pretrained(args.pretrained).path
-    export_lib.evaluate_file(path, args.episodes, args.seed, args.video, env=args.env)
+    export_lib.evaluate_file(export_lib.pretrained_path(args.pretrained), args.episodes,
+                             args.seed, args.video, env=args.env)
   elif args.policy is not None:
     export_lib.evaluate_file(args.policy, args.episodes, args.seed, args.video or VIDEO,
                              env=args.env)

@@ -138,6 +138,7 @@ def test_the_global_flag_defaults_to_one_device_per_core():
     (["demo", "--steps", "0"], "mjx-hopper demo: --num-envs and --steps must be >= 1"),
     (["settings", "--cpu-devices", "0"], "mjx-hopper settings: --cpu-devices must be >= 1, got 0"),
     (["plot", "nowhere"], "mjx-hopper plot: nowhere holds no log.csv"),
+    (["eval", "--pretrained", "Cheetah"], "mjx-hopper eval: no pretrained policy for 'Cheetah'"),
 ])
 def test_a_users_error_is_one_line_naming_the_command(argv, line):
   with pytest.raises(SystemExit) as stop:

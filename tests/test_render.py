@@ -26,8 +26,8 @@ def test_demo_prints_throughput_and_writes_video(tmp_path, capsys):
   assert (tmp_path / "hopper_random.mp4").stat().st_size > 1000
 
 
-def test_cli_rejects_bad_arguments(capsys):
-  with pytest.raises(SystemExit):
+def test_cli_rejects_bad_arguments():
+  with pytest.raises(SystemExit, match=r"^mjx-hopper demo: unknown env 'Hoper'; valid envs are "
+                                       r"\['Ant', 'HalfCheetah', 'Hopper', 'Humanoid', "
+                                       r"'Walker2D'\]"):
     cli.main(["demo", "--env", "Hoper"])
-  assert ("unknown --env 'Hoper'; choose from ['Ant', 'HalfCheetah', 'Hopper', 'Humanoid', "
-          "'Walker2D']") in capsys.readouterr().err

@@ -171,10 +171,14 @@ def test_run_logs_checkpoints_and_resumes(tmp_path, capsys):
   steps = sorted(int(p) for p in os.listdir(tmp_path / "run" / "checkpoints") if p.isdigit())
   assert steps == [train.iterations(result.state)]
   assert json.load(open(tmp_path / "run" / "config.json"))["agent_config"]["n_step"] == 3
-  # A longer run from the same folder continues from the checkpoint.
+  curves_png = tmp_path / "run" / "curves.png"
+  assert curves_png.stat().st_size > 10_000  # a single run draws its curve, as a sweep does
+  curves_png.unlink()
+  # A longer run from the same folder continues from the checkpoint, and draws it again.
   longer = loop.run(dataclasses.replace(cfg, total_env_steps=160), progress=False)
   out = capsys.readouterr().out
-  assert "resumed from" in out
+  assert "resumed from" in out and f"learning curves: {curves_png}" in out
+  assert curves_png.stat().st_size > 10_000
   assert "nan" not in out  # no return is shown before it is known
   assert train.iterations(longer.state) == 2 * train.iterations(result.state)
   # The agent of the best evaluation so far is kept beside the latest: it scores that
@@ -188,8 +192,9 @@ def test_run_logs_checkpoints_and_resumes(tmp_path, capsys):
   assert np.mean(again["return"][0]) == pytest.approx(float(best["eval_return"]), rel=1e-5)
   directory = str(tmp_path / "run" / "checkpoints")
   for which, want in (("best", longer.best), ("latest", longer.state.agent)):
-    _, agent, _ = runs.load_policy(directory, which=which)
+    _, agent, trainer = runs.load_policy(directory, which=which)
     jax.tree.map(np.testing.assert_array_equal, agent, member(want))
+    assert trainer is longer.trainer  # conftest's shared builds cover runs.load_policy too
   assert f"return {longer.best_return[0]:.1f} at {int(best['env_steps']):,} env steps" in (
       capsys.readouterr().out)
   # Another config is refused, naming what differs, and the checkpoint is left alone.
