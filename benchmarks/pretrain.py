@@ -42,7 +42,8 @@ def train_until_score(robot: str, seed: int, goal: float, args) -> dict:
 
 def pretrain(robot: str, args, files: str) -> dict:
   """Trains `robot` (the seeds in turn, until one reaches the goal), exports its best policy to
-  FILES/ROBOT.npz with its fingerprint and record, evaluates that file, and returns the record."""
+  FILES/ROBOT.npz, evaluates that file, writes into it the robot's fingerprint and this record,
+  and returns the record."""
   from mjx_hopper import envs, export, presets
   preset = presets.get(robot, args.kind)
   target = preset.target if args.target is None else args.target
@@ -56,16 +57,15 @@ def pretrain(robot: str, args, files: str) -> dict:
   export.export_checkpoint(run.pop("checkpoints"), path)
   command = shlex.join(["python", "benchmarks/pretrain.py", robot, *_settings(args),
                         "--seeds", str(run["seed"])])
-  record = {"robot": robot, "kind": args.kind, "target": target, "goal": goal, **run,
-            "command": command, "commit": common.commit()}
-  policy = export.load(path)
-  policy.meta.update(fingerprint=export.fingerprint(envs.make(robot)), pretrained=record)
-  export.save(policy, path)
   returns = export.evaluate_file(path, episodes=args.episodes, seed=args.eval_seed)["return"]
-  record.update({"return": float(returns.mean()), "return_std": float(returns.std()),
-                 "episodes": args.episodes, "eval_seed": args.eval_seed,
-                 "file_bytes": os.path.getsize(path), "at_target": float(returns.mean()) >= target})
-  return record
+  record = {"robot": robot, "kind": args.kind, "target": target, "goal": goal, **run,
+            "command": command, "commit": common.commit(), "return": float(returns.mean()),
+            "return_std": float(returns.std()), "episodes": args.episodes,
+            "eval_seed": args.eval_seed, "at_target": float(returns.mean()) >= target}
+  policy = export.load(path)
+  policy.meta.update(fingerprint=export.fingerprint(envs.make(robot)), pretrained=dict(record))
+  export.save(policy, path)
+  return {**record, "file_bytes": os.path.getsize(path)}
 
 
 def _settings(args) -> list[str]:

@@ -15,6 +15,7 @@ import pathlib
 import re
 import statistics
 import sys
+import tomllib
 
 from common import table
 
@@ -46,7 +47,17 @@ SWEEPS = ("sweep_throughput_h100.json", "sweep_throughput_2gpu_h200.json",
           "sweep_throughput_cpu.json")
 PBT = "pbt_quality_halfcheetah_h100x2.json"
 FUSED = ("fused_learner_h100.json", "sweep_fused_vs_xla_h100.json")
-START = ("start_time_h100.json", "start_time_h100_ab.json", "start_time_h100_global_gspmd.json")
+START = {"one H100": ("start_time_h100.json", "start_time_h100_autotune0.json"),
+         "2 CPU cores": ("start_time_cpu.json",)}
+# A start's phases as the table shows them: (label, key in start_time.py's medians, digits).
+START_ROWS = (("imports", "imports", 1), ("build: env, agent, trainer", "build", 1),
+              ("chunk: tracing", "chunk trace", 1), ("chunk: lowering", "chunk lower", 1),
+              ("chunk: XLA compile", "chunk compile", 1),
+              ("fresh state: XLA compile", "init_member compile", 1),
+              ("evaluation: tracing", "one trace", 1),
+              ("evaluation: XLA compile", "one compile", 1),
+              ("first training row", "first_train", 1), ("first evaluation", "first_eval", 1),
+              ("env steps/s after it", "steps_per_s", 0))
 GYMNASIUM = "gymnasium_throughput_cpu.json"
 NOTEBOOK = "notebook_time_cpu_2026-11-26.json"
 SUITE = "suite_time_cpu.json"
@@ -230,11 +241,19 @@ def sections() -> list[tuple[str, str, str, list[str]]]:
                      "env steps per member", "env steps/s"], load(PBT)["figures"]["rows"]),
               [PBT]))
   nb = load(NOTEBOOK)["figures"]
+  first = sorted(p.name for p in RESULTS.glob("notebook_first_video_*.json"))
   out.append(("The notebook on 2 CPU cores", "`notebooks/robolympics.ipynb` in its full mode, "
-              "top to bottom, from an empty compile cache; sections under half a minute left out.",
+              "top to bottom, from an empty compile cache; sections under half a minute left out. "
+              "Its first video (a pretrained Humanoid, before any training), from the kernel's "
+              "start with the project installed: `notebook_time.py --first-video`.",
               table(["section", "minutes"], [[t, num(s / 60, 1)] for t, s in
                                              nb["sections_s"].items() if s >= 30]
-                    + [["all", num(nb["total_s"] / 60, 1)]]), [NOTEBOOK]))
+                    + [["all", num(nb["total_s"] / 60, 1)]]
+                    + [["first video", num(load(n)["figures"]["first_video_s"] / 60, 1)]
+                       for n in first]), [NOTEBOOK, *first]))
+  pretrained = sorted(p.name for p in RESULTS.glob("pretrained_*.json"))
+  if pretrained:
+    out.append(pretrained_section(pretrained))
   suite = load(SUITE)["figures"]
   out.append(("Test suite", "`bash scripts/test.sh` on a fresh clone, as CI runs it, on 2 CPU "
               "cores from an empty compile cache.",
@@ -269,19 +288,44 @@ def fused_section() -> tuple[str, str, str, list[str]]:
 
 
 def start_section() -> tuple[str, str, str, list[str]]:
-  """Seconds from process start to the first training row on one GPU."""
+  """A run's start, phase by phase (s from process start), before and after, cold and warm."""
+  tables = []
+  for where, names in START.items():
+    columns = {}
+    for name in names:
+      if (RESULTS / name).exists():
+        data = load(name)
+        for label, figures in data["figures"]["medians"].items():
+          code, cache = label.split(", ")
+          code = data["commit"] if code == "this checkout" else code
+          flags = data["figures"].get("xla_flags")
+          columns[f"{code}{' with ' + flags if flags else ''}, {cache}"] = figures
+    if columns:
+      rows = [[label, *(num(c.get(key), digits) if c.get(key) is not None else "–"
+                        for c in columns.values())] for label, key, digits in START_ROWS]
+      tables.append(f"On {where}:\n\n" + table(["phase (s)", *columns], rows))
+  return ("The start, phase by phase", "The main job's command with the robot's preset (Hopper: "
+          "gpu on the GPU, cpu on 2 cores), from process start, from an empty compile cache "
+          "(cold) and from the cache that run left (warm), in turns with the commit before the "
+          "start's rework; tracing and compiles from JAX's own events. The programs compile side "
+          "by side, so their times overlap.", "\n\n".join(tables),
+          [n for names in START.values() for n in names if (RESULTS / n).exists()])
+
+
+def pretrained_section(names: list[str]) -> tuple[str, str, str, list[str]]:
+  """The shipped policies (mjx_hopper/pretrained/): how each was trained, and its file's return."""
   rows = []
-  for name in START:
-    figures = load(name)["figures"]
-    for run, r in figures["runs"].items():
-      label = run if name == START[0] else run.replace("this checkout", load(name)["commit"])
-      rows.append([label.replace(".base", "6a969a5"), num(r[0]["first_chunk_done"], 1),
-                   num(r[0]["first_eval"], 1)])
-  return ("The start on one GPU", "Hopper's gpu preset from process start, from an empty "
-          "compile cache, then from the cache it left: with an earlier run's XLA autotuning "
-          "results loaded, and without; then in turns with 6a969a5, the host layer before "
-          "(bc2ad0d compiled all with GSPMD; 4f4803c, as 6a969a5, only the evaluation).",
-          table(["run", "first training row (s)", "first evaluation (s)"], rows), list(START))
+  for name in names:
+    r = load(name)["figures"]
+    rows.append([r["robot"], num(r["target"]), r["seed"], num(r["env_steps"]),
+                 num(r["wall_s"]), num(r["best_eval_return"]),
+                 f"{num(r['return'])} ± {num(r['return_std'])}", num(r["file_bytes"] / 1024)])
+  return ("Pretrained policies", "One policy per robot, shipped in `mjx_hopper/pretrained/`: the "
+          "robot's gpu preset trained until an evaluation (20 episodes) reached its score plus a "
+          "margin (`benchmarks/pretrain.py`); the best evaluation's policy exported, then the "
+          "file evaluated again on episodes of its own.",
+          table(["robot", "score", "seed", "env steps", "training (s)", "best evaluation",
+                 "the file's return", "file (KiB)"], rows), names)
 
 
 def gymnasium_section() -> tuple[str, str, str, list[str]]:
@@ -313,10 +357,21 @@ def readme_table() -> str:
   rows = []
   for robot in ROBOTS:
     g, c = time_to_score(GPU[robot]), time_to_score(CPU[robot], 60)
-    rows.append([f'<img src="docs/media/{robot}.gif" width="160">', robot, num(g["target"]),
-                 num(g["median"]), g["seeds"], num(c["target"]), num(c["median"], 1), c["seeds"]])
-  return table(["", "robot", "score (GPU)", f"median on {machine(GPU['Hopper'][0])} (s)", "seeds",
-                "score (2 cores)", "median on 2 CPU cores (min)", "seeds"], rows)
+    rows.append([f'<img src="{media()}/{robot}.gif" width="160">', robot, num(g["target"]),
+                 num(g["median"]), f"{g['reached']}/{g['seeds']}", num(c["target"]),
+                 num(c["median"], 1), f"{c['reached']}/{c['seeds']}"])
+  return table(["", "robot", "score (GPU)", f"median on {machine(GPU['Hopper'][0])} (s)",
+                "seeds reaching it", "score (2 cores)", "median on 2 CPU cores (min)",
+                "seeds reaching it"], rows)
+
+
+def media() -> str:
+  """Where the README's images are: absolute, on the repository of pyproject's project.urls, so
+  that they load where the README is shown outside it (PyPI); relative while that address is
+  the placeholder."""
+  with open(ROOT / "pyproject.toml", "rb") as f:
+    repository = tomllib.load(f)["project"]["urls"]["Repository"]
+  return "docs/media" if "/OWNER/" in repository else f"{repository}/raw/main/docs/media"
 
 
 def notebook_times() -> str:

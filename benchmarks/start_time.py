@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import shutil
 import statistics
 import subprocess
@@ -45,6 +46,7 @@ cli.main()
 """
 PHASES = {"jaxpr_trace_duration": "trace", "jaxpr_to_mlir_module_duration": "lower",
           "backend_compile_duration": "compile"}
+RATE = re.compile(r"\| ([\d,]+) steps/s")
 MIN_SECONDS = 0.2  # programs whose phases took less are summed as "small programs"
 
 
@@ -66,6 +68,10 @@ def one_run(command: list[str], cache: str, code: str | None, seconds: float) ->
       probe = json.load(f)
   first = {kind: next((t for t, line in lines if line.startswith(f"[{kind}]")), None)
            for kind in ("train", "eval")}
+  # Training's pace once started: the rows after the first evaluation (which competes with the
+  # first chunks for the CPU).
+  later = [float(RATE.search(line).group(1).replace(",", "")) for t, line in lines
+           if line.startswith("[train]") and t > (first["eval"] or float("inf"))]
   programs: dict[str, dict[str, float]] = {}
   chunk_traced = None
   for end, event, name, duration in probe["events"]:
@@ -83,13 +89,14 @@ def one_run(command: list[str], cache: str, code: str | None, seconds: float) ->
       phase: sum(v.get(phase, 0.0) for v in small.values()) for phase in PHASES.values()}
   imported = probe["imported"] - start
   return {"imports": imported, "build": (chunk_traced or imported) - imported,
-          "first_train": first["train"], "first_eval": first["eval"], "programs": programs}
+          "first_train": first["train"], "first_eval": first["eval"],
+          "steps_per_s": statistics.median(later) if later else None, "programs": programs}
 
 
 def summary(runs: list[dict]) -> dict:
   """The medians of `runs`' phases, programs' phases flattened as 'PROGRAM PHASE'."""
   def flat(run):
-    out = {k: run[k] for k in ("imports", "build", "first_train", "first_eval")}
+    out = {k: run[k] for k in ("imports", "build", "first_train", "first_eval", "steps_per_s")}
     for program, phases in run["programs"].items():
       out.update({f"{program} {phase}": s for phase, s in phases.items()})
     return out
@@ -98,12 +105,21 @@ def summary(runs: list[dict]) -> dict:
   return {k: statistics.median(f[k] for f in flats) for k in keys}
 
 
+def _commit(folder: str) -> str:
+  """The short commit of the checkout in `folder`, else the folder's name."""
+  done = subprocess.run(["git", "-C", folder, "rev-parse", "--short", "HEAD"],
+                        capture_output=True, text=True)
+  return done.stdout.strip() or folder
+
+
 def main() -> None:
   p = argparse.ArgumentParser(description=__doc__,
                               formatter_class=argparse.RawDescriptionHelpFormatter)
   p.add_argument("--rounds", type=int, default=2)
   p.add_argument("--seconds", type=float, default=60.0, help="each run's length")
   p.add_argument("--checkout", default=None, help="another checkout's folder to time beside")
+  p.add_argument("--checkout-name", default=None,
+                 help="its name in the results (default: its commit)")
   p.add_argument("--env", default="Hopper")
   p.add_argument("--kind", default="cpu", help="the robot preset: cpu or gpu")
   p.add_argument("--label", default="cpu")
@@ -118,9 +134,7 @@ def main() -> None:
       for sub in ("envs", "agents"):  # packaged as mjx_hopper.envs and .agents (pyproject.toml)
         shutil.copytree(os.path.join(args.checkout, sub),
                         os.path.join(installed, "mjx_hopper", sub))
-      commit = subprocess.run(["git", "-C", args.checkout, "rev-parse", "--short", "HEAD"],
-                              capture_output=True, text=True).stdout.strip()
-      codes[commit or args.checkout] = installed
+      codes[args.checkout_name or _commit(args.checkout)] = installed
     runs = {(name, cache): [] for name in codes for cache in ("cold", "warm")}
     for i in range(args.rounds):
       for name, code in (codes.items() if i % 2 == 0 else reversed(codes.items())):
@@ -132,7 +146,8 @@ def main() -> None:
   for label, figures in medians.items():
     print(label, {k: round(v, 1) for k, v in figures.items()})
   common.write_results(f"start_time_{args.label}", {
-      "preset": f"{args.env} {args.kind}", "medians": medians,
+      "preset": f"{args.env} {args.kind}", "xla_flags": os.environ.get("XLA_FLAGS"),
+      "medians": medians,
       "runs": {f"{name}, {state}": r for (name, state), r in runs.items()}})
 
 

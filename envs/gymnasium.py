@@ -23,8 +23,8 @@ try:
   from gymnasium.vector import AutoresetMode
   from gymnasium.vector.utils import batch_space
 except ImportError:
-  raise ImportError("mjx_hopper.envs.to_gymnasium needs Gymnasium (>= 1.1): pip install "
-                    "'mjx_hopper[gymnasium]'") from None
+  raise ImportError("mjx_hopper.envs.to_gymnasium needs Gymnasium (>= 1.1): in the "
+                    "mjx_hopper checkout, pip install -e '.[gymnasium]'") from None
 import jax
 import numpy as np
 

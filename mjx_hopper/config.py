@@ -60,8 +60,8 @@ class RunConfig:
   out_dir: str = setting("runs/train", "folder for log.csv, config.json and checkpoints/")
   tensorboard_dir: str | None = setting(None, "also write log.csv's scalars here as "
                                        "TensorBoard events")
-  wandb: str | None = setting(None, "also log to this Weights & Biases project (pip install "
-                             "'mjx_hopper[wandb]')")
+  wandb: str | None = setting(None, "also log to this Weights & Biases project (the wandb "
+                             "extra: pip install -e '.[wandb]')")
   log_every: float = setting(10.0, "seconds between terminal lines")
   checkpoint_minutes: float = setting(10.0, "minutes between checkpoints")
   keep_checkpoints: int = setting(3, "checkpoints kept")

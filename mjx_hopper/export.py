@@ -145,7 +145,7 @@ def export_checkpoint(directory: str, out: str, member: int | str | None = None,
                       which: str = "best", env: Any = None, print_fn=print) -> str:
   """Writes the policy of a checkpoint in `directory` to the file `out` and returns its path:
   the agent of the best evaluation, or with which="latest", the latest. `member` is as
-  `loop.extract` takes it (a member's index, or "best": the member of the best evaluation);
+  `runs.extract` takes it (a member's index, or "best": the member of the best evaluation);
   required for a sweep, optional for a single run. `env` is the run's task, for a class that
   cannot be imported (see `loop.resume`). Errors are one-line ValueErrors or
   FileNotFoundErrors, and nothing is written."""

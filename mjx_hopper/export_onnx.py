@@ -28,7 +28,8 @@ def model(policy: export.Policy):
     import onnx
     from onnx import TensorProto, helper, numpy_helper
   except ImportError:
-    raise ImportError("writing ONNX needs onnx: pip install 'mjx_hopper[onnx]'") from None
+    raise ImportError("writing ONNX needs onnx: in the mjx_hopper checkout, pip install -e "
+                      "'.[onnx]'") from None
 
   nodes, weights = [], []
   names = itertools.count()

@@ -178,8 +178,8 @@ def _wandb_run(project: str | None, config: dict | None, csv_path: str | None, p
   try:
     import wandb
   except ImportError:
-    raise ImportError("logging to Weights & Biases needs wandb: pip install "
-                      "'mjx_hopper[wandb]'") from None
+    raise ImportError("logging to Weights & Biases needs wandb: in the mjx_hopper checkout, "
+                      "pip install -e '.[wandb]'") from None
   folder = os.environ.get("WANDB_DIR") or (os.path.dirname(os.path.abspath(csv_path))
                                             if csv_path else None)
   run = wandb.init(project=project, config=config, dir=folder,

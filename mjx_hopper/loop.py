@@ -176,12 +176,14 @@ def _open(cfg: RunConfig, checkpoint_dir: str | None, say, process, progress_fn)
   members = Members(mine, indices, single=len(everyone) == 1, pbt=cfg.pbt is not None,
                     target=cfg.stop_at_return, say=say)
   evaluator = Evaluator(trainer, mine, cfg.eval_episodes, cfg.evaluates_on_host())
+  fresh = functools.partial(runs.init, cfg, trainer, mine)
+  started = functools.cache(lambda: start.start(trainer, fresh, evaluator))
+  if not os.path.isdir(checkpoint_dir) or not os.listdir(checkpoint_dir):
+    started()  # a fresh run: compiling from here, while the checkpoints and the log open
   saved_config = {**cfg.to_json(), "member_indices": indices}
   saver = _Saver(checkpoint.manager(checkpoint_dir, cfg.keep_checkpoints), saved_config,
                  cfg.checkpoint_minutes)
   per_iteration = trainer.config.steps_per_iteration
-  fresh = functools.partial(runs.init, cfg, trainer, mine)
-  started = functools.cache(lambda: start.start(trainer, fresh, evaluator))
   training = (saver.mngr.latest_step() or 0) * per_iteration < cfg.total_env_steps
   resumed = checkpoint.resume(
       saver.mngr, started().state.result() if training else fresh(), saved_config, say,

@@ -13,6 +13,9 @@ import jax.numpy as jnp
 from mjx_hopper import train
 
 
+SMALL_CPU = 4  # cores up to which two programs compile at once, not four
+
+
 class Started(NamedTuple):
   """Futures of what a run waits for before it trains."""
   state: concurrent.futures.Future    # the members' fresh TrainState
@@ -22,26 +25,24 @@ class Started(NamedTuple):
 
 def start(trainer: train.Trainer, init, evaluator) -> Started:
   """Starts making the fresh state (`init()`) and compiling the chunk, the evaluation (which
-  `evaluator` keeps) and the finiteness check, at most `workers()` at once: the chunk and the
-  state first, as the first training row waits for both. Each program is traced here, in turn,
-  since tracing holds Python's lock; the state's program is traced in its thread."""
+  `evaluator` keeps) and the finiteness check. The chunk and the state come first, side by side,
+  as the first training row waits for both. Each program is traced here, in turn, since tracing
+  holds Python's lock; the state's program is traced in its thread."""
   shapes = jax.tree.map(
       lambda sharding, part: jax.tree.map(
           lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sharding), part),
       trainer.shardings, jax.eval_shape(init))
-  pool = concurrent.futures.ThreadPoolExecutor(workers())
-  chunk = pool.submit(trainer.train_chunk.lower(shapes).compile)
-  state = pool.submit(init)
-  evaluator.compile_in(pool, shapes.agent)
-  finite = pool.submit(finite_members.lower(shapes.agent).compile)
-  pool.shutdown(wait=False)
+  if (os.cpu_count() or 1) > SMALL_CPU:
+    lines = [concurrent.futures.ThreadPoolExecutor(4)] * 2
+  else:  # the evaluation compiles after the chunk: beside it, it delayed the first row
+    lines = [concurrent.futures.ThreadPoolExecutor(1), concurrent.futures.ThreadPoolExecutor(1)]
+  chunk = lines[0].submit(trainer.train_chunk.lower(shapes).compile)
+  state = lines[1].submit(init)
+  evaluator.compile_in(lines[0], shapes.agent)
+  finite = lines[1].submit(finite_members.lower(shapes.agent).compile)
+  for line in lines:
+    line.shutdown(wait=False)
   return Started(state, chunk, finite)
-
-
-def workers() -> int:
-  """Programs compiled at once: on a small CPU, more would slow the chunk, which the first
-  training row waits for, for programs it does not need."""
-  return max(2, min(4, (os.cpu_count() or 2) // 2))
 
 
 @jax.jit

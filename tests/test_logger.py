@@ -267,7 +267,7 @@ def test_weights_and_biases_gets_every_scalar_and_the_config(tmp_path, monkeypat
 
 def test_weights_and_biases_without_wandb_names_the_extra(tmp_path, monkeypatch):
   monkeypatch.setitem(sys.modules, "wandb", None)  # import wandb raises ImportError
-  with pytest.raises(ImportError, match=r"^logging to Weights & Biases needs wandb: pip install "
-                                        r"'mjx_hopper\[wandb\]'$"):
+  with pytest.raises(ImportError, match=r"^logging to Weights & Biases needs wandb: in the "
+                                        r"mjx_hopper checkout, pip install -e '\.\[wandb\]'$"):
     Logger(str(tmp_path / "run" / "log.csv"), wandb_project="mjx_hopper_test")
   assert os.listdir(tmp_path) == []  # not even the log's folder
