@@ -100,5 +100,5 @@ def make(name: str, obs_size: int, action_size: int, cfg=None) -> Agent:
   return found.make(obs_size, action_size, default if cfg is None else cfg)
 
 
-__all__ = ["Agent", "Spec", "config", "d4pg", "ddpg", "learner_fields", "list_agents", "make",
-           "mpo", "register", "spec"]
+__all__ = ["Agent", "Spec", "config", "d4pg", "ddpg", "dpg", "learner_fields", "list_agents",
+           "make", "mpo", "register", "spec"]
