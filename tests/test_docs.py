@@ -94,6 +94,8 @@ def problems(words: list[str], top: set[str]) -> list[str]:
   if program.endswith("mjx-hopper"):
     if not args or args[0].startswith("-"):
       return sorted(used - top)
+    if re.fullmatch(r"[A-Z]+:?", args[0]):  # a placeholder (or a message's "COMMAND:")
+      return []
     if args[0] not in subcommands():
       return [f"no subcommand {args[0]!r}"]
     return sorted(used - help_flags([args[0]]) - top)
