@@ -466,6 +466,7 @@ class Saver:
     self.unsaved = None   # the run's last save's SaveFailed, which `finish` raises
 
   def due(self) -> bool:
+    """Whether the save period has passed since the last save."""
     return time.monotonic() - self.last >= 60 * self.minutes
 
   def save(self, state: train.TrainState, best, members, last: bool = False) -> None:
@@ -538,6 +539,7 @@ class StopRequest:
     return self
 
   def request(self, reason: str) -> None:
+    """Asks the loop to save and stop after its chunk, for `reason`."""
     self.requested, self.reason = True, reason
 
   def _handle(self, signum, frame):

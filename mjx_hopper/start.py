@@ -29,8 +29,8 @@ def start(trainer: train.Trainer, init, evaluator) -> Started:
           lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sharding), part),
       trainer.shardings, jax.eval_shape(init))
   # Two lines: the chunk, then the evaluation (compiled beside the chunk, it slowed the chunk's
-  # compile more than it brought the first evaluation forward, on 2 cores and on a GPU's host);
-  # the state, then the finiteness check.
+  # compile more than it brought the first evaluation forward); the state, then the finiteness
+  # check.
   lines = [concurrent.futures.ThreadPoolExecutor(1), concurrent.futures.ThreadPoolExecutor(1)]
   chunk = lines[0].submit(trainer.train_chunk.lower(shapes).compile)
   state = lines[1].submit(init)
