@@ -137,7 +137,7 @@ def main() -> None:
   label = f"_{args.label}" if args.label else ""
   common.write_results(f"time_to_score_{name}_{args.kind}{label}", {
       "robot": args.robot, "episode_steps": cfg.episode_steps, "kind": args.kind,
-      "target": target, "minutes": minutes, "agent": cfg.agent, "agent_preset": cfg.preset,
+      "target": target, "minutes": minutes, "agent": cfg.agent, "agent_preset": cfg.agent_preset,
       "agent_overrides": cfg.agent_overrides, "train": dataclasses.asdict(cfg.train),
       "device": f"{device.platform} {device.device_kind}", "best_seed": best,
       "best_seed_episode": episode, "seeds": results})
