@@ -195,8 +195,8 @@ def test_a_run_in_progress_is_read_without_taking_its_lock(run_dir, tmp_path):
     with open(lock) as f:
       held = f.read()
     export.export_checkpoint(directory, str(tmp_path / "policy.npz"), print_fn=quiet)
-    loop.load_policy(directory, print_fn=quiet)
-    loop.extract(directory, 0, str(tmp_path / "member0"), print_fn=quiet)
+    runs.load_policy(directory, print_fn=quiet)
+    runs.extract(directory, 0, str(tmp_path / "member0"), print_fn=quiet)
     with open(lock) as f:
       assert f.read() == held
 

@@ -52,7 +52,7 @@ def test_a_second_run_is_refused_naming_the_first_and_writes_nothing(held, capsy
   # The command line says it in one line.
   with pytest.raises(SystemExit, match=rf"^mjx-hopper train: {folder} is in use by another "
                                        rf"run \(process {proc.pid} "):
-    cli.main([*TINY_ARGS, "--agent", "d4pg", "--steps", "80", "--out", str(folder)])
+    cli.main([*TINY_ARGS, "--agent", "d4pg", "--total-env-steps", "80", "--out-dir", str(folder)])
   assert os.listdir(folder) == [runlock.LOCK]
 
 
