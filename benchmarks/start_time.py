@@ -58,7 +58,7 @@ def one_run(command: list[str], cache: str, code: str | None, seconds: float) ->
   with tempfile.TemporaryDirectory() as out:
     record = os.path.join(out, "events.json")
     start = time.time()
-    proc = subprocess.Popen([sys.executable, "-P", "-c", PROBE, record, *command, "--out", out,
+    proc = subprocess.Popen([sys.executable, "-P", "-c", PROBE, record, *command, "--out-dir", out,
                              "--max-minutes", str(seconds / 60)], env=env, text=True,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
     lines = [(time.time() - start, line) for line in proc.stdout]
