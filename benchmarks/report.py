@@ -46,18 +46,16 @@ LEARNER = ("learner_robots_h100.json", "learner_robots_bf16_h100.json")
 SWEEPS = ("sweep_throughput_h100.json", "sweep_throughput_2gpu_h200.json",
           "sweep_throughput_cpu.json")
 PBT = "pbt_quality_halfcheetah_h100x2.json"
-FUSED = ("fused_learner_h100.json", "sweep_fused_vs_xla_h100.json")
-START = {"one H100": ("start_time_h100.json", "start_time_h100_autotune0.json"),
+START = {"one H100": ("start_time_h100.json",),
          "2 CPU cores": ("start_time_cpu.json",)}
 # A start's phases as the table shows them: (label, key in start_time.py's medians, digits).
-START_ROWS = (("imports", "imports", 1), ("build: env, agent, trainer", "build", 1),
-              ("chunk: tracing", "chunk trace", 1), ("chunk: lowering", "chunk lower", 1),
-              ("chunk: XLA compile", "chunk compile", 1),
-              ("fresh state: XLA compile", "init_member compile", 1),
-              ("evaluation: tracing", "one trace", 1),
-              ("evaluation: XLA compile", "one compile", 1),
+START_ROWS = (("imports", "imports", 1), ("build", "build", 1),
+              ("chunk: tracing", "chunk trace", 1),
+              ("chunk: compile", "chunk compile", 1),
+              ("init: compile", "init_member compile", 1),
+              ("evaluation: compile", "one compile", 1),
               ("first training row", "first_train", 1), ("first evaluation", "first_eval", 1),
-              ("env steps/s after it", "steps_per_s", 0))
+              ("env steps/s", "steps_per_s", 0))
 GYMNASIUM = "gymnasium_throughput_cpu.json"
 NOTEBOOK = "notebook_time_cpu_2026-11-26.json"
 SUITE = "suite_time_cpu.json"
@@ -220,7 +218,6 @@ def sections() -> list[tuple[str, str, str, list[str]]]:
               table(["robot", "batch", "precision", "updates/s", "GFLOP/update", "% of peak",
                      "bfloat16 updates/s"], rows), list(LEARNER)))
   out.append(gymnasium_section())
-  out.append(fused_section())
   out.append(start_section())
   rows = []
   for name in SWEEPS:
@@ -263,30 +260,6 @@ def sections() -> list[tuple[str, str, str, list[str]]]:
   return out
 
 
-def fused_section() -> tuple[str, str, str, list[str]]:
-  """A past result: the Pallas-fused D4PG update against XLA's, alone and in a sweep."""
-  learner, sweep = (load(n)["figures"] for n in FUSED)
-  rows = []
-  for r in learner["results"]:
-    xla, fused = (max((row for row in r["rows"] if row["learner"] == name),
-                      key=lambda row: row["updates_per_s"]) for name in ("xla", "fused"))
-    rows.append([r["case"]["robot"], r["case"]["overrides"].get("compute_dtype", "float32"),
-                 num(r["case"]["batch"]), num(xla["updates_per_s"]),
-                 num(fused["updates_per_s"]), num(fused["updates_per_s"] / xla["updates_per_s"],
-                                                  2)])
-  xla, fused = (next(r for r in sweep[name] if r["members"] == 16) for name in ("xla", "fused"))
-  rows.append(["16-member sweep (Hopper), env steps/s", "float32", "1,024",
-               num(xla["env_steps_per_s"]), num(fused["env_steps_per_s"]),
-               num(fused["env_steps_per_s"] / xla["env_steps_per_s"], 2)])
-  return ("The fused learner, removed", "A past result: D4PG's update with each "
-          "LayerNormMLP's forward and backward pass as Pallas (Triton) kernels, beside XLA's "
-          "update in the same process, each robot's gpu preset on random batches, the fastest "
-          "tiles of each. It never beat XLA's update, so it left the package; git keeps its "
-          "code (`agents/fused.py` and `agents/pallas_mlp.py` at commit 416e724).",
-          table(["preset", "precision", "batch", "XLA updates/s", "fused updates/s",
-                 "fused ÷ XLA"], rows), list(FUSED))
-
-
 def start_section() -> tuple[str, str, str, list[str]]:
   """A run's start, phase by phase (s from process start), before and after, cold and warm."""
   tables = []
@@ -304,11 +277,10 @@ def start_section() -> tuple[str, str, str, list[str]]:
       rows = [[label, *(num(c.get(key), digits) if c.get(key) is not None else "–"
                         for c in columns.values())] for label, key, digits in START_ROWS]
       tables.append(f"On {where}:\n\n" + table(["phase (s)", *columns], rows))
-  return ("The start, phase by phase", "The main job's command with the robot's preset (Hopper: "
-          "gpu on the GPU, cpu on 2 cores), from process start, from an empty compile cache "
-          "(cold) and from the cache that run left (warm), in turns with the commit before the "
-          "start's rework; tracing and compiles from JAX's own events. The programs compile side "
-          "by side, so their times overlap.", "\n\n".join(tables),
+  return ("The start, phase by phase", "The main job's command (Hopper; gpu preset on the GPU, "
+          "cpu on 2 cores), seconds from process start, from an empty compile cache (cold) and "
+          "from the one it left (warm), in turns with 416e724; programs compile side by side.",
+          "\n\n".join(tables),
           [n for names in START.values() for n in names if (RESULTS / n).exists()])
 
 
@@ -320,10 +292,9 @@ def pretrained_section(names: list[str]) -> tuple[str, str, str, list[str]]:
     rows.append([r["robot"], num(r["target"]), r["seed"], num(r["env_steps"]),
                  num(r["wall_s"]), num(r["best_eval_return"]),
                  f"{num(r['return'])} ± {num(r['return_std'])}", num(r["file_bytes"] / 1024)])
-  return ("Pretrained policies", "One policy per robot, shipped in `mjx_hopper/pretrained/`: the "
-          "robot's gpu preset trained until an evaluation (20 episodes) reached its score plus a "
-          "margin (`benchmarks/pretrain.py`); the best evaluation's policy exported, then the "
-          "file evaluated again on episodes of its own.",
+  return ("Pretrained policies", "One policy per robot in `mjx_hopper/pretrained/`: its gpu "
+          "preset trained until an evaluation reached its score plus a margin, the best policy "
+          "exported, and the file evaluated again (`benchmarks/pretrain.py`).",
           table(["robot", "score", "seed", "env steps", "training (s)", "best evaluation",
                  "the file's return", "file (KiB)"], rows), names)
 
