@@ -60,8 +60,6 @@ def test_a_shipped_policy_loads_with_numpy_alone(tmp_path):
 @pytest.mark.slow
 @pytest.mark.parametrize("robot", ROBOTS)
 def test_a_shipped_policy_fits_its_robot_and_scores(robot, tmp_path):
-  if robot not in shipped():
-    pytest.skip(f"no {robot}.npz (test_every_robot_ships_one_recorded_policy fails for it)")
   path = export.pretrained_path(robot)
   recorded = export.pretrained(robot).meta.get("fingerprint")
   now = export.fingerprint(envs.make(robot))
