@@ -205,8 +205,8 @@ def _check_space(mngr: ocp.CheckpointManager, step: int, tree) -> None:
   except OSError:
     return  # the save itself finds out
   if free < needed:
-    raise SaveFailed(mngr.directory, step, f"a step takes about {_mb(needed)} and its disk has "
-                     f"{_mb(free)} free (nothing was written)", newest)
+    raise SaveFailed(mngr.directory, step, f"a step takes about {_size(needed)} and its disk "
+                     f"has {_size(free)} free (nothing was written)", newest)
 
 
 def _disk_bytes(folder: str) -> int:
@@ -214,8 +214,11 @@ def _disk_bytes(folder: str) -> int:
              for root, _, names in os.walk(folder) for name in names)
 
 
-def _mb(n: int) -> str:
-  return f"{n / 1e6:,.1f} MB"
+def _size(n: int) -> str:
+  for unit, scale in (("GB", 1e9), ("MB", 1e6)):
+    if n >= scale:
+      return f"{n / scale:,.1f} {unit}"
+  return f"{n / 1e3:,.0f} kB"
 
 
 PARTIAL = ".orbax-checkpoint-tmp"  # in the names of orbax's folders of unfinished steps

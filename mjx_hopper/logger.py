@@ -10,7 +10,9 @@ not known yet (no evaluation so far, no episode ended so far).
 
 from __future__ import annotations
 
+import contextlib
 import csv
+import io
 import logging
 import math
 import os
@@ -160,6 +162,49 @@ class Logger:
       self.wandb.log({"env_steps": step, **scalars})
 
 
+def check_services(wandb_project: str | None, tensorboard_dir: str | None) -> None:
+  """Raises Unavailable where a service a run would log to cannot start: tensorboardX or wandb
+  missing, or W&B online without a login (checked without the network). Quiet and quick: a run
+  calls it before it starts anything."""
+  if tensorboard_dir is not None:
+    _summary_writer_class()
+  if wandb_project is None:
+    return
+  wandb = _wandb_module()
+  if os.environ.get("WANDB_MODE") in ("offline", "dryrun", "disabled"):
+    return
+  try:
+    with contextlib.redirect_stderr(io.StringIO()):  # its notes on where it found a key
+      wandb.login(verify=False)
+  except wandb.errors.Error as error:
+    raise _no_wandb_run(wandb_project, error) from None
+
+
+def _summary_writer_class():
+  try:
+    from tensorboardX import SummaryWriter
+  except ImportError:
+    raise Unavailable("logging to TensorBoard needs tensorboardX: pip install tensorboardX, or "
+                      "leave out --tensorboard") from None
+  return SummaryWriter
+
+
+def _wandb_module():
+  try:
+    import wandb
+  except ImportError:
+    raise Unavailable("logging to Weights & Biases needs wandb: in the mjx_hopper checkout, "
+                      "pip install -e '.[wandb]'") from None
+  return wandb
+
+
+def _no_wandb_run(project: str, error: Exception) -> Unavailable:
+  first = (str(error).strip().splitlines() or [type(error).__name__])[0]
+  return Unavailable(f"Weights & Biases cannot start a run of project {project!r} ({first}): "
+                     "log in with `wandb login` (or set WANDB_API_KEY), or log offline with "
+                     "WANDB_MODE=offline and upload later with `wandb sync`")
+
+
 def _tensorboard_writer(directory: str | None, start_step: int):
   """A tensorboardX SummaryWriter on `directory` (None without one), writing to disk every
   10 s. Its event file is new (named by the time in ns, so that two runs started in the same
@@ -167,14 +212,10 @@ def _tensorboard_writer(directory: str | None, start_step: int):
   checkpoint never saw."""
   if directory is None:
     return None
-  try:
-    from tensorboardX import SummaryWriter
-  except ImportError:
-    raise Unavailable("logging to TensorBoard needs tensorboardX: pip install tensorboardX, or "
-                      "leave out --tensorboard") from None
+  summary_writer = _summary_writer_class()
   logging.getLogger("tensorboardX.x2num").addFilter(_not_a_nan_notice)
-  return SummaryWriter(directory, purge_step=start_step + 1 if start_step else None,
-                       flush_secs=10, filename_suffix=f".{time.time_ns()}")
+  return summary_writer(directory, purge_step=start_step + 1 if start_step else None,
+                        flush_secs=10, filename_suffix=f".{time.time_ns()}")
 
 
 def _wandb_run(project: str | None, config: dict | None, csv_path: str | None, print_fn):
@@ -183,21 +224,14 @@ def _wandb_run(project: str | None, config: dict | None, csv_path: str | None, p
   run is in one line. Without the package or a login, an Unavailable error says what to do."""
   if project is None:
     return None
-  try:
-    import wandb
-  except ImportError:
-    raise Unavailable("logging to Weights & Biases needs wandb: in the mjx_hopper checkout, "
-                      "pip install -e '.[wandb]'") from None
+  wandb = _wandb_module()
   folder = os.environ.get("WANDB_DIR") or (os.path.dirname(os.path.abspath(csv_path))
                                             if csv_path else None)
   try:
     run = wandb.init(project=project, config=config, dir=folder,
                      settings=wandb.Settings(console="off", silent=True))
   except wandb.errors.Error as error:  # no API key, a refused one, no connection
-    first = (str(error).strip().splitlines() or [type(error).__name__])[0]
-    raise Unavailable(f"Weights & Biases cannot start a run of project {project!r} ({first}): "
-                      "log in with `wandb login` (or set WANDB_API_KEY), or log offline with "
-                      "WANDB_MODE=offline and upload later with `wandb sync`") from None
+    raise _no_wandb_run(project, error) from None
   run.define_metric("env_steps")
   run.define_metric("*", step_metric="env_steps")
   folder = os.path.dirname(run.dir)

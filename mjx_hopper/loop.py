@@ -24,7 +24,7 @@ from mjx_hopper import (agents, checkpoint, compat, parallel, pbt, runlock, runs
                         train)
 from mjx_hopper.config import RunConfig
 from mjx_hopper.evaluator import Evaluator
-from mjx_hopper.logger import Logger
+from mjx_hopper.logger import Logger, check_services
 from mjx_hopper.members import Members
 
 ProgressFn = Callable[[int, dict], Any]
@@ -63,6 +63,7 @@ def run(cfg: RunConfig, checkpoint_dir: str | None = None, progress: bool = True
   logger's sink) ends it as Ctrl-C does, then is raised. `process` = (index, count) trains this
   process's share of a sweep's members. The run holds `out_dir`'s lock (`runlock`) throughout.
   """
+  check_services(cfg.wandb, cfg.tensorboard_dir)  # before a compile, which exit waits for
   say = _above_progress_bars(print_fn)
   with runlock.hold(_out_dir(cfg, process), say):
     parts, state = _open(cfg, checkpoint_dir, say, process, progress_fn)

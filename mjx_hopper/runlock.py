@@ -48,15 +48,11 @@ def hold(folder: str, say=print):
     yield path
   finally:
     stop.set()
-    beat.join()
+    beat.join(timeout=10)  # (a daemon: a write stuck on a lost mount does not hold the exit)
     _held.discard(path)
     if _read(path).get("token") == mine["token"]:
-      os.remove(path)
-
-
-def holder(folder: str) -> dict:
-  """What `folder`'s lock says of its holder ({} where there is none, or it is unreadable)."""
-  return _read(os.path.join(folder, LOCK))
+      with contextlib.suppress(OSError):  # an error here would hide the run's own
+        os.remove(path)
 
 
 def _take(path: str, say) -> dict:
@@ -108,7 +104,7 @@ def _stale(path: str, found: dict) -> str | None:
     return f"has not refreshed its heartbeat for {age / 60:.0f} min"
   if found.get("host") == socket.gethostname() and isinstance(found.get("pid"), int):
     if found["pid"] == os.getpid():
-      return None if path in _held else "is this process, before a restart"
+      return None if path in _held else "is this process, which no longer holds it"
     if not _alive(found["pid"]):
       return "has ended"
   return None

@@ -141,7 +141,7 @@ def test_a_save_that_cannot_fit_is_refused_without_touching_the_folder(tmp_path,
   monkeypatch.setattr(shutil, "disk_usage", lambda path: usage._replace(free=size - 1))
   with pytest.raises(checkpoint.SaveFailed, match=(
       rf"^checkpoint step 2 was not saved in {directory}: a step takes about "
-      rf"{size / 1e6:.1f} MB and its disk has {(size - 1) / 1e6:.1f} MB free \(nothing was "
+      rf"{size / 1e3:.0f} kB and its disk has {(size - 1) / 1e3:.0f} kB free \(nothing was "
       r"written\); step 1, saved before it, is intact$")):
     checkpoint.save(mngr, state(2), CONFIG)
   assert sorted(os.walk(directory)) == before

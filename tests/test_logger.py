@@ -17,7 +17,8 @@ from tensorboardX.record_writer import masked_crc32c
 from tqdm import tqdm
 
 from mjx_hopper import agents, loop
-from mjx_hopper.logger import LEARNER_FIELDS, Logger, Unavailable
+from mjx_hopper.logger import LEARNER_FIELDS, Logger, Unavailable, check_services
+from test_train import TINY
 
 NAN = float("nan")
 
@@ -274,24 +275,40 @@ def test_weights_and_biases_without_wandb_names_the_extra(tmp_path, monkeypatch)
   assert os.listdir(tmp_path) == []  # not even the log's folder
 
 
-def test_weights_and_biases_without_a_login_says_how_in_one_line(tmp_path, monkeypatch):
-  """No API key anywhere (W&B would ask its server only with one): one line naming both ways
-  on, `wandb login` and WANDB_MODE=offline."""
+@pytest.fixture
+def no_wandb_login(tmp_path, monkeypatch):
+  """No W&B API key anywhere: no environment variable, no ~/.netrc, no saved settings."""
   wandb = pytest.importorskip("wandb")
   for name in ("WANDB_API_KEY", "WANDB_MODE", "WANDB_DISABLED", "WANDB_DIR", "WANDB_SILENT"):
     monkeypatch.delenv(name, raising=False)
   for name in ("HOME", "WANDB_CONFIG_DIR", "WANDB_CACHE_DIR", "WANDB_DATA_DIR"):
-    monkeypatch.setenv(name, str(tmp_path / "home"))  # no ~/.netrc, no saved settings
+    monkeypatch.setenv(name, str(tmp_path / "home"))
   monkeypatch.setenv("NETRC", str(tmp_path / "home" / ".netrc"))
-  try:
-    with pytest.raises(Unavailable) as error:
-      Logger(str(tmp_path / "run" / "log.csv"), wandb_project="mjx_hopper_test")
-  finally:
-    wandb.teardown()
-  assert str(error.value) == (
-      "Weights & Biases cannot start a run of project 'mjx_hopper_test' (No API key configured. "
-      "Use `wandb login` to log in.): log in with `wandb login` (or set WANDB_API_KEY), or log "
-      "offline with WANDB_MODE=offline and upload later with `wandb sync`")
+  yield
+  wandb.teardown()
+
+
+NO_LOGIN = ("Weights & Biases cannot start a run of project 'mjx_hopper_test' (No API key "
+            "configured. Use `wandb login` to log in.): log in with `wandb login` (or set "
+            "WANDB_API_KEY), or log offline with WANDB_MODE=offline and upload later with "
+            "`wandb sync`")
+
+
+def test_weights_and_biases_without_a_login_says_how_in_one_line(tmp_path, no_wandb_login):
+  with pytest.raises(Unavailable) as error:
+    Logger(str(tmp_path / "run" / "log.csv"), wandb_project="mjx_hopper_test")
+  assert str(error.value) == NO_LOGIN
+
+
+def test_a_run_finds_no_login_before_it_starts_anything(tmp_path, no_wandb_login, monkeypatch):
+  """Checked first (W&B asks no server for it): a compile under way would hold the process."""
+  cfg = dataclasses.replace(TINY, out_dir=str(tmp_path / "run"), wandb="mjx_hopper_test")
+  with pytest.raises(Unavailable) as error:
+    loop.run(cfg, progress=False)
+  assert str(error.value) == NO_LOGIN
+  assert not os.path.exists(tmp_path / "run")
+  monkeypatch.setenv("WANDB_MODE", "offline")  # offline needs no login
+  check_services("mjx_hopper_test", None)
 
 
 def test_tensorboard_without_its_writer_says_so_in_one_line(tmp_path, monkeypatch):
