@@ -292,9 +292,10 @@ def make_env(policy: Policy, env: Any = None):
 
 
 def evaluate_file(path: str, episodes: int = 16, seed: int = 0, video_path: str | None = None,
-                  env: Any = None, print_fn=print) -> dict[str, np.ndarray]:
+                  env: Any = None, print_fn=print, frame_every: int = 1) -> dict[str, np.ndarray]:
   """Evaluates the exported policy in `path` on its task (see `make_env`) over `episodes`
-  episodes, compiled, and with `video_path`, films episode 0 as an mp4. Returns the
+  episodes, compiled, and with `video_path`, films episode 0 as an mp4 of every `frame_every`th
+  step, in real time (rendering on a CPU takes longer than the episode). Returns the
   per-episode "return" and "length" (and the reward terms' means)."""
   import jax
   import jax.numpy as jnp
@@ -302,6 +303,8 @@ def evaluate_file(path: str, episodes: int = 16, seed: int = 0, video_path: str 
   from mjx_hopper import rollout
   from mjx_hopper.envs import render
 
+  if frame_every < 1:
+    raise ValueError(f"frame_every must be >= 1, got {frame_every}")
   policy = load(path)
   task = make_env(policy, env)
   arrays = {k: jnp.asarray(v) for k, v in policy.arrays.items()}
@@ -319,8 +322,9 @@ def evaluate_file(path: str, episodes: int = 16, seed: int = 0, video_path: str 
            f"{np.mean(result['length']):.0f} over {episodes} episodes")
   if video_path is not None:
     length = int(result["length"][0])
-    frames = render.render_frames(task.mj_model, np.asarray(result.pop("qpos")[:length + 1]))
-    render.write_mp4(video_path, frames, fps=1 / task.dt)
+    qpos = np.asarray(result.pop("qpos")[:length + 1:frame_every])
+    render.write_mp4(video_path, render.render_frames(task.mj_model, qpos),
+                     fps=1 / (task.dt * frame_every))
     print_fn(f"video of episode 0 ({length} steps, return {returns[0]:.1f}): {video_path}")
   return result
 

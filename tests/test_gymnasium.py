@@ -147,5 +147,6 @@ def test_importing_the_package_imports_no_gymnasium():
 def test_without_gymnasium_the_error_names_the_extra(monkeypatch):
   monkeypatch.setitem(sys.modules, "gymnasium", None)  # import gymnasium raises ImportError
   monkeypatch.delitem(sys.modules, "mjx_hopper.envs.gymnasium")
-  with pytest.raises(ImportError, match=r"in the mjx_hopper checkout, pip install -e '\.\[gymnasium\]'$"):
+  with pytest.raises(ImportError,
+                     match=r"in the mjx_hopper checkout, pip install -e '\.\[gymnasium\]'$"):
     importlib.import_module("mjx_hopper.envs.gymnasium")
