@@ -155,9 +155,8 @@ def summary() -> str:
                  num(zoo.get(robot, {}).get("tqc"))])
   return "\n\n".join([
       "Each robot's median time to its score over its seeds, compile included, from process "
-      "start: on one GPU with its gpu preset, and on 2 CPU cores with its cpu preset (a preset "
-      "is a robot's measured settings: agent, networks and trainer layout; "
-      "`mjx_hopper/presets.py`). Seeds: those that reached the score, of those run. Env steps/s "
+      "start: on one GPU with its gpu preset, and on 2 CPU cores with its cpu preset "
+      "(`mjx_hopper/presets.py`). Seeds: those that reached the score, of those run. Env steps/s "
       "× PyBullet: MJX against PyBullet on the same 2 cores. rl-baselines3-zoo's SAC and TQC "
       "scores are PyBullet's robots after 1M env steps (published, other physics: "
       f"`benchmarks/results/{RL_ZOO}`).",
@@ -240,9 +239,8 @@ def sections() -> list[tuple[str, str, str, list[str]]]:
   nb = load(NOTEBOOK)["figures"]
   first = sorted(p.name for p in RESULTS.glob("notebook_first_video_*.json"))
   out.append(("The notebook on 2 CPU cores", "`notebooks/robolympics.ipynb` in its full mode, "
-              "top to bottom, from an empty compile cache; sections under half a minute left out. "
-              "Its first video (a pretrained Humanoid, before any training), from the kernel's "
-              "start with the project installed: `notebook_time.py --first-video`.",
+              "top to bottom, from an empty compile cache (sections under half a minute left "
+              "out), and its first video (the pretrained Humanoid) from the kernel's start.",
               table(["section", "minutes"], [[t, num(s / 60, 1)] for t, s in
                                              nb["sections_s"].items() if s >= 30]
                     + [["all", num(nb["total_s"] / 60, 1)]]
