@@ -275,9 +275,9 @@ def start_section() -> tuple[str, str, str, list[str]]:
       rows = [[label, *(num(c.get(key), digits) if c.get(key) is not None else "–"
                         for c in columns.values())] for label, key, digits in START_ROWS]
       tables.append(f"On {where}:\n\n" + table(["phase (s)", *columns], rows))
-  return ("The start, phase by phase", "The main job's command (Hopper; gpu preset on the GPU, "
-          "cpu on 2 cores), seconds from process start, from an empty compile cache (cold) and "
-          "from the one it left (warm), in turns with 416e724; programs compile side by side.",
+  return ("The start, phase by phase", "The main job's command (Hopper: gpu preset on the GPU, "
+          "cpu on 2 cores), seconds from process start, cold (an empty compile cache) and warm "
+          "(the one it left), in turns with 416e724; compiles overlap.",
           "\n\n".join(tables),
           [n for names in START.values() for n in names if (RESULTS / n).exists()])
 
