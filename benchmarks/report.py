@@ -277,7 +277,7 @@ def start_section() -> tuple[str, str, str, list[str]]:
       tables.append(f"On {where}:\n\n" + table(["phase (s)", *columns], rows))
   return ("The start, phase by phase", "The main job's command (Hopper: gpu preset on the GPU, "
           "cpu on 2 cores), seconds from process start, cold (an empty compile cache) and warm "
-          "(the one it left), in turns with 416e724; compiles overlap.",
+          "(the one it left), beside 416e724; compiles overlap.",
           "\n\n".join(tables),
           [n for names in START.values() for n in names if (RESULTS / n).exists()])
 
