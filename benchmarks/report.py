@@ -46,18 +46,15 @@ LEARNER = ("learner_robots_h100.json", "learner_robots_bf16_h100.json")
 SWEEPS = ("sweep_throughput_h100.json", "sweep_throughput_2gpu_h200.json",
           "sweep_throughput_cpu.json")
 PBT = "pbt_quality_halfcheetah_h100x2.json"
-START = {"one H100": ("start_time_h100.json",),
-         "2 CPU cores": ("start_time_cpu.json",)}
-# A start's phases as the table shows them: (label, key in start_time.py's medians, digits).
-START_ROWS = (("imports", "imports", 1), ("build", "build", 1),
-              ("chunk: tracing", "chunk trace", 1),
-              ("chunk: compile", "chunk compile", 1),
-              ("init: compile", "init_member compile", 1),
-              ("evaluation: compile", "one compile", 1),
-              ("first training row", "first_train", 1), ("first evaluation", "first_eval", 1),
-              ("env steps/s", "steps_per_s", 0))
+START = {"one H100": "start_time_h100.json", "2 CPU cores": "start_time_cpu.json"}
+# A start's phases as the table shows them: label, and its key in start_time.py's medians.
+START_ROWS = {"imports": "imports", "build": "build", "chunk: tracing": "chunk trace",
+              "chunk: compile": "chunk compile", "init: compile": "init_member compile",
+              "evaluation: compile": "one compile", "first training row": "first_train",
+              "first evaluation": "first_eval", "env steps/s": "steps_per_s"}
 GYMNASIUM = "gymnasium_throughput_cpu.json"
 NOTEBOOK = "notebook_time_cpu_2026-11-26.json"
+FIRST_VIDEO = "notebook_first_video_cpu.json"
 SUITE = "suite_time_cpu.json"
 TRAINERS = {"ours": "our D4PG", "sac": "Brax SAC", "ppo": "Brax PPO", "sb3": "SB3 SAC on PyBullet"}
 MARK = "<!-- report.py: {} -->"
@@ -95,14 +92,11 @@ def time_to_score(names: list[str], scale: float = 1.0) -> dict:
           "env_steps": statistics.median(steps) if steps else None}
 
 
-def time_rows(runs: dict, scale: float, digits: int) -> list[list]:
-  rows = []
-  for label, names in runs.items():
-    t = time_to_score(names, scale)
-    rows.append([label, num(t["target"]), t["agent"], t["seeds"], t["reached"],
-                 num(t["median"], digits), num(t["fastest"], digits), num(t["slowest"], digits),
-                 num(t["env_steps"], 2)])
-  return rows
+def score_cells(robot: str) -> list[str]:
+  """A robot's score, median time and seeds reaching it: on one GPU (s), then on 2 cores (min)."""
+  g, c = time_to_score(GPU[robot]), time_to_score(CPU[robot], 60)
+  return [num(g["target"]), num(g["median"]), f"{g['reached']}/{g['seeds']}",
+          num(c["target"]), num(c["median"], 1), f"{c['reached']}/{c['seeds']}"]
 
 
 def env_rates(robot: str) -> dict:
@@ -122,11 +116,9 @@ def peer_rows(best_only: bool = False) -> list[list]:
   """A row per peers run; with `best_only`, each trainer's soonest to 2,000 (then 1,000) on each
   machine."""
   runs = [(name, run) for name in PEERS for run in load(name)["figures"]["runs"]]
-  if best_only:
+  if best_only:  # the best last, so that it stays
     rank = lambda item: (reach(item[1], 2000), reach(item[1], 1000), -item[1]["best_return"])
-    best = {}
-    for item in sorted(runs, key=rank, reverse=True):
-      best[item[0], item[1]["trainer"]] = item
+    best = {(n, r["trainer"]): (n, r) for n, r in sorted(runs, key=rank, reverse=True)}
     runs = sorted(best.values(), key=runs.index)
   rows = []
   for name, run in runs:
@@ -148,11 +140,9 @@ def summary() -> str:
   zoo = load(RL_ZOO)["figures"]
   rows = []
   for robot in ROBOTS:
-    g, c, e = time_to_score(GPU[robot]), time_to_score(CPU[robot], 60), env_rates(robot)
-    rows.append([robot, num(g["target"]), num(g["median"]), f"{g['reached']}/{g['seeds']}",
-                 num(c["target"]), num(c["median"], 1), f"{c['reached']}/{c['seeds']}",
-                 num(e["mjx"] / e["pybullet"], 1), num(zoo.get(robot, {}).get("sac")),
-                 num(zoo.get(robot, {}).get("tqc"))])
+    e, published = env_rates(robot), zoo.get(robot, {})
+    rows.append([robot, *score_cells(robot), num(e["mjx"] / e["pybullet"], 1),
+                 num(published.get("sac")), num(published.get("tqc"))])
   return "\n\n".join([
       "Each robot's median time to its score over its seeds, compile included, from process "
       "start: on one GPU with its gpu preset, and on 2 CPU cores with its cpu preset "
@@ -169,10 +159,16 @@ def summary() -> str:
 
 def time_section(title: str, method: str, runs: dict, unit: str, scale: float, digits: int):
   """A time-to-score section: each task's seeds, in `unit` (seconds over `scale`)."""
+  rows = []
+  for label, names in runs.items():
+    t = time_to_score(names, scale)
+    rows.append([label, num(t["target"]), t["agent"], t["seeds"], t["reached"],
+                 *(num(t[k], digits) for k in ("median", "fastest", "slowest")),
+                 num(t["env_steps"], 2)])
   return (title, method, table(
       ["task", "score", "agent", "seeds", "seeds reaching it", f"median ({unit})",
-       f"fastest ({unit})", f"slowest ({unit})", "median env steps to it (M)"],
-      time_rows(runs, scale, digits)), [n for v in runs.values() for n in v])
+       f"fastest ({unit})", f"slowest ({unit})", "median env steps to it (M)"], rows),
+          [n for v in runs.values() for n in v])
 
 
 def sections() -> list[tuple[str, str, str, list[str]]]:
@@ -237,18 +233,15 @@ def sections() -> list[tuple[str, str, str, list[str]]]:
                      "env steps per member", "env steps/s"], load(PBT)["figures"]["rows"]),
               [PBT]))
   nb = load(NOTEBOOK)["figures"]
-  first = sorted(p.name for p in RESULTS.glob("notebook_first_video_*.json"))
   out.append(("The notebook on 2 CPU cores", "`notebooks/robolympics.ipynb` in its full mode, "
               "top to bottom, from an empty compile cache (sections under half a minute left "
               "out), and its first video (the pretrained Humanoid) from the kernel's start.",
               table(["section", "minutes"], [[t, num(s / 60, 1)] for t, s in
                                              nb["sections_s"].items() if s >= 30]
-                    + [["all", num(nb["total_s"] / 60, 1)]]
-                    + [["first video", num(load(n)["figures"]["first_video_s"] / 60, 1)]
-                       for n in first]), [NOTEBOOK, *first]))
-  pretrained = sorted(p.name for p in RESULTS.glob("pretrained_*.json"))
-  if pretrained:
-    out.append(pretrained_section(pretrained))
+                    + [["all", num(nb["total_s"] / 60, 1)], ["first video", num(
+                        load(FIRST_VIDEO)["figures"]["first_video_s"] / 60, 1)]]),
+              [NOTEBOOK, FIRST_VIDEO]))
+  out.append(pretrained_section(sorted(p.name for p in RESULTS.glob("pretrained_*.json"))))
   suite = load(SUITE)["figures"]
   out.append(("Test suite", "`bash scripts/test.sh` on a fresh clone, as CI runs it, on 2 CPU "
               "cores from an empty compile cache.",
@@ -261,25 +254,20 @@ def sections() -> list[tuple[str, str, str, list[str]]]:
 def start_section() -> tuple[str, str, str, list[str]]:
   """A run's start, phase by phase (s from process start), before and after, cold and warm."""
   tables = []
-  for where, names in START.items():
-    columns = {}
-    for name in names:
-      if (RESULTS / name).exists():
-        data = load(name)
-        for label, figures in data["figures"]["medians"].items():
-          code, cache = label.split(", ")
-          code = data["commit"] if code == "this checkout" else code
-          flags = data["figures"].get("xla_flags")
-          columns[f"{code}{' with ' + flags if flags else ''}, {cache}"] = figures
-    if columns:
-      rows = [[label, *(num(c.get(key), digits) if c.get(key) is not None else "–"
-                        for c in columns.values())] for label, key, digits in START_ROWS]
-      tables.append(f"On {where}:\n\n" + table(["phase (s)", *columns], rows))
+  for where, name in START.items():
+    data, columns = load(name), {}
+    for label, figures in data["figures"]["medians"].items():
+      code, cache = label.split(", ")
+      code = data["commit"] if code == "this checkout" else code
+      flags = data["figures"].get("xla_flags")
+      columns[f"{code}{' with ' + flags if flags else ''}, {cache}"] = figures
+    rows = [[label, *("–" if c.get(key) is None else num(c[key], 0 if key == "steps_per_s" else 1)
+                      for c in columns.values())] for label, key in START_ROWS.items()]
+    tables.append(f"On {where}:\n\n" + table(["phase (s)", *columns], rows))
   return ("The start, phase by phase", "The main job's command (Hopper: gpu preset on the GPU, "
           "cpu on 2 cores), seconds from process start, cold (an empty compile cache) and warm "
           "(the one it left), beside 416e724; compiles overlap.",
-          "\n\n".join(tables),
-          [n for names in START.values() for n in names if (RESULTS / n).exists()])
+          "\n\n".join(tables), list(START.values()))
 
 
 def pretrained_section(names: list[str]) -> tuple[str, str, str, list[str]]:
@@ -323,12 +311,8 @@ def benchmarks_page() -> str:
 
 
 def readme_table() -> str:
-  rows = []
-  for robot in ROBOTS:
-    g, c = time_to_score(GPU[robot]), time_to_score(CPU[robot], 60)
-    rows.append([f'<img src="{media()}/{robot}.gif" width="160">', robot, num(g["target"]),
-                 num(g["median"]), f"{g['reached']}/{g['seeds']}", num(c["target"]),
-                 num(c["median"], 1), f"{c['reached']}/{c['seeds']}"])
+  rows = [[f'<img src="{media()}/{robot}.gif" width="160">', robot, *score_cells(robot)]
+          for robot in ROBOTS]
   return table(["", "robot", "score (GPU)", f"median on {machine(GPU['Hopper'][0])} (s)",
                 "seeds reaching it", "score (2 cores)", "median on 2 CPU cores (min)",
                 "seeds reaching it"], rows)
@@ -386,13 +370,13 @@ def main() -> None:
   p.add_argument("--check", action="store_true",
                  help="write nothing; exit 1 if a page differs from what the results make")
   args = p.parse_args()
-  stale = [path for path, text in pages().items() if path.read_text() != text]
+  made = pages()
+  stale = [path for path, text in made.items() if path.read_text() != text]
   if args.check and stale:
     sys.exit(f"report.py --check: {', '.join(str(p.relative_to(ROOT)) for p in stale)} differ "
              "from what benchmarks/results/ makes; run python benchmarks/report.py")
-  for path, text in pages().items():
-    if path in stale:
-      path.write_text(text)
+  for path in stale:
+    path.write_text(made[path])
   print(f"wrote {len(stale)} page(s)" if stale and not args.check else "up to date")
 
 
