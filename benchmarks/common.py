@@ -1,8 +1,10 @@
-"""What several benchmarks share: a compiled call timed again and again, a worker process with
-its own device count, the evaluations of a run's log.csv, and markdown tables."""
+"""What several benchmarks share: the command line, a compiled call timed again and again, a
+worker process with its own device count, the evaluations of a run's log.csv, the results file
+and markdown tables."""
 
 from __future__ import annotations
 
+import argparse
 import csv
 import json
 import os
@@ -12,6 +14,24 @@ import sys
 import time
 
 EVAL_FIELDS = ("wall_s", "env_steps", "eval_return", "eval_return_std", "eval_length")
+
+
+def parser(doc: str) -> argparse.ArgumentParser:
+  """An argument parser whose help is the script's docstring `doc`, as written."""
+  return argparse.ArgumentParser(description=doc,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+
+
+def parse(p: argparse.ArgumentParser, work=None) -> argparse.Namespace:
+  """`p`'s arguments. With `work`, a hidden `--worker ARGS` (the arguments as JSON, as `worker`
+  passes them) prints `work(ARGS)` as JSON and exits instead."""
+  if work:
+    p.add_argument("--worker", help=argparse.SUPPRESS)
+  args = p.parse_args()
+  if not getattr(args, "worker", None):
+    return args
+  print(json.dumps(work(argparse.Namespace(**json.loads(args.worker)))))
+  sys.exit()
 
 
 class Timed:

@@ -7,8 +7,6 @@ MuJoCo C (`mujoco.rollout`, same MJCF, physics only) and PyBullet's own env, in 
 
 from __future__ import annotations
 
-import argparse
-import json
 import os
 import statistics
 import sys
@@ -17,26 +15,28 @@ import time
 import common
 
 
-def mjx_rows(env_id: str, batches: list[int], steps_total: int) -> list[dict]:
-  """N auto-resetting envs, random actions, T steps a call: the median of 3 after a warm-up."""
+def mjx_rows(args) -> list[dict]:
+  """Each of args.envs as N auto-resetting envs for each N of args.batches, random actions, T
+  steps a call: the median of 3 after a warm-up, on this process's devices."""
   import jax
 
   from mjx_hopper import envs, rollout
 
-  env = envs.make(env_id)
   devices = jax.devices()
   rows = []
-  for n in batches:
-    steps = max(20, min(1000, steps_total // n))
-    init, run = rollout.make_stepper(env, n, steps)
-    key = jax.random.PRNGKey(0)
-    timed = common.Timed(run, init(key), key)
-    rate = n * steps / statistics.median(timed() for _ in range(3))
-    compile_s = timed.trace_s + timed.compile_s
-    rows.append({"engine": "MJX", "platform": devices[0].platform, "devices": len(devices),
-                 "batch": n, "compile_s": compile_s, "env_steps_per_s": rate})
-    print(f"  MJX {devices[0].platform} x{len(devices)} batch {n:>6}: {rate:>12,.0f} env "
-          f"steps/s, compile {compile_s:.1f} s", file=sys.stderr, flush=True)
+  for env_id in args.envs.split(","):
+    env = envs.make(env_id)
+    for n in map(int, args.batches.split(",")):
+      steps = max(20, min(1000, args.steps_total // n))
+      init, run = rollout.make_stepper(env, n, steps)
+      key = jax.random.PRNGKey(0)
+      timed = common.Timed(run, init(key), key)
+      rate = n * steps / statistics.median(timed() for _ in range(3))
+      compile_s = timed.trace_s + timed.compile_s
+      rows.append({"engine": "MJX", "platform": devices[0].platform, "devices": len(devices),
+                   "batch": n, "compile_s": compile_s, "env_steps_per_s": rate, "env": env_id})
+      print(f"  MJX {devices[0].platform} x{len(devices)} batch {n:>6}: {rate:>12,.0f} env "
+            f"steps/s, compile {compile_s:.1f} s", file=sys.stderr, flush=True)
   return rows
 
 
@@ -94,27 +94,18 @@ def pybullet_row(env_id: str, seconds: float = 5.0) -> dict | None:
 
 
 def main() -> None:
-  parser = argparse.ArgumentParser(description=__doc__,
-                                   formatter_class=argparse.RawDescriptionHelpFormatter)
-  parser.add_argument("--envs", default="Hopper")
-  parser.add_argument("--batches", default="1,64,256,1024,4096")
-  parser.add_argument("--devices", default="1,2",
-                      help="XLA CPU device counts to run MJX on (on a GPU: GPUs used)")
-  parser.add_argument("--steps-total", type=int, default=200_000,
-                      help="env steps per timed call, roughly (T = this / batch)")
-  parser.add_argument("--label", default="cpu",
-                      help="results: benchmarks/results/env_throughput_LABEL.json")
-  parser.add_argument("--worker", help=argparse.SUPPRESS)  # the arguments, as JSON
-  args = parser.parse_args()
-  if args.worker:  # one device count, in its own process: XLA reads the flag at start-up
-    args = argparse.Namespace(**json.loads(args.worker))
-    batches = [int(b) for b in args.batches.split(",")]
-    print(json.dumps([dict(r, env=e) for e in args.envs.split(",")
-                      for r in mjx_rows(e, batches, args.steps_total)]))
-    return
-
+  p = common.parser(__doc__)
+  p.add_argument("--envs", default="Hopper")
+  p.add_argument("--batches", default="1,64,256,1024,4096")
+  p.add_argument("--devices", default="1,2",
+                 help="XLA CPU device counts to run MJX on (on a GPU: GPUs used)")
+  p.add_argument("--steps-total", type=int, default=200_000,
+                 help="env steps per timed call, roughly (T = this / batch)")
+  p.add_argument("--label", default="cpu",
+                 help="results: benchmarks/results/env_throughput_LABEL.json")
+  args = common.parse(p, mjx_rows)  # a worker: one device count, as XLA reads it at start-up
   rows = []
-  for d in [int(x) for x in args.devices.split(",")]:
+  for d in map(int, args.devices.split(",")):
     result = common.worker(__file__, vars(args), d)
     if result is None:
       raise SystemExit(1)

@@ -5,18 +5,17 @@
 Prints, per statistic, PyBullet's mean ± std and ours, the table recorded in docs/fidelity.md.
 """
 
-import argparse
 import time
 
 import jax
 
+import common
 from mjx_hopper import envs, rollout
 from mjx_hopper.envs import pybullet_oracle
 
 
 def main() -> None:
-  parser = argparse.ArgumentParser(description=__doc__,
-                                   formatter_class=argparse.RawDescriptionHelpFormatter)
+  parser = common.parser(__doc__)
   parser.add_argument("--envs", default="Hopper")
   parser.add_argument("--episodes", type=int, default=256, help="episodes per policy and engine")
   args = parser.parse_args()

@@ -8,7 +8,6 @@ same devices. The single Gymnasium env is timed too.
 
 from __future__ import annotations
 
-import argparse
 import os
 import statistics
 import sys
@@ -16,17 +15,20 @@ import time
 
 import common
 
+ENGINES = {"jax": "JAX env, compiled scan (rollout.make_stepper)",
+           "vector": "Gymnasium VectorEnv (envs.to_gymnasium)",
+           "single": "Gymnasium Env (envs.to_gymnasium)"}
+
 
 def main() -> None:
-  parser = argparse.ArgumentParser(description=__doc__,
-                                   formatter_class=argparse.RawDescriptionHelpFormatter)
-  parser.add_argument("--env", default="Hopper")
-  parser.add_argument("--num-envs", type=int, default=256)
-  parser.add_argument("--steps", type=int, default=200, help="steps of every env per timing")
-  parser.add_argument("--repeats", type=int, default=5, help="timings; the median is reported")
-  parser.add_argument("--cpu-devices", type=int, default=os.cpu_count() or 1)
-  parser.add_argument("--name", default="gymnasium_throughput_cpu")
-  args = parser.parse_args()
+  p = common.parser(__doc__)
+  p.add_argument("--env", default="Hopper")
+  p.add_argument("--num-envs", type=int, default=256)
+  p.add_argument("--steps", type=int, default=200, help="steps of every env per timing")
+  p.add_argument("--repeats", type=int, default=5, help="timings; the median is reported")
+  p.add_argument("--cpu-devices", type=int, default=os.cpu_count() or 1)
+  p.add_argument("--name", default="gymnasium_throughput_cpu")
+  args = p.parse_args()
 
   import mjx_hopper
   os.environ["XLA_FLAGS"] = mjx_hopper.xla_flags_with_cpu_devices(args.cpu_devices)
@@ -42,10 +44,10 @@ def main() -> None:
   init, run = rollout.make_stepper(env, n, steps)
   key = jax.random.PRNGKey(0)
   timed = common.Timed(run, init(key), key)
-  vec = envs.to_gymnasium(env, num_envs=n)
-  single = envs.to_gymnasium(env)
+  gyms = {"vector": (envs.to_gymnasium(env, num_envs=n), (n, env.action_size)),
+          "single": (envs.to_gymnasium(env), (env.action_size,))}
   rng = np.random.default_rng(0)
-  for gym_env, shape in ((vec, (n, env.action_size)), (single, (env.action_size,))):
+  for gym_env, shape in gyms.values():
     gym_env.reset(seed=0)
     gym_env.step(rng.uniform(-1, 1, shape).astype(np.float32))  # compiles
 
@@ -59,25 +61,20 @@ def main() -> None:
     return time.perf_counter() - start
 
   # Taken in turns, so that a change in the machine's load falls on each.
-  seconds = {"jax": [], "vector": [], "single": []}
+  seconds = {name: [] for name in ENGINES}
   for _ in range(args.repeats):
     seconds["jax"].append(timed())
-    seconds["vector"].append(gym_seconds(vec, (n, env.action_size)))
-    seconds["single"].append(gym_seconds(single, (env.action_size,)))
-  jax_rate, vec_rate, single_rate = (
-      k * steps / statistics.median(seconds[name])
-      for name, k in (("jax", n), ("vector", n), ("single", 1)))
-
-  devices = jax.local_devices()
-  rows = [{"engine": "JAX env, compiled scan (rollout.make_stepper)", "num_envs": n,
-           "env_steps_per_s": jax_rate},
-          {"engine": "Gymnasium VectorEnv (envs.to_gymnasium)", "num_envs": n,
-           "env_steps_per_s": vec_rate},
-          {"engine": "Gymnasium Env (envs.to_gymnasium)", "num_envs": 1,
-           "env_steps_per_s": single_rate}]
+    for name, (gym_env, shape) in gyms.items():
+      seconds[name].append(gym_seconds(gym_env, shape))
+  sizes = {"jax": n, "vector": n, "single": 1}
+  rows = [{"engine": engine, "num_envs": sizes[name],
+           "env_steps_per_s": sizes[name] * steps / statistics.median(seconds[name])}
+          for name, engine in ENGINES.items()]
+  jax_rate, vec_rate = rows[0]["env_steps_per_s"], rows[1]["env_steps_per_s"]
   print(common.table(["engine", "envs", "env steps/s"],
                      [[r["engine"], r["num_envs"], f"{r['env_steps_per_s']:,.0f}"] for r in rows]))
   print(f"VectorEnv / JAX env: {vec_rate / jax_rate:.2f}")
+  devices = jax.local_devices()
   common.write_results(args.name, {
       "device": f"{devices[0].platform} x{len(devices)}",
       "versions": {"python": sys.version.split()[0], "jax": jax.__version__,

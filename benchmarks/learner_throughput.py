@@ -9,8 +9,6 @@ whose products stay XLA's) against the measured matmul peak in the compute dtype
 
 from __future__ import annotations
 
-import argparse
-import json
 import statistics
 import sys
 import time
@@ -118,28 +116,25 @@ def learner_row(case: dict, updates: int) -> dict:
           "gflops": rate * flops / 1e9}
 
 
+def work(args) -> dict:
+  """A worker's figures: the matmul peaks and every case's row, on this process's devices."""
+  from mjx_hopper import flags
+  rows = [learner_row(case, args.updates)
+          for case in cases(args.robots, args.presets, flags.overrides(args.set))]
+  return {"peak": matmul_peak(), "peak_bf16": matmul_peak("bfloat16"), "rows": rows}
+
+
 def main() -> None:
-  parser = argparse.ArgumentParser(description=__doc__,
-                                   formatter_class=argparse.RawDescriptionHelpFormatter)
-  parser.add_argument("--robots", default="Hopper", help="comma-separated robots")
-  parser.add_argument("--presets", default="cpu", help="the robots' presets: gpu, cpu or both")
-  parser.add_argument("--updates", type=int, default=100, help="updates per timed call")
-  parser.add_argument("--devices", default="1,2",
-                      help="XLA CPU device counts (on a GPU: GPUs used)")
-  parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
-                      help="an agent setting for every preset, e.g. compute_dtype=bfloat16")
-  parser.add_argument("--label", default="cpu",
-                      help="results: benchmarks/results/learner_throughput_LABEL.json")
-  parser.add_argument("--worker", help=argparse.SUPPRESS)  # the arguments, as JSON
-  args = parser.parse_args()
-  if args.worker:  # one device count per process: XLA reads the flag at start-up
-    args = argparse.Namespace(**json.loads(args.worker))
-    from mjx_hopper import flags
-    rows = [learner_row(case, args.updates)
-            for case in cases(args.robots, args.presets, flags.overrides(args.set))]
-    print(json.dumps({"peak": matmul_peak(), "peak_bf16": matmul_peak("bfloat16"),
-                      "rows": rows}))
-    return
+  p = common.parser(__doc__)
+  p.add_argument("--robots", default="Hopper", help="comma-separated robots")
+  p.add_argument("--presets", default="cpu", help="the robots' presets: gpu, cpu or both")
+  p.add_argument("--updates", type=int, default=100, help="updates per timed call")
+  p.add_argument("--devices", default="1,2", help="XLA CPU device counts (on a GPU: GPUs used)")
+  p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                 help="an agent setting for every preset, e.g. compute_dtype=bfloat16")
+  p.add_argument("--label", default="cpu",
+                 help="results: benchmarks/results/learner_throughput_LABEL.json")
+  args = common.parse(p, work)  # a worker: one device count, as XLA reads it at start-up
   results = {d: common.worker(__file__, vars(args), d) for d in map(int, args.devices.split(","))}
   if None in results.values():
     raise SystemExit(1)

@@ -10,7 +10,6 @@ first cell that films (a newcomer's first wait), and writes notebook_first_video
 
 from __future__ import annotations
 
-import argparse
 import datetime
 import os
 import pathlib
@@ -31,8 +30,7 @@ def seconds(cell) -> tuple[float, float] | None:
 
 
 def main() -> None:
-  p = argparse.ArgumentParser(description=__doc__,
-                              formatter_class=argparse.RawDescriptionHelpFormatter)
+  p = common.parser(__doc__)
   p.add_argument("--out", default="runs/notebook_full")
   p.add_argument("--timeout", type=int, default=3600, help="seconds a cell may take")
   p.add_argument("--label", default="cpu")
@@ -62,12 +60,12 @@ def main() -> None:
       title = cell.source.splitlines()[0][3:]
     elif cell.cell_type == "code" and seconds(cell):
       first, last = seconds(cell)
-      begun, _ = sections.get(title, (first, last))
-      sections[title] = (begun, last)
+      sections[title] = (sections.get(title, (first,))[0], last)  # the first cell's start
   seconds_ = {title: round(ended - begun, 1) for title, (begun, ended) in sections.items()}
   first_video = round(seconds(notebook.cells[films[0]])[1] - start, 1)
   print(f"the notebook in {total / 60:.1f} min; its first video after {first_video:.0f} s")
-  print(common.table(["section", "wall-clock (s)"], [[t, f"{s:,.0f}"] for t, s in seconds_.items()]))
+  print(common.table(["section", "wall-clock (s)"],
+                     [[t, f"{s:,.0f}"] for t, s in seconds_.items()]))
   name = "notebook_first_video" if args.first_video else "notebook_time"
   common.write_results(f"{name}_{args.label}", {"total_s": round(total, 1),
                                                 "first_video_s": first_video,

@@ -7,14 +7,11 @@ over --chunks chunks after a warm-up chunk (report.py sets their env steps/s aga
 the fewest devices). With --gpus 1,2 each S runs on the first GPU, then on the first two.
 Compile is the chunk's, trace excluded; memory the busiest GPU's peak in use, or the process's
 peak RSS where the devices do not report it.
-BENCHMARKS.md, "Sweeps", has the GPU's command.
 """
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
-import json
 import os
 import resource
 import sys
@@ -26,8 +23,10 @@ def measure(args) -> dict:
   """One sweep of args.members members: compile time, rates and memory."""
   import jax
 
+  import mjx_hopper
   from mjx_hopper import config, flags, runs, train
 
+  mjx_hopper.use_compile_cache()
   cfg = config.RunConfig(
       env=args.env, agent=args.agent, agent_preset=args.preset,
       agent_overrides=flags.overrides(args.set),
@@ -54,7 +53,7 @@ def measure(args) -> dict:
 
 
 def main() -> None:
-  p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+  p = common.parser(__doc__)
   p.add_argument("--members", default="1,4,16,64", help="comma-separated sweep sizes")
   p.add_argument("--env", default="Hopper")
   p.add_argument("--agent", default="d4pg")
@@ -73,13 +72,7 @@ def main() -> None:
                  "GPUs, for each N (default: on every visible GPU)")
   p.add_argument("--label", default="cpu",
                  help="results: benchmarks/results/sweep_throughput_LABEL.json")
-  p.add_argument("--worker", help=argparse.SUPPRESS)  # one sweep size's arguments, as JSON
-  args = p.parse_args()
-  if args.worker:
-    import mjx_hopper  # its own imports only: JAX starts in measure
-    mjx_hopper.use_compile_cache()
-    print(json.dumps(measure(argparse.Namespace(**json.loads(args.worker)))))
-    return
+  args = common.parse(p, measure)  # a worker: one sweep size in a process of its own
   rows = []
   gpu_counts = [int(n) for n in args.gpus.split(",")] if args.gpus else [None]
   for gpus in gpu_counts:

@@ -10,7 +10,6 @@ episode (episode.npz, rendered to frame.png and robot.gif where a renderer works
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import os
 import time
@@ -62,9 +61,8 @@ def render(out: str) -> list[str]:
   return paths
 
 
-def parse_args() -> argparse.Namespace:
-  p = argparse.ArgumentParser(description=__doc__,
-                              formatter_class=argparse.RawDescriptionHelpFormatter)
+def main() -> None:
+  p = common.parser(__doc__)
   p.add_argument("robot", help="a robot, or a task of your own as module:Class")
   p.add_argument("--kind", default="gpu", help="the robot preset: gpu or cpu")
   p.add_argument("--agent", default=None,
@@ -86,11 +84,7 @@ def parse_args() -> argparse.Namespace:
   p.add_argument("--label", default="", help="results: time_to_score_ROBOT_KIND_LABEL.json")
   p.add_argument("--render-only", metavar="OUT", default=None,
                  help="only render OUT/episode.npz to frame.png and robot.gif")
-  return p.parse_args()
-
-
-def main() -> None:
-  args = parse_args()
+  args = p.parse_args()
   if args.render_only:
     print("\n".join(render(args.render_only)))
     return
