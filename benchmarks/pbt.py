@@ -1,24 +1,19 @@
-"""Population-based training against the grid it starts from.
+"""Population-based training against the grid it starts from: per seed, the grid and PBT side
+by side on one GPU (each with half its memory), the same 16 members (QUALITY), each a
+`mjx-hopper sweep` process writing OUT/<run>/log.csv, for the same minutes.
 
-    # one GPU: per --seeds value, the grid and PBT side by side for --minutes each
     python benchmarks/pbt.py quality --minutes 4 --seeds 0 1 --label h100
     # two GPUs, a seed on each at once; then --resume for as many more --minutes (cumulative)
     python benchmarks/pbt.py quality --env HalfCheetah --target 3000 --gpus 2 --minutes 8
 
-Each run is `mjx-hopper sweep` in a process of its own, writing OUT/<run>/log.csv. quality runs
-the grid and PBT at once (each with half the GPU's memory), the same 16 members (4 learning rates
-x 4 noise scales; the robot's gpu preset in the layout where members share a GPU well: 512 envs,
-batches of 1,024, a 1M replay each; an evaluation every --eval-every env steps, PBT stepping
-every second one), for the same minutes. Its figures: when the population's best evaluation
-first reached the target (seconds from the run's start, compile included; with --resume, the
-processes' times added, each one's compile included), its best evaluation, the median over
-members of each one's best, and each run's median chunk's env steps/s (side by side, their
-ratio is PBT's overhead). Results go to benchmarks/results/pbt_quality_<label>.json.
+Figures per run (HEAD): when the population's best evaluation first reached the target (s from
+the run's start, compile included; with --resume, the processes' times added), its best
+evaluation, the median of the members' best, and the median chunk's env steps/s (side by side,
+their ratio is PBT's overhead). Results: benchmarks/results/pbt_quality_LABEL.json.
 """
 
 from __future__ import annotations
 
-import argparse
 import csv
 import os
 import shutil
@@ -28,10 +23,10 @@ import sys
 
 import common
 
+# 4 learning rates x 4 noise scales, in the gpu preset's layout where members share a GPU well.
 GRID = ["--set", "learning_rate=2.5e-4,5e-4,1e-3,2e-3", "--set", "sigma=0.2,0.4,0.6,0.8"]
 QUALITY = ["--preset", "gpu", "--num-envs", "512", "--batch-size", "1024", "--replay-size",
            "1000000", *GRID, "--total-env-steps", str(10**10)]
-PBT = ["--pbt", "--pbt-every", "1"]
 HEAD = ["seed", "run", "best to target (s)", "best return", "members' median best",
         "env steps", "env steps/s (median chunk)"]
 
@@ -95,7 +90,7 @@ def quality(args) -> list[list]:
         env["CUDA_VISIBLE_DEVICES"] = str(i % args.gpus)
       for arm in ("grid", "pbt"):
         out = os.path.join(args.out, f"{arm}_{seed}")
-        procs.append(sweep(flags + (PBT[:1] if arm == "pbt" else []), out, env, args.resume))
+        procs.append(sweep(flags + (["--pbt"] if arm == "pbt" else []), out, env, args.resume))
         runs.append((seed, arm, out))
     if any(p.wait() for p in procs):
       raise SystemExit("a run failed; see its output above")
@@ -106,8 +101,7 @@ def quality(args) -> list[list]:
 
 
 def main() -> None:
-  p = argparse.ArgumentParser(description=__doc__,
-                              formatter_class=argparse.RawDescriptionHelpFormatter)
+  p = common.parser(__doc__)
   p.add_argument("mode", choices=("quality",), help="the only mode: quality")
   p.add_argument("--minutes", type=float, default=6.0, help="each run's budget")
   p.add_argument("--seeds", type=int, nargs="+", default=[0, 1], help="its seeds")

@@ -3,11 +3,9 @@ process with its share of the GPU; or, with --cpu-baseline MINUTES, SB3's SAC wi
 rl-baselines3-zoo's HopperBulletEnv-v0 settings on PyBullet, then our D4PG cpu preset, MINUTES
 each, on the CPU (the `peers` extra). Evaluations: 16 deterministic 1,000-step episodes of our
 Hopper (SB3's on PyBullet with its clock paused, and on ours at the end), timed from each
-process's start. The table goes to the screen and, with every curve, to
-benchmarks/results/peers_LABEL.json.
+process's start. Results: benchmarks/results/peers_LABEL.json, with every curve.
 
---grid TRAINER:NAME=V1,V2 replaces one of the settings the Brax trainers start from (Brax's for
-its hopper: SAC's from its training notebook, PPO's its locomotion ones, the notebook's `ant`);
+--grid TRAINER:NAME=V1,V2 replaces one of the settings the Brax trainers start from (BRAX);
 every combination of the --grid values is a run.
 """
 
@@ -61,23 +59,23 @@ def brax_train(trainer: str):
   return {"sac": sac.train, "ppo": ppo.train}[trainer]
 
 
-def parse_grid(specs: list[str], trainers: list[str]) -> dict[str, list[dict]]:
-  """{trainer: [settings, ...]}: every combination of the --grid values, per Brax trainer.
-  A spec is TRAINER:NAME=V1,V2,...; values are Python literals."""
+def parse_grid(specs: list[str]) -> list[tuple[str, dict]]:
+  """(Brax trainer, settings) of every combination of the --grid values, SAC's then PPO's. A
+  spec is TRAINER:NAME=V1,V2,...; values are Python literals."""
   axes = {t: [] for t in BRAX}
   for spec in specs:
     trainer, _, assignment = spec.partition(":")
     name, _, values = assignment.partition("=")
-    if trainer not in BRAX or trainer not in trainers or not name or not values:
+    if trainer not in BRAX or not name or not values:
       raise SystemExit(f"--grid {spec!r}: want TRAINER:NAME=V1,V2 with TRAINER one of "
-                       f"--trainers' {sorted(set(trainers) & set(BRAX))}")
+                       f"{list(BRAX)}")
     known = set(inspect.signature(brax_train(trainer)).parameters) | {"eval_every"}
     if name not in known:
       raise SystemExit(f"--grid {spec!r}: {trainer} has no setting {name!r}; it has "
                        f"{sorted(known)}")
     axes[trainer].append([(name, ast.literal_eval(v)) for v in values.split(",")])
-  return {t: [dict(BRAX[t], **dict(combo)) for combo in itertools.product(*axes[t])]
-          for t in BRAX if t in trainers}
+  return [(t, dict(BRAX[t], **dict(combo))) for t in BRAX
+          for combo in itertools.product(*axes[t])]
 
 
 def plan(args) -> list[dict]:
@@ -86,9 +84,7 @@ def plan(args) -> list[dict]:
     specs = [("sb3", dict(RL_ZOO_SAC, seed=SEED)), ("ours", OURS["cpu"])]
     minutes = args.cpu_baseline
   else:
-    grid = parse_grid(args.grid, args.trainers)
-    specs = [("ours", OURS["gpu"])] if "ours" in args.trainers else []
-    specs += [(t, s) for t in ("sac", "ppo") if t in args.trainers for s in grid[t]]
+    specs = [("ours", OURS["gpu"]), *parse_grid(args.grid)]
     minutes = args.minutes
   runs = []
   for i, (trainer, settings) in enumerate(specs):
@@ -174,14 +170,15 @@ def report(rows: list[dict]) -> None:
                        f"{r['env_steps']:,}"] for r in rows]))
 
 
-def log_eval(folder: str, row: dict) -> None:
+def log_eval(folder: str, *values: float) -> None:
+  """Appends an evaluation, its EVAL_FIELDS in order, to a Brax or SB3 run's evals.csv."""
   path = os.path.join(folder, "evals.csv")
   new = not os.path.exists(path)
   with open(path, "a", newline="") as f:
-    writer = csv.DictWriter(f, fieldnames=common.EVAL_FIELDS)
+    writer = csv.writer(f)
     if new:
-      writer.writeheader()
-    writer.writerow(row)
+      writer.writerow(common.EVAL_FIELDS)
+    writer.writerow(values)
 
 
 def read_json(path: str) -> dict:
@@ -193,15 +190,14 @@ def read_json(path: str) -> dict:
 
 
 def write_meta(folder: str, **meta) -> None:
-  path = os.path.join(folder, "meta.json")
-  old = read_json(path)
-  with open(path, "w") as f:
-    json.dump({**old, **meta}, f, indent=1)
+  """A run's meta.json (what it ran on), written once by its worker."""
+  with open(os.path.join(folder, "meta.json"), "w") as f:
+    json.dump(meta, f, indent=1)
 
 
 def device_put_replicated(tree, devices):
   """jax.device_put_replicated, which Brax 0.14's trainers call and jax 0.10 removed (as in
-  docs/brax.md and tests/test_brax.py): each leaf as one array with a copy per device."""
+  docs/brax.md): each leaf as one array with a copy per device."""
   import jax
   import jax.numpy as jnp
   import numpy as np
@@ -243,10 +239,8 @@ def worker_brax(run: dict, folder: str) -> None:
 
   def progress(env_steps, metrics):
     wall = time.time() - run["launch_time"]
-    log_eval(folder, {"wall_s": wall, "env_steps": env_steps,
-                      "eval_return": float(metrics["eval/episode_reward"]),
-                      "eval_return_std": float(metrics["eval/episode_reward_std"]),
-                      "eval_length": float(metrics["eval/avg_episode_length"])})
+    log_eval(folder, wall, env_steps, *(float(metrics[f"eval/{k}"]) for k in (
+        "episode_reward", "episode_reward_std", "avg_episode_length")))
     if wall > deadline:
       raise Deadline
 
@@ -332,10 +326,8 @@ def worker_sb3(run: dict, folder: str) -> None:
       if self.train_s >= checks[0] * budget:
         returns, lengths = evaluate_policy(model, eval_env, run["eval_episodes"],
                                            deterministic=True, return_episode_rewards=True)
-        log_eval(folder, {"wall_s": self.train_s, "env_steps": self.num_timesteps,
-                          "eval_return": float(np.mean(returns)),
-                          "eval_return_std": float(np.std(returns)),
-                          "eval_length": float(np.mean(lengths))})
+        log_eval(folder, self.train_s, self.num_timesteps, float(np.mean(returns)),
+                 float(np.std(returns)), float(np.mean(lengths)))
         checks.pop(0)
       self.t0 = time.time()
       return bool(checks)
@@ -351,10 +343,7 @@ def worker_sb3(run: dict, folder: str) -> None:
 
 
 def main() -> None:
-  p = argparse.ArgumentParser(description=__doc__,
-                              formatter_class=argparse.RawDescriptionHelpFormatter)
-  p.add_argument("--trainers", nargs="+", choices=["ours", "sac", "ppo"],
-                 default=["ours", "sac", "ppo"], help="the runs to start (default: all three)")
+  p = common.parser(__doc__)
   p.add_argument("--minutes", type=float, default=8.0, help="wall-clock budget of each run")
   p.add_argument("--grid", action="append", default=[], metavar="TRAINER:NAME=V1,V2",
                  help="Brax settings to try (repeatable; every combination is a run)")

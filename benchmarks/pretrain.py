@@ -1,9 +1,8 @@
-"""The shipped policies: each robot given trained with its preset (mjx_hopper.presets, gpu by
-default) until an evaluation reaches its score plus a margin, or its time cap; its best policy
-exported (mjx_hopper.export) as ROBOT.npz, with the robot's fingerprint, and that file evaluated
-again. Writes the files into mjx_hopper/pretrained/ (on the lent GPU, where $MJX_HOPPER_RESULTS
-points: gpu.sh brings that folder back) and each robot's record (command, commit, seed, env
-steps, returns) to benchmarks/results/pretrained_ROBOT.json.
+"""The shipped policies: each robot given trained with its preset until an evaluation reaches
+its score plus a margin, or its time cap; its best policy exported as ROBOT.npz, with the
+robot's fingerprint, and that file evaluated again. Writes the files into mjx_hopper/pretrained/
+(or where $MJX_HOPPER_RESULTS points: gpu.sh brings that folder back) and each robot's record
+to benchmarks/results/pretrained_ROBOT.json.
 
     bash benchmarks/gpu.sh "python benchmarks/pretrain.py Hopper Walker2D HalfCheetah"
     python benchmarks/pretrain.py Hopper --kind cpu --steps 20000 --target 0   # a check on CPU
@@ -11,13 +10,14 @@ steps, returns) to benchmarks/results/pretrained_ROBOT.json.
 
 from __future__ import annotations
 
-import argparse
 import gc
 import os
 import shlex
 import sys
 
 import common
+
+EPISODES, EVAL_SEED = 16, 1  # the exported file's check
 
 
 def train_until_score(robot: str, seed: int, goal: float, args) -> dict:
@@ -27,10 +27,9 @@ def train_until_score(robot: str, seed: int, goal: float, args) -> dict:
   out = os.path.join(args.out, robot, f"seed_{seed}")
   if os.path.exists(os.path.join(out, "checkpoints")):  # a run there would resume instead
     raise SystemExit(f"pretrain: {out} already holds a run; choose another --out or remove it")
-  changes = {"eval_every": args.eval_every} if args.eval_every else {}
   cfg = presets.run_config(robot, args.kind, seed=seed, total_env_steps=args.steps or 10**12,
                            max_minutes=args.minutes, stop_at_return=goal, eval_episodes=20,
-                           out_dir=out, checkpoint_minutes=10**6, **changes)
+                           out_dir=out, checkpoint_minutes=10**6)
   loop.run(cfg, progress=False)
   rows = common.evaluations(os.path.join(out, "log.csv"))[0]
   best = max(rows, key=lambda r: r["eval_return"])
@@ -57,11 +56,11 @@ def pretrain(robot: str, args, files: str) -> dict:
   export.export_checkpoint(run.pop("checkpoints"), path)
   command = shlex.join(["python", "benchmarks/pretrain.py", robot, *_settings(args),
                         "--seeds", str(run["seed"])])
-  returns = export.evaluate_file(path, episodes=args.episodes, seed=args.eval_seed)["return"]
+  returns = export.evaluate_file(path, episodes=EPISODES, seed=EVAL_SEED)["return"]
   record = {"robot": robot, "kind": args.kind, "target": target, "goal": goal, **run,
             "command": command, "commit": common.commit(), "return": float(returns.mean()),
-            "return_std": float(returns.std()), "episodes": args.episodes,
-            "eval_seed": args.eval_seed, "at_target": float(returns.mean()) >= target}
+            "return_std": float(returns.std()), "episodes": EPISODES, "eval_seed": EVAL_SEED,
+            "at_target": float(returns.mean()) >= target}
   policy = export.load(path)
   policy.meta.update(fingerprint=export.fingerprint(envs.make(robot)), pretrained=dict(record))
   export.save(policy, path)
@@ -71,16 +70,14 @@ def pretrain(robot: str, args, files: str) -> dict:
 def _settings(args) -> list[str]:
   """The command-line settings that shaped a robot's training, as flags."""
   out = ["--kind", args.kind, "--margin", f"{args.margin:g}", "--minutes", f"{args.minutes:g}"]
-  for flag, value in (("--steps", args.steps), ("--target", args.target),
-                      ("--eval-every", args.eval_every)):
+  for flag, value in (("--steps", args.steps), ("--target", args.target)):
     if value is not None:
       out += [flag, f"{value:g}"]
   return out
 
 
 def main() -> None:
-  p = argparse.ArgumentParser(description=__doc__,
-                              formatter_class=argparse.RawDescriptionHelpFormatter)
+  p = common.parser(__doc__)
   p.add_argument("robots", nargs="+", help="robots, trained one after another")
   p.add_argument("--kind", default="gpu", help="the robot preset: gpu or cpu")
   p.add_argument("--seeds", default="0",
@@ -90,27 +87,17 @@ def main() -> None:
   p.add_argument("--target", type=float, default=None, help="default: the preset's score")
   p.add_argument("--minutes", type=float, default=3.0, help="each seed's time cap")
   p.add_argument("--steps", type=int, default=None, help="also stop each seed at these env steps")
-  p.add_argument("--eval-every", type=int, default=None, help="default: the preset's")
-  p.add_argument("--episodes", type=int, default=16, help="episodes of the exported file's check")
-  p.add_argument("--eval-seed", type=int, default=1)
   p.add_argument("--cpu-devices", type=int, default=os.cpu_count() or 1)
   p.add_argument("--out", default="runs/pretrain", help="the training runs' folder")
-  p.add_argument("--files", default=None,
-                 help="where ROBOT.npz goes (default: $MJX_HOPPER_RESULTS where set, else "
-                 "mjx_hopper/pretrained)")
   args = p.parse_args()
   args.seeds = [int(s) for s in args.seeds.split(",")]
   import mjx_hopper  # its own imports only: JAX starts later
   os.environ["XLA_FLAGS"] = mjx_hopper.xla_flags_with_cpu_devices(args.cpu_devices)
   from mjx_hopper import envs, export, presets
-  for robot in args.robots:
-    if robot not in envs.tasks.BUILT_IN:
-      raise SystemExit(f"pretrain: unknown robot {robot!r}; the robots are "
-                       f"{list(envs.tasks.BUILT_IN)}")
-  if args.kind not in presets.KINDS:
-    raise SystemExit(f"pretrain: unknown preset {args.kind!r}; the presets are "
-                     f"{list(presets.KINDS)}")
-  files = args.files or os.environ.get("MJX_HOPPER_RESULTS") or export.PRETRAINED
+  if not set(args.robots) <= set(envs.tasks.BUILT_IN) or args.kind not in presets.KINDS:
+    raise SystemExit(f"pretrain: the robots are {list(envs.tasks.BUILT_IN)} and the presets "
+                     f"{list(presets.KINDS)}; got {args.robots} and {args.kind!r}")
+  files = os.environ.get("MJX_HOPPER_RESULTS") or export.PRETRAINED
   mjx_hopper.use_compile_cache()
   records = []
   for robot in args.robots:

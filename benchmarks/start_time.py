@@ -1,21 +1,17 @@
 """How long a training run makes a user wait, phase by phase: `mjx-hopper train --env ENV --agent
-d4pg --preset KIND` (by default the main job's, Hopper's cpu preset) from process start to its
-first `[train]` line (the first chunk done) and its first `[eval]` line, from an empty compile
-cache ("cold") and then from the cache that run left ("warm").
+d4pg --preset KIND` from process start to its first `[train]` and `[eval]` lines, from an empty
+compile cache ("cold") and then from the cache that run left ("warm"). Each run records, in
+seconds from process start: the imports, the build (imports done to the chunk's tracing), each
+program's tracing, lowering and XLA compile (`jax.monitoring`'s events), and the first lines.
+With --checkout DIR, DIR's code (laid out as installed, first on PYTHONPATH) runs in turns with
+this one's.
 
     python benchmarks/start_time.py --rounds 2 --checkout /tmp/before   # beside another commit
     bash benchmarks/gpu.sh "python benchmarks/start_time.py --kind gpu --label h100"
-
-Each run records, in seconds from process start: the imports (`mjx_hopper.loop` and what it
-pulls in, JAX included), the build (imports done to the chunk's tracing), each program's tracing,
-lowering and XLA compile (JAX's own duration events, `jax.monitoring`), and the first lines.
-With --checkout DIR, DIR's mjx_hopper (laid out as installed, with its envs and agents inside, in
-a temporary folder put first on PYTHONPATH) runs in turns with this one's.
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import re
@@ -105,21 +101,13 @@ def summary(runs: list[dict]) -> dict:
   return {k: statistics.median(f[k] for f in flats) for k in keys}
 
 
-def _commit(folder: str) -> str:
-  """The short commit of the checkout in `folder`, else the folder's name."""
-  done = subprocess.run(["git", "-C", folder, "rev-parse", "--short", "HEAD"],
-                        capture_output=True, text=True)
-  return done.stdout.strip() or folder
-
-
 def main() -> None:
-  p = argparse.ArgumentParser(description=__doc__,
-                              formatter_class=argparse.RawDescriptionHelpFormatter)
+  p = common.parser(__doc__)
   p.add_argument("--rounds", type=int, default=2)
   p.add_argument("--seconds", type=float, default=60.0, help="each run's length")
   p.add_argument("--checkout", default=None, help="another checkout's folder to time beside")
   p.add_argument("--checkout-name", default=None,
-                 help="its name in the results (default: its commit)")
+                 help="its name in the results, such as its commit (default: its folder)")
   p.add_argument("--env", default="Hopper")
   p.add_argument("--kind", default="cpu", help="the robot preset: cpu or gpu")
   p.add_argument("--label", default="cpu")
@@ -129,12 +117,11 @@ def main() -> None:
   codes = {"this checkout": None}
   with tempfile.TemporaryDirectory(prefix="start_time_") as installed:
     if args.checkout:
-      shutil.copytree(os.path.join(args.checkout, "mjx_hopper"),
-                      os.path.join(installed, "mjx_hopper"))
+      package = os.path.join(installed, "mjx_hopper")
+      shutil.copytree(os.path.join(args.checkout, "mjx_hopper"), package)
       for sub in ("envs", "agents"):  # packaged as mjx_hopper.envs and .agents (pyproject.toml)
-        shutil.copytree(os.path.join(args.checkout, sub),
-                        os.path.join(installed, "mjx_hopper", sub))
-      codes[args.checkout_name or _commit(args.checkout)] = installed
+        shutil.copytree(os.path.join(args.checkout, sub), os.path.join(package, sub))
+      codes[args.checkout_name or args.checkout] = installed
     runs = {(name, cache): [] for name in codes for cache in ("cold", "warm")}
     for i in range(args.rounds):
       for name, code in (codes.items() if i % 2 == 0 else reversed(codes.items())):
