@@ -21,12 +21,12 @@ import common
 
 def measure(args) -> dict:
   """One sweep of args.members members: compile time, rates and memory."""
+  import mjx_hopper
+  mjx_hopper.use_compile_cache()  # before the package loads (and anything compiles)
   import jax
 
-  import mjx_hopper
   from mjx_hopper import config, flags, runs, train
 
-  mjx_hopper.use_compile_cache()
   cfg = config.RunConfig(
       env=args.env, agent=args.agent, agent_preset=args.preset,
       agent_overrides=flags.overrides(args.set),
