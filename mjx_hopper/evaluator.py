@@ -64,10 +64,13 @@ class Evaluator:
     self.select_agents = jax.jit(select_members, out_shardings=trainer.shardings.agent)
     self.program = None
 
-  def compile_in(self, pool, agent_shapes) -> None:
-    """Traces the evaluation here (tracing holds Python's lock) and compiles it in the thread
-    pool `pool`."""
-    self.program = pool.submit(self._lower(agent_shapes).compile)
+  def compile_in(self, pool, agent_shapes, trace_now: bool = True) -> None:
+    """Compiles the evaluation in the thread pool `pool`: traced here with `trace_now` (tracing
+    holds Python's lock), else traced in the pool too, after the pool's earlier work."""
+    if trace_now:
+      self.program = pool.submit(self._lower(agent_shapes).compile)
+    else:
+      self.program = pool.submit(lambda: self._lower(agent_shapes).compile())
 
   def _lower(self, agent):
     keys = jax.ShapeDtypeStruct((len(self.seeds), 2), jnp.uint32)

@@ -4,12 +4,18 @@
 from __future__ import annotations
 
 import concurrent.futures
+import os
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 
 from mjx_hopper import train
+
+
+# The fewest cores on which the evaluation is traced while the chunk compiles: one for the
+# chunk's compile, one for the fresh state's, one for the tracing, and one to spare.
+TRACE_BESIDE_FROM_CORES = 4
 
 
 class Started(NamedTuple):
@@ -23,18 +29,20 @@ def start(trainer: train.Trainer, init, evaluator) -> Started:
   """Starts making the fresh state (`init()`) and compiling the chunk, the evaluation (which
   `evaluator` keeps) and the finiteness check. The chunk and the state come first, side by side,
   as the first training row waits for both. The programs are traced here, in turn, since tracing
-  holds Python's lock; the state's program is traced in its thread."""
+  holds Python's lock; the state's program is traced in its thread, and on a small CPU the
+  evaluation in the chunk's, once the chunk is compiled."""
   shapes = jax.tree.map(
       lambda sharding, part: jax.tree.map(
           lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sharding), part),
       trainer.shardings, jax.eval_shape(init))
   # Two lines: the chunk, then the evaluation (compiled beside the chunk, it slowed the chunk's
   # compile more than it brought the first evaluation forward); the state, then the finiteness
-  # check.
+  # check. Tracing the evaluation here, during the chunk's compile, brings it forward where
+  # cores are to spare; on a small CPU it slowed the compiles that the first row waits for.
   lines = [concurrent.futures.ThreadPoolExecutor(1), concurrent.futures.ThreadPoolExecutor(1)]
   chunk = lines[0].submit(trainer.train_chunk.lower(shapes).compile)
   state = lines[1].submit(init)
-  evaluator.compile_in(lines[0], shapes.agent)
+  evaluator.compile_in(lines[0], shapes.agent, trace_now=_cores() >= TRACE_BESIDE_FROM_CORES)
   finite = lines[1].submit(finite_members.lower(shapes.agent).compile)
   for line in lines:
     line.shutdown(wait=False)
@@ -47,3 +55,10 @@ def finite_members(tree) -> jax.Array:
   checks = [jnp.isfinite(x).reshape(x.shape[0], -1).all(1) for x in jax.tree.leaves(tree)
             if jnp.issubdtype(x.dtype, jnp.floating) and x.size]
   return jnp.stack(checks).all(0)
+
+
+def _cores() -> int:
+  """The CPU cores this process may run on."""
+  if hasattr(os, "sched_getaffinity"):  # Linux: the cores it is allowed, not the machine's
+    return len(os.sched_getaffinity(0))
+  return os.cpu_count() or 1

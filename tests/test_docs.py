@@ -148,9 +148,11 @@ def test_the_brax_pages_code_runs_as_written_in_order(monkeypatch):
   with open(os.path.join(ROOT, "docs", "brax.md")) as f:
     blocks = re.findall(r"```python\n(.*?)```", f.read(), re.S)
   code = "\n".join(textwrap.dedent(block) for block in blocks)  # one sits in a list item
-  # Its budget shrunk to two short epochs; every other word as the page has it.
+  # Its budget shrunk to two short epochs and short evaluation episodes; every other word as
+  # the page has it.
   for budget, small in (("num_timesteps=2_000_000", "num_timesteps=1_024"),
-                        ("num_evals=20", "num_evals=2")):
+                        ("num_evals=20", "num_evals=2"),
+                        ("episode_length=1000", "episode_length=50")):
     assert code.count(budget) == 1
     code = code.replace(budget, small)
   monkeypatch.setattr(jax, "device_put_replicated", None, raising=False)  # restored after

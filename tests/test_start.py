@@ -5,9 +5,9 @@ import json
 import subprocess
 import sys
 
-# The programs lowered before the first chunk's row: the chunk, init, the evaluation, the
-# members' finiteness check, and while building the env, MJX's model and data and the reset's
-# reward terms (envs.check_task).
+# The programs lowered before the first chunk's row: the chunk, init, the evaluation (where it
+# is traced beside the chunk's compile), the members' finiteness check, and while building the
+# env, MJX's model and data and the reset's reward terms (envs.check_task).
 MOST_PROGRAMS_BEFORE_FIRST_CHUNK = 7
 
 PROGRAM = """
@@ -36,5 +36,6 @@ def test_the_start_compiles_no_eager_programs(tmp_path):
                         text=True, check=True)
   lowered = json.loads(done.stdout.strip().splitlines()[0])
   assert len(lowered) <= MOST_PROGRAMS_BEFORE_FIRST_CHUNK, lowered
-  # The evaluation compiles beside the chunk, not after it.
-  assert {"jit(chunk)", "jit(one)", "jit(finite_members)"} <= set(lowered), lowered
+  # The finiteness check compiles beside the chunk, not after it. (The evaluation is traced
+  # after the chunk's compile on a small CPU, so it may or may not come before the first row.)
+  assert {"jit(chunk)", "jit(finite_members)"} <= set(lowered), lowered

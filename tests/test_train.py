@@ -293,8 +293,8 @@ def test_evaluations_due_while_the_evaluation_compiles_are_kept_and_done_later(t
       return self.future.result()
 
   def run(late):
-    def slow_compile(self, pool, shapes):
-      compile_in(self, pool, shapes)
+    def slow_compile(self, pool, shapes, **kwargs):
+      compile_in(self, pool, shapes, **kwargs)
       self.program = Compiling(self.program, late)
     monkeypatch.setattr(evaluator.Evaluator, "compile_in", slow_compile)
     return loop.run(dataclasses.replace(cfg, out_dir=str(tmp_path / str(late))), progress=False)
@@ -315,8 +315,8 @@ def _evaluations_compiled_first_and_never_finished(monkeypatch):
   result saying unfinished (after asking JAX), so that only waiting logs one."""
   compile_in, finished = evaluator.Evaluator.compile_in, evaluator._finished
 
-  def compiled_first(self, pool, shapes):
-    compile_in(self, pool, shapes)
+  def compiled_first(self, pool, shapes, **kwargs):
+    compile_in(self, pool, shapes, **kwargs)
     self.program.result()
   monkeypatch.setattr(evaluator.Evaluator, "compile_in", compiled_first)
   monkeypatch.setattr(evaluator, "_finished", lambda started: finished(started) and False)
