@@ -30,7 +30,7 @@ GPU = {"Hopper": [TTS.format("Hopper_h100_cold_bf16"),
        "Ant": [TTS.format("Ant_h100_cold5_2026-11-26")],
        "Humanoid": [TTS.format("Humanoid_h100_cold5_2026-11-26")],
        "AntLongJump (an event)": [TTS.format("AntLongJump_h100")]}
-CPU = {"Hopper": [TTS.format("Hopper_cpu_128_2026-11-26")],
+CPU = {"Hopper": [TTS.format("Hopper_cpu_128")],
        "Walker2D": [TTS.format("Walker2D_cpu_tuned_2026-11-26")],
        "HalfCheetah": [TTS.format("HalfCheetah_cpu60")],
        "Ant": [TTS.format("Ant_cpu_tuned_2026-11-26")],
@@ -297,13 +297,20 @@ def gymnasium_section() -> tuple[str, str, str, list[str]]:
           table(["engine", "envs", "env steps/s", "× JAX env"], rows), [GYMNASIUM])
 
 
+def code(commit: str) -> str:
+  """A results file's code commit as its source line gives it; an older file that does not know
+  it says the commit that filed its results ("unknown; results committed in C")."""
+  unknown = "unknown; "
+  return commit.removeprefix(unknown) if commit.startswith(unknown) else f"commit {commit}"
+
+
 def benchmarks_page() -> str:
   parts = ["# Benchmarks", "Made by `python benchmarks/report.py` from `benchmarks/results/`, "
            "whose files each hold their command, machine, date, code commit and figures; do not "
            "edit by hand. The machines are shared and noisy: compare rows of one run.",
            "## Summary", summary()]
   for title, method, text, names in sections():
-    sources = [f"- `benchmarks/results/{n}` ({r['date']}, {machine(n)}, commit {r['commit']}): "
+    sources = [f"- `benchmarks/results/{n}` ({r['date']}, {machine(n)}, {code(r['commit'])}): "
                f"`{r['command']}`" for n, r in ((n, load(n)) for n in dict.fromkeys(names))]
     parts += [f"## {title}", method, text, "Results, and the commands that made them:\n\n"
               + "\n".join(sources)]
