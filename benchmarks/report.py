@@ -243,8 +243,8 @@ def sections() -> list[tuple[str, str, str, list[str]]]:
               [NOTEBOOK, FIRST_VIDEO]))
   out.append(pretrained_section(sorted(p.name for p in RESULTS.glob("pretrained_*.json"))))
   suite = load(SUITE)["figures"]
-  out.append(("Test suite", "`bash scripts/test.sh` on a fresh clone, as CI runs it, on 2 CPU "
-              "cores from an empty compile cache.",
+  out.append(("Test suite", "`bash scripts/test.sh`, as CI runs it, on 2 CPU cores from an "
+              "empty compile cache.",
               table(["tests passed", "failed", "pytest (min)", "with set-up (min)"],
                     [[suite["passed"], suite["failed"], num(suite["pytest_s"] / 60, 1),
                       num(suite["with_setup_s"] / 60, 1)]]), [SUITE]))
