@@ -223,6 +223,15 @@ def _size(n: int) -> str:
 
 PARTIAL = ".orbax-checkpoint-tmp"  # in the names of orbax's folders of unfinished steps
 WRITERS_S = 60.0  # how long a failed save's other writer threads are waited for, each
+QUIET_S = 1.0  # how long a failed save's folder must stay removed to count as gone
+
+
+def _partial(directory: str) -> list[str]:
+  """The names of orbax's unfinished steps in `directory` (none where it cannot be read)."""
+  try:
+    return [name for name in os.listdir(directory) if PARTIAL in name]
+  except OSError:  # a vanished mount
+    return []
 
 
 def _failed(mngr: ocp.CheckpointManager, step: int | None, error: Exception) -> SaveFailed:
@@ -235,15 +244,17 @@ def _failed(mngr: ocp.CheckpointManager, step: int | None, error: Exception) -> 
         thread.join(WRITERS_S)
   with contextlib.suppress(Exception):  # orbax keeps the error to raise at the next save
     mngr.check_for_errors()
-  try:
-    names = os.listdir(mngr.directory)
-  except OSError:  # a vanished mount: nothing to remove
-    names = []
-  for name in names:
-    if PARTIAL in name:
+  # Tensorstore's writes of the step go on in threads of its own, which can recreate a removed
+  # folder: the partial folders are removed until none has come back for QUIET_S.
+  deadline = time.monotonic() + WRITERS_S
+  quiet_since = time.monotonic()
+  while time.monotonic() - quiet_since < QUIET_S and time.monotonic() < deadline:
+    for name in _partial(mngr.directory):
       if step is None and name.split(".")[0].isdigit():
         step = int(name.split(".")[0])
       shutil.rmtree(os.path.join(mngr.directory, name), ignore_errors=True)
+      quiet_since = time.monotonic()
+    time.sleep(QUIET_S / 20)
   steps = [s for s in mngr.all_steps() if s != step]
   return SaveFailed(mngr.directory, step, _reason(error), max(steps) if steps else None)
 
