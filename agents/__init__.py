@@ -11,7 +11,6 @@ from __future__ import annotations
 import dataclasses
 from typing import Any, Callable, NamedTuple
 
-from mjx_hopper import compat
 from mjx_hopper.agents import d4pg, ddpg, dpg, mpo
 from mjx_hopper.agents.base import Agent
 
@@ -78,10 +77,12 @@ def learner_fields(name: str) -> tuple[tuple[str, str], ...]:
   return spec(name).learner_fields
 
 
-def config(name: str, preset: str = "acme", **overrides):
-  """Agent `name`'s config: its preset `preset` with fields replaced by `overrides`."""
+def config(name: str, preset: str | None = None, **overrides):
+  """Agent `name`'s config: its preset `preset` (None: "acme", the seed's settings, where the
+  agent declares it, else "cpu") with fields replaced by `overrides`."""
   presets = spec(name).presets
-  preset = compat.preset(preset)
+  if preset is None:
+    preset = "acme" if "acme" in presets else "cpu"
   if preset not in presets:
     raise ValueError(f"unknown preset {preset!r} for {name}; valid presets are "
                      f"{sorted(presets)}")
@@ -94,10 +95,8 @@ def config(name: str, preset: str = "acme", **overrides):
 
 
 def make(name: str, obs_size: int, action_size: int, cfg=None) -> Agent:
-  """Builds agent `name` for these sizes, with `cfg` (default: its "acme" preset, else "cpu")."""
-  found = spec(name)
-  default = found.presets.get("acme", found.presets["cpu"])
-  return found.make(obs_size, action_size, default if cfg is None else cfg)
+  """Builds agent `name` for these sizes, with `cfg` (default: `config(name)`)."""
+  return spec(name).make(obs_size, action_size, config(name) if cfg is None else cfg)
 
 
 __all__ = ["Agent", "Spec", "config", "d4pg", "ddpg", "dpg", "learner_fields", "list_agents",

@@ -9,11 +9,21 @@ import csv
 import json
 import os
 import shlex
+import shutil
 import subprocess
 import sys
 import time
 
 EVAL_FIELDS = ("wall_s", "env_steps", "eval_return", "eval_return_std", "eval_length")
+
+
+def pybullet_oracle():
+  """tests/pybullet_oracle.py, PyBullet's own envs (they need the oracle extra)."""
+  tests = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "tests")
+  if tests not in sys.path:
+    sys.path.insert(0, tests)
+  import pybullet_oracle
+  return pybullet_oracle
 
 
 def parser(doc: str) -> argparse.ArgumentParser:
@@ -37,14 +47,17 @@ def parse(p: argparse.ArgumentParser, work=None) -> argparse.Namespace:
 class Timed:
   """`jitted(state, *args) -> (state, out)` traced and compiled (trace_s, compile_s) and called
   once to warm up. Calling this object runs it `n` times more, each call from the state the last
-  left, and returns their seconds (one wait, at the end); `out` is the last call's output."""
+  left, and returns their seconds (one wait, at the end); `out` is the last call's output. With
+  a `trainer`, `jitted` is its chunk, and each call refills the episode starts before it, as a
+  run does."""
 
-  def __init__(self, jitted, state, *args):
+  def __init__(self, jitted, state, *args, trainer=None):
     start = time.perf_counter()
     lowered = jitted.lower(state, *args)
     traced = time.perf_counter()
     self.compiled = lowered.compile()
     self.trace_s, self.compile_s = traced - start, time.perf_counter() - traced
+    self.refill = trainer.refill.lower(state.env).compile() if trainer else None
     self.state, self.args = state, args
     self()
 
@@ -52,9 +65,21 @@ class Timed:
     import jax
     start = time.perf_counter()
     for _ in range(n):
+      if self.refill is not None:
+        self.state = self.state._replace(env=self.refill(self.state.env))
       self.state, self.out = self.compiled(self.state, *self.args)
     jax.block_until_ready((self.state, self.out))
     return time.perf_counter() - start
+
+
+def installed_layout(checkout: str, folder: str) -> str:
+  """`checkout`'s package copied into `folder` as pyproject installs it (envs and agents inside
+  mjx_hopper), for a process to run first on PYTHONPATH. Returns `folder`."""
+  package = os.path.join(folder, "mjx_hopper")
+  shutil.copytree(os.path.join(checkout, "mjx_hopper"), package)
+  for sub in ("envs", "agents"):  # packaged as mjx_hopper.envs and .agents
+    shutil.copytree(os.path.join(checkout, sub), os.path.join(package, sub))
+  return folder
 
 
 def worker(script: str, args: dict, devices: int, gpus: bool = True):

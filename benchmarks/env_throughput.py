@@ -76,7 +76,7 @@ def mujoco_c_row(env_id: str, threads: int, batch: int = 256, physics_steps: int
 
 def pybullet_row(env_id: str, seconds: float = 5.0) -> dict | None:
   try:
-    from mjx_hopper.envs import pybullet_oracle
+    pybullet_oracle = common.pybullet_oracle()
     env = pybullet_oracle.make(env_id)
   except ImportError:
     return None

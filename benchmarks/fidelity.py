@@ -11,7 +11,8 @@ import jax
 
 import common
 from mjx_hopper import envs, rollout
-from mjx_hopper.envs import pybullet_oracle
+
+pybullet_oracle = common.pybullet_oracle()
 
 
 def main() -> None:

@@ -31,13 +31,12 @@ def main() -> None:
   args = p.parse_args()
 
   import mjx_hopper
-  os.environ["XLA_FLAGS"] = mjx_hopper.xla_flags_with_cpu_devices(args.cpu_devices)
+  mjx_hopper.setup(cpu_devices=args.cpu_devices)
   import jax
   import numpy as np
 
   from mjx_hopper import envs, rollout
 
-  mjx_hopper.use_compile_cache()
   env = envs.make(args.env)
   n, steps = args.num_envs, args.steps
 

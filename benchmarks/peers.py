@@ -229,7 +229,7 @@ def worker_brax(run: dict, folder: str) -> None:
   import brax
   import mjx_hopper
   from mjx_hopper import envs
-  mjx_hopper.use_compile_cache()
+  mjx_hopper.setup()
   jax.device_put_replicated = device_put_replicated
   write_meta(folder, device=jax.devices()[0].device_kind, jax=jax.__version__,
              brax=brax.__version__)
@@ -258,7 +258,7 @@ def bullet_hopper():
   """PyBullet's HopperBulletEnv as a gymnasium env, with gym's 1,000-step time limit."""
   import gymnasium
   import numpy as np
-  from mjx_hopper.envs import pybullet_oracle
+  pybullet_oracle = common.pybullet_oracle()
 
   class BulletHopper(gymnasium.Env):
     def __init__(self):

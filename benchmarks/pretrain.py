@@ -92,13 +92,12 @@ def main() -> None:
   args = p.parse_args()
   args.seeds = [int(s) for s in args.seeds.split(",")]
   import mjx_hopper  # its own imports only: JAX starts later
-  os.environ["XLA_FLAGS"] = mjx_hopper.xla_flags_with_cpu_devices(args.cpu_devices)
+  mjx_hopper.setup(cpu_devices=args.cpu_devices)
   from mjx_hopper import envs, export, presets
   if not set(args.robots) <= set(envs.tasks.BUILT_IN) or args.kind not in presets.KINDS:
     raise SystemExit(f"pretrain: the robots are {list(envs.tasks.BUILT_IN)} and the presets "
                      f"{list(presets.KINDS)}; got {args.robots} and {args.kind!r}")
   files = os.environ.get("MJX_HOPPER_RESULTS") or export.PRETRAINED
-  mjx_hopper.use_compile_cache()
   records = []
   for robot in args.robots:
     records.append(pretrain(robot, args, files))

@@ -23,8 +23,8 @@ ROOT = pathlib.Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "benchmarks" / "results"
 ROBOTS = ("Hopper", "Walker2D", "HalfCheetah", "Ant", "Humanoid")
 TTS = "time_to_score_{}.json"
-GPU = {"Hopper": [TTS.format("Hopper_h100_cold_bf16"),
-                  TTS.format("Hopper_h100_cold_bf16_seeds5-9")],
+GPU = {"Hopper": [TTS.format("Hopper_gpu_episode_starts_seeds23-25"),
+                  TTS.format("Hopper_gpu_episode_starts_seeds26-32")],
        "Walker2D": [TTS.format("Walker2D_h100_cold5_2026-11-26")],
        "HalfCheetah": [TTS.format("HalfCheetah_h100_small_batch")],
        "Ant": [TTS.format("Ant_h100_cold5_2026-11-26")],
@@ -46,7 +46,10 @@ LEARNER = ("learner_robots_h100.json", "learner_robots_bf16_h100.json")
 SWEEPS = ("sweep_throughput_h100.json", "sweep_throughput_2gpu_h200.json",
           "sweep_throughput_cpu.json")
 PBT = "pbt_quality_halfcheetah_h100x2.json"
-START = {"one H100": "start_time_h100.json", "2 CPU cores": "start_time_cpu.json"}
+START = {"one H100": "start_time_h100_episode_starts.json", "2 CPU cores": "start_time_cpu.json"}
+DISTRIBUTED = ("distributed_gpu2.json", "distributed_cpu2.json")
+# The training chunk as a program, before and after a change (chunk_program.py).
+CHUNK = {"one H100": "chunk_program_h100.json"}
 # A start's phases as the table shows them: label, and its key in start_time.py's medians.
 START_ROWS = {"imports": "imports", "build": "build", "chunk: tracing": "chunk trace",
               "chunk: compile": "chunk compile", "init: compile": "init_member compile",
@@ -55,7 +58,9 @@ START_ROWS = {"imports": "imports", "build": "build", "chunk: tracing": "chunk t
 GYMNASIUM = "gymnasium_throughput_cpu.json"
 NOTEBOOK = "notebook_time_cpu_2026-11-26.json"
 FIRST_VIDEO = "notebook_first_video_cpu.json"
-SUITE = "suite_time_cpu.json"
+ITERATION = "cpu_iteration_cpu.json"
+SUITE = {"scripts/test.sh": "suite_time_py312.json",
+         ".ci/floor": "suite_time_floor_py311.json"}
 TRAINERS = {"ours": "our D4PG", "sac": "Brax SAC", "ppo": "Brax PPO", "sb3": "SB3 SAC on PyBullet"}
 MARK = "<!-- report.py: {} -->"
 
@@ -92,11 +97,28 @@ def time_to_score(names: list[str], scale: float = 1.0) -> dict:
           "env_steps": statistics.median(steps) if steps else None}
 
 
+MARGIN = 1.5  # a preset's budget over its slowest seed's need (mjx_hopper/presets.py)
+
+
+def budget(names: list[str]) -> tuple[int, float]:
+  """The env steps and minutes a preset trains for: MARGIN times the most that a seed of `names`
+  reaching the target needed, rounded up to 0.5M env steps and a whole minute."""
+  runs = [s for n in names for s in load(n)["figures"]["seeds"].values() if s["target_wall_s"]]
+  steps = MARGIN * max(s["target_env_steps"] for s in runs)
+  minutes = MARGIN * max(s["target_wall_s"] for s in runs) / 60
+  return int(math.ceil(steps / 500_000) * 500_000), float(math.ceil(minutes))
+
+
 def score_cells(robot: str) -> list[str]:
   """A robot's score, median time and seeds reaching it: on one GPU (s), then on 2 cores (min)."""
   g, c = time_to_score(GPU[robot]), time_to_score(CPU[robot], 60)
   return [num(g["target"]), num(g["median"]), f"{g['reached']}/{g['seeds']}",
           num(c["target"]), num(c["median"], 1), f"{c['reached']}/{c['seeds']}"]
+
+
+def score_in(cells: list[str], unit: str) -> str:
+  """A score, its median time in `unit` and its seeds, in one cell: "2,500 in 54 s (9/10)"."""
+  return f"{cells[0]} in {cells[1]} {unit} ({cells[2]})"
 
 
 def env_rates(robot: str) -> dict:
@@ -112,24 +134,27 @@ def reach(run: dict, score: int) -> float:
   return run[f"to_{score}"]["wall_s"] if run.get(f"to_{score}") else math.inf
 
 
-def peer_rows(best_only: bool = False) -> list[list]:
-  """A row per peers run; with `best_only`, each trainer's soonest to 2,000 (then 1,000) on each
-  machine."""
+def peer_rows() -> list[list]:
+  """A row per peers run, with the settings it was given."""
   runs = [(name, run) for name in PEERS for run in load(name)["figures"]["runs"]]
-  if best_only:  # the best last, so that it stays
-    rank = lambda item: (reach(item[1], 2000), reach(item[1], 1000), -item[1]["best_return"])
-    best = {(n, r["trainer"]): (n, r) for n, r in sorted(runs, key=rank, reverse=True)}
-    runs = sorted(best.values(), key=runs.index)
   rows = []
   for name, run in runs:
-    s = run["settings"]
-    what = (f"reward scaling {s['reward_scaling']}, discount {s['discounting']}"
-            if run["trainer"] in ("sac", "ppo") else
-            "rl-zoo's" if run["trainer"] == "sb3" else "its preset")
-    rows.append([machine(name), TRAINERS[run["trainer"]], what, num(reach(run, 1000)),
+    rows.append([machine(name), TRAINERS[run["trainer"]], peer_settings(run), num(reach(run, 1000)),
                  num(reach(run, 2000)), num(run["best_return"]),
                  num(run["env_steps"] / (60 * run["minutes"]))])
   return rows
+
+
+def peer_settings(run: dict) -> str:
+  """What a peers run was given, from its results: our CLI's flags (its seed left out), or the
+  settings that the trainer's row in benchmarks/peers.py does not fix."""
+  s = run["settings"]
+  if run["trainer"] == "ours":
+    flags = [w for i, w in enumerate(s) if "--seed" not in s[max(i - 1, 0):i + 1]]
+    return f"`{' '.join(flags)}`"
+  if run["trainer"] == "sb3":
+    return f"rl-zoo's: gamma {s['gamma']}, learning rate {s['learning_rate']:g}"
+  return f"reward scaling {s['reward_scaling']}, discount {s['discounting']}"
 
 
 PEER_HEAD = ["machine", "trainer", "settings", "to 1,000 (s)", "to 2,000 (s)", "best return",
@@ -141,20 +166,17 @@ def summary() -> str:
   rows = []
   for robot in ROBOTS:
     e, published = env_rates(robot), zoo.get(robot, {})
-    rows.append([robot, *score_cells(robot), num(e["mjx"] / e["pybullet"], 1),
-                 num(published.get("sac")), num(published.get("tqc"))])
+    cells = score_cells(robot)
+    rows.append([robot, score_in(cells[:3], "s"), score_in(cells[3:], "min"),
+                 num(e["mjx"] / e["pybullet"], 1), num(published.get("sac")),
+                 num(published.get("tqc"))])
   return "\n\n".join([
-      "Each robot's median time to its score over its seeds, compile included, from process "
-      "start: on one GPU with its gpu preset, and on 2 CPU cores with its cpu preset "
-      "(`mjx_hopper/presets.py`). Seeds: those that reached the score, of those run. Env steps/s "
-      "× PyBullet: MJX against PyBullet on the same 2 cores. rl-baselines3-zoo's SAC and TQC "
-      "scores are PyBullet's robots after 1M env steps (published, other physics: "
-      f"`benchmarks/results/{RL_ZOO}`).",
-      table(["robot", "GPU: score", "GPU: median (s)", "GPU: seeds", "2 cores: score",
-             "2 cores: median (min)", "2 cores: seeds", "env steps/s × PyBullet",
-             "rl-zoo SAC", "rl-zoo TQC"], rows),
-      "Hopper beside its peers, each trainer's best settings ([all runs](#peers)):",
-      table(PEER_HEAD, peer_rows(best_only=True))])
+      "Each robot's score, median time to it from process start (compile included) and seeds "
+      "reaching it, of those run: gpu preset on one GPU, cpu preset on 2 CPU cores. "
+      "× PyBullet: MJX's env steps/s over PyBullet's there. rl-zoo: rl-baselines3-zoo's "
+      f"published SAC and TQC scores on PyBullet after 1M env steps (`{RL_ZOO}`).",
+      table(["robot", "one GPU", "2 CPU cores", "× PyBullet", "rl-zoo SAC", "rl-zoo TQC"],
+            rows)])
 
 
 def time_section(title: str, method: str, runs: dict, unit: str, scale: float, digits: int):
@@ -162,36 +184,32 @@ def time_section(title: str, method: str, runs: dict, unit: str, scale: float, d
   rows = []
   for label, names in runs.items():
     t = time_to_score(names, scale)
+    steps, minutes = budget(names)
     rows.append([label, num(t["target"]), t["agent"], t["seeds"], t["reached"],
                  *(num(t[k], digits) for k in ("median", "fastest", "slowest")),
-                 num(t["env_steps"], 2)])
+                 num(t["env_steps"], 2), f"{steps / 1e6:g}M, {minutes:g} min"])
   return (title, method, table(
-      ["task", "score", "agent", "seeds", "seeds reaching it", f"median ({unit})",
-       f"fastest ({unit})", f"slowest ({unit})", "median env steps to it (M)"], rows),
+      ["task", "score", "agent", "seeds", "reached", f"median ({unit})", f"fastest ({unit})",
+       f"slowest ({unit})", "env steps to it (M, median)", "budget"], rows),
           [n for v in runs.values() for n in v])
 
 
 def sections() -> list[tuple[str, str, str, list[str]]]:
   """(title, method, table, results files) of each question after the summary."""
-  out = [time_section("Time to score on one GPU", "Each robot's gpu preset alone on the GPU, "
-                      "seeds one after another, each compiled afresh (`--no-compile-cache`) and "
-                      "timed until an evaluation (20 episodes) reaches the score: a process's "
-                      "first seed from the process's start, a later seed of the same process "
-                      "from its own run's start.", GPU, "s", 1, 0),
+  out = [time_section("Time to score on one GPU", "Each robot's gpu preset, seeds in turn, "
+                      "compiled afresh and timed from start until an evaluation (20 "
+                      f"episodes) reaches the score. Budget: the preset's, {MARGIN:g} × the "
+                      "slowest seed's env steps and minutes.", GPU, "s", 1, 0),
          time_section("Time to score on 2 CPU cores", "Each robot's cpu preset (another agent: "
-                      "its own preset, with the robot's settings for it where measured), seeds "
-                      "one after another, compiled afresh and timed from process start, as on a "
-                      "Colab CPU runtime.", CPU, "min", 60, 1),
-         ("Peers", "Our D4PG beside Brax's own SAC and PPO on our Hopper, nine runs sharing one "
-          "GPU for 7.5 minutes each; and Stable-Baselines3's SAC on PyBullet's Hopper (the stack "
-          "of the NMA Robolympics notebook) beside our D4PG, 4 minutes each on 2 cores. Times "
-          "from process start; evaluations of 16 episodes.",
+                      "its own with the robot's settings), timed as above, as on Colab's CPU.", CPU, "min", 60, 1),
+         ("Peers", "Hopper: our D4PG beside Brax's SAC and PPO on our env (one GPU shared, 7.5 "
+          "minutes each) and SB3's SAC on PyBullet (2 cores, 4 minutes each). Times from "
+          "process start; evaluations of 16 episodes.",
           table(PEER_HEAD, peer_rows()), list(PEERS))]
   rates = {robot: env_rates(robot) for robot in ROBOTS}
-  out.append(("Env throughput on 2 CPU cores", "Auto-resetting envs with random actions "
-              "(observations, reward terms and resets included): MJX's best of 64, 256 and "
-              "4,096 envs on 2 XLA devices; MuJoCo C rolling out the same model on 2 threads "
-              "(physics only); PyBullet's own env on one core.",
+  out.append(("Env throughput on 2 CPU cores", "Auto-resetting envs, random actions: MJX's "
+              "best of 64, 256 and 4,096 envs on 2 XLA devices; MuJoCo C, the same model on 2 "
+              "threads (physics only); PyBullet's env on one core.",
               table(["robot", "PyBullet", "MuJoCo C", "MJX", "MJX × PyBullet",
                      "MJX ÷ MuJoCo C"],
                     [[robot, num(e["pybullet"]), num(e["mujoco"]), num(e["mjx"]),
@@ -207,13 +225,15 @@ def sections() -> list[tuple[str, str, str, list[str]]]:
     rows.append([r["robot"], num(r["batch"]), dtype, num(r["updates_per_s"]),
                  num(r["gflop_per_update"], 1), num(100 * r["gflops"] / peak, 1),
                  num(half.get(r["robot"]))])
-  out.append(("Learner throughput on one GPU", "Each robot's gpu preset's update (its "
-              "networks, batch and sizes) on random batches, 100 to a compiled scan; FLOPs as "
-              "XLA counts them, against the GPU's measured matmul peak.",
+  out.append(("Learner throughput on one GPU", "Each gpu preset's update on random "
+              "batches, 100 to a compiled scan; XLA's FLOP count against the measured matmul "
+              "peak.",
               table(["robot", "batch", "precision", "updates/s", "GFLOP/update", "% of peak",
                      "bfloat16 updates/s"], rows), list(LEARNER)))
   out.append(gymnasium_section())
   out.append(start_section())
+  out.append(chunk_section())
+  out.append(iteration_section())
   rows = []
   for name in SWEEPS:
     found = load(name)["figures"]["rows"]
@@ -221,33 +241,45 @@ def sections() -> list[tuple[str, str, str, list[str]]]:
     rows += [[machine(name), r["devices"], r["members"], num(r["env_steps_per_s"]),
               num(r["updates_per_s"]), num(r["env_steps_per_s"] / base["env_steps_per_s"], 2)]
              for r in found]
-  out.append(("Sweeps", "S seeds of D4PG on Hopper as one compiled program (`mjx-hopper "
-              "sweep`), each S in a fresh process; × one run: their env steps/s over one "
-              "member's on one device of the same machine.",
+  out.append(("Sweeps", "S seeds of D4PG on Hopper in one program "
+              "(`mjx-hopper sweep`), each S in a fresh process; × one run: over one member on one "
+              "device.",
               table(["machine", "devices", "members", "env steps/s", "updates/s", "× one run"],
                     rows), list(SWEEPS)))
+  rows = [[machine(name), r["processes"], r["devices"], num(r["first_row_s"], 1),
+           num(r["env_steps_per_s"])] for name in DISTRIBUTED for r in load(name)["figures"]]
+  out.append(("Sweeps over processes", "A 4-seed Hopper sweep (cpu preset) in one process, "
+              "then one process per device (`sweep --distributed`); first row from the launch.",
+              table(["machine", "processes", "devices", "first row (s)", "env steps/s"], rows),
+              list(DISTRIBUTED)))
   out.append(("Population-based training", "HalfCheetah, 16 members (4 learning rates × 4 "
-              "noise scales), a grid and PBT side by side on each GPU for the same 15.6 "
-              "minutes; PBT steps at every second evaluation.",
+              "noise scales), grid and PBT side by side, a GPU each, 15.6 minutes; PBT steps "
+              "every second evaluation.",
               table(["seed", "run", "3,000 first at (s)", "best return", "members' median best",
                      "env steps per member", "env steps/s"], load(PBT)["figures"]["rows"]),
               [PBT]))
   nb = load(NOTEBOOK)["figures"]
-  out.append(("The notebook on 2 CPU cores", "`notebooks/robolympics.ipynb` in its full mode, "
-              "top to bottom, from an empty compile cache (sections under half a minute left "
-              "out), and its first video (the pretrained Humanoid) from the kernel's start.",
+  out.append(("The notebook on 2 CPU cores", "`notebooks/robolympics.ipynb` in full mode "
+              "from an empty compile cache (sections under 30 s left out); first video from "
+              "the kernel's start.",
               table(["section", "minutes"], [[t, num(s / 60, 1)] for t, s in
                                              nb["sections_s"].items() if s >= 30]
                     + [["all", num(nb["total_s"] / 60, 1)], ["first video", num(
                         load(FIRST_VIDEO)["figures"]["first_video_s"] / 60, 1)]]),
               [NOTEBOOK, FIRST_VIDEO]))
   out.append(pretrained_section(sorted(p.name for p in RESULTS.glob("pretrained_*.json"))))
-  suite = load(SUITE)["figures"]
-  out.append(("Test suite", "`bash scripts/test.sh`, as CI runs it, on 2 CPU cores from an "
-              "empty compile cache.",
-              table(["tests passed", "failed", "pytest (min)", "with set-up (min)"],
-                    [[suite["passed"], suite["failed"], num(suite["pytest_s"] / 60, 1),
-                      num(suite["with_setup_s"] / 60, 1)]]), [SUITE]))
+  rows = []
+  for job, name in SUITE.items():
+    s = load(name)["figures"]
+    slowest = ", ".join(f"{f} {num(t / 60, 1)}" for f, t in list(s["file_s"].items())[:3])
+    rows.append([f"`{job}`", f"{s['python']}, jax {s['jax']}", s["tests"] - s["skipped"],
+                 s["failed"], num(s["pytest_s"] / 60, 1), num(s["with_setup_s"] / 60, 1),
+                 slowest])
+  out.append(("Test suite", "CI's two jobs on 2 CPU cores, each from an empty compile cache "
+              "(`benchmarks/suite_time.py`); the slowest files in test minutes, which two "
+              "workers share.",
+              table(["job", "Python", "tests run", "failed", "pytest (min)",
+                     "with set-up (min)", "slowest files (min)"], rows), list(SUITE.values())))
   return out
 
 
@@ -264,10 +296,46 @@ def start_section() -> tuple[str, str, str, list[str]]:
     rows = [[label, *("–" if c.get(key) is None else num(c[key], 0 if key == "steps_per_s" else 1)
                       for c in columns.values())] for label, key in START_ROWS.items()]
     tables.append(f"On {where}:\n\n" + table(["phase (s)", *columns], rows))
-  return ("The start, phase by phase", "The main job's command (Hopper: gpu preset on the GPU, "
-          "cpu on 2 cores), seconds from process start, cold (an empty compile cache) and warm "
-          "(the one it left), beside 416e724; compiles overlap.",
+  return ("The start, phase by phase", "The main job (Hopper), seconds from process start, "
+          "cold (empty compile cache) and warm, beside an earlier commit; compiles overlap.",
           "\n\n".join(tables), list(START.values()))
+
+
+def iteration_section() -> tuple[str, str, str, list[str]]:
+  """Where the main job's time goes on 2 CPU cores: its run, and a chunk's parts."""
+  data = load(ITERATION)
+  run, parts = data["figures"]["run"], data["figures"]["parts"]
+  chunk = parts["chunk_s"]
+  rows = [[name, num(parts[key], 2), f"{num(100 * parts[key] / chunk, 1)}%"]
+          for name, key in (("physics", "physics_s"), ("episode starts' refill", "refill_s"),
+                            ("acting and replay insert", "acting_and_insert_s"),
+                            ("learner (replay samples in it)", "learner_s"),
+                            ("whole chunk", "chunk_s"))]
+  text = (f"A chunk: {num(parts['env_steps_per_chunk'])} env steps, "
+          f"{num(parts['updates_per_chunk'])} updates.\n\n"
+          + table(["part of a chunk", "s", "share"], rows)
+          + f"\n\nThe run: first row at {num(run['first_row_run_s'], 1)} s; chunks at "
+          f"{num(run['chunk_env_steps_per_s'])} env steps/s; pauses (evaluations, logs, saves) "
+          f"{num(100 * run['pause_share'], 1)}% of the time after it.")
+  return ("The CPU iteration", "The main job (Hopper, cold cache) and each part of a chunk, "
+          "timed alone.", text, [ITERATION])
+
+
+def chunk_section() -> tuple[str, str, str, list[str]]:
+  """The training chunk's program, before and after: its size, compile and steady pace."""
+  rows = []
+  for where, name in CHUNK.items():
+    data = load(name)
+    for code, f in data["figures"]["medians"].items():
+      rows.append([where, data["commit"] if code == "this checkout" else code,
+                   num(f["compiled_instructions"]), num(f["compile_s"], 1),
+                   num(f.get("refill_instructions")) if "refill_instructions" in f else "–",
+                   num(f["env_steps_per_s"])])
+  return ("The training chunk", "Hopper's preset: the chunk's HLO instructions, "
+          "cold compile and env steps/s over 10 chunks, each code in a fresh process; the "
+          "refill is a program of its own.",
+          table(["machine", "code", "instructions", "compile (s)", "refill's instructions",
+                 "env steps/s"], rows), list(CHUNK.values()))
 
 
 def pretrained_section(names: list[str]) -> tuple[str, str, str, list[str]]:
@@ -278,9 +346,8 @@ def pretrained_section(names: list[str]) -> tuple[str, str, str, list[str]]:
     rows.append([r["robot"], num(r["target"]), r["seed"], num(r["env_steps"]),
                  num(r["wall_s"]), num(r["best_eval_return"]),
                  f"{num(r['return'])} ± {num(r['return_std'])}", num(r["file_bytes"] / 1024)])
-  return ("Pretrained policies", "One policy per robot in `mjx_hopper/pretrained/`: its gpu "
-          "preset trained until an evaluation reached its score plus a margin, the best policy "
-          "exported, and the file evaluated again (`benchmarks/pretrain.py`).",
+  return ("Pretrained policies", "`mjx_hopper/pretrained/`: each robot's gpu preset "
+          "trained past its score by a margin, the best policy exported, the file evaluated.",
           table(["robot", "score", "seed", "env steps", "training (s)", "best evaluation",
                  "the file's return", "file (KiB)"], rows), names)
 
@@ -291,29 +358,32 @@ def gymnasium_section() -> tuple[str, str, str, list[str]]:
   jax_rate = figures["rows"][0]["env_steps_per_s"]
   rows = [[r["engine"], num(r["num_envs"]), num(r["env_steps_per_s"]),
            num(r["env_steps_per_s"] / jax_rate, 2)] for r in figures["rows"]]
-  return ("The Gymnasium door on 2 CPU cores", "Hopper with random actions through "
-          "`envs.to_gymnasium` (NumPy in and out, a jit-compiled step per call) against the JAX "
-          "env's compiled scan, timed in turns in one process.",
+  return ("The Gymnasium door on 2 CPU cores", "Hopper, random actions, through "
+          "`envs.to_gymnasium` (NumPy in and out, a jit step per call) against the JAX env's "
+          "compiled scan, in turns in one process.",
           table(["engine", "envs", "env steps/s", "× JAX env"], rows), [GYMNASIUM])
 
 
 def code(commit: str) -> str:
-  """A results file's code commit as its source line gives it; an older file that does not know
-  it says the commit that filed its results ("unknown; results committed in C")."""
-  unknown = "unknown; "
-  return commit.removeprefix(unknown) if commit.startswith(unknown) else f"commit {commit}"
+  """A results file's code commit; an older file that does not know it says where its figures
+  were filed ("unknown; results committed in C": "filed in C")."""
+  text = commit.removeprefix("unknown; ")
+  return text.replace("results committed in", "filed in") if text != commit else commit
 
 
 def benchmarks_page() -> str:
-  parts = ["# Benchmarks", "Made by `python benchmarks/report.py` from `benchmarks/results/`, "
-           "whose files each hold their command, machine, date, code commit and figures; do not "
-           "edit by hand. The machines are shared and noisy: compare rows of one run.",
+  parts = ["# Benchmarks", "Made by `python benchmarks/report.py` from the "
+           "`benchmarks/results/` files under each table; do not edit. Machines are shared and "
+           "noisy: compare rows of one run.",
            "## Summary", summary()]
   for title, method, text, names in sections():
-    sources = [f"- `benchmarks/results/{n}` ({r['date']}, {machine(n)}, {code(r['commit'])}): "
-               f"`{r['command']}`" for n, r in ((n, load(n)) for n in dict.fromkeys(names))]
-    parts += [f"## {title}", method, text, "Results, and the commands that made them:\n\n"
-              + "\n".join(sources)]
+    made = {}  # files made by one command on one machine, day and commit share a line
+    for n in dict.fromkeys(names):
+      r = load(n)
+      made.setdefault((r["date"], machine(n), code(r["commit"]), r["command"]), []).append(n)
+    sources = [f"- {', '.join(f'`{n}`' for n in files)} ({date}, {where}, {commit}): "
+               f"`{command}`" for (date, where, commit, command), files in made.items()]
+    parts += [f"## {title}", method, text, "\n".join(sources)]
   return "\n\n".join(parts) + "\n"
 
 

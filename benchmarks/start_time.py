@@ -15,7 +15,6 @@ from __future__ import annotations
 import json
 import os
 import re
-import shutil
 import statistics
 import subprocess
 import sys
@@ -117,11 +116,8 @@ def main() -> None:
   codes = {"this checkout": None}
   with tempfile.TemporaryDirectory(prefix="start_time_") as installed:
     if args.checkout:
-      package = os.path.join(installed, "mjx_hopper")
-      shutil.copytree(os.path.join(args.checkout, "mjx_hopper"), package)
-      for sub in ("envs", "agents"):  # packaged as mjx_hopper.envs and .agents (pyproject.toml)
-        shutil.copytree(os.path.join(args.checkout, sub), os.path.join(package, sub))
-      codes[args.checkout_name or args.checkout] = installed
+      codes[args.checkout_name or args.checkout] = common.installed_layout(args.checkout,
+                                                                           installed)
     runs = {(name, cache): [] for name in codes for cache in ("cold", "warm")}
     for i in range(args.rounds):
       for name, code in (codes.items() if i % 2 == 0 else reversed(codes.items())):

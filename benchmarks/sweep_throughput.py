@@ -22,7 +22,7 @@ import common
 def measure(args) -> dict:
   """One sweep of args.members members: compile time, rates and memory."""
   import mjx_hopper
-  mjx_hopper.use_compile_cache()  # before the package loads (and anything compiles)
+  mjx_hopper.setup()  # before the package loads (and anything compiles)
   import jax
 
   from mjx_hopper import config, flags, runs, train
@@ -39,7 +39,7 @@ def measure(args) -> dict:
   cfg = dataclasses.replace(cfg, train=dataclasses.replace(
       cfg.train, min_replay=cfg.train.steps_per_iteration))
   trainer = runs.build(cfg)
-  timed = common.Timed(trainer.train_chunk, runs.init(cfg, trainer, cfg.members()))
+  timed = common.Timed(trainer.chunk, runs.init(cfg, trainer, cfg.members()), trainer=trainer)
   seconds = timed(args.chunks)
   per_chunk = args.members * cfg.train.steps_per_iteration * args.chunk * args.chunks
   updates = args.members * cfg.train.updates_per_iteration * args.chunk * args.chunks

@@ -70,7 +70,7 @@ def main() -> None:
                  "the trainer's default layout (as `mjx-hopper train --agent`)")
   p.add_argument("--seeds", default="0,1,2")
   p.add_argument("--minutes", type=float, default=None,
-                 help="wall-clock budget (default: the preset's, its target's time)")
+                 help="wall-clock budget (default: the preset's)")
   p.add_argument("--target", type=float, default=None, help="default: the preset's")
   p.add_argument("--run-on", action="store_true",
                  help="run out the budget instead of stopping once every seed reached the target")
@@ -89,13 +89,13 @@ def main() -> None:
     print("\n".join(render(args.render_only)))
     return
   import mjx_hopper  # its own imports only: JAX starts later
-  os.environ["XLA_FLAGS"] = mjx_hopper.xla_flags_with_cpu_devices(args.cpu_devices)
   t0 = time.perf_counter()
+  mjx_hopper.setup(cpu_devices=args.cpu_devices)
   import jax
 
   from mjx_hopper import flags, loop, presets
-  if not args.no_compile_cache:
-    mjx_hopper.use_compile_cache()
+  if args.no_compile_cache:
+    jax.config.update("jax_enable_compilation_cache", False)
   try:
     preset = presets.get(args.robot, args.kind)
   except ValueError as error:

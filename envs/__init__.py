@@ -20,7 +20,7 @@ from mjx_hopper.envs import tasks
 from mjx_hopper.envs.tasks import (check_task, list_envs, make, register, robot_of, settings_of,
                                    task_class, task_id, task_settings)
 from mjx_hopper.envs.walker2d import Walker2D
-from mjx_hopper.envs.wrappers import AutoReset
+from mjx_hopper.envs.wrappers import AutoReset, EpisodeStarts
 
 tasks.BUILT_IN = ("Hopper", "Walker2D", "HalfCheetah", "Ant", "Humanoid")
 for _robot in (Hopper, Walker2D, HalfCheetah, Ant, Humanoid):
@@ -36,7 +36,7 @@ def __getattr__(name: str):
   raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-__all__ = ["Ant", "Array", "AutoReset", "BoundedArray", "EnvironmentSpec", "HalfCheetah", "Hopper",
+__all__ = ["Ant", "Array", "AutoReset", "BoundedArray", "EnvironmentSpec", "EpisodeStarts", "HalfCheetah", "Hopper",
            "Humanoid", "LocomotionEnv", "REWARD_TERMS", "Robot", "State", "Walker2D", "check_task",
            "list_envs", "make", "register", "robot_of", "settings_of", "task_class", "task_id",
            "task_settings", "tasks", "to_gymnasium"]

@@ -25,7 +25,6 @@ with contextlib.redirect_stdout(io.StringIO()):
 from brax.envs.base import Env, State
 from flax import struct
 
-from mjx_hopper import parallel
 from mjx_hopper.envs import specs
 
 ASSETS = os.path.join(os.path.dirname(__file__), "assets")
@@ -152,7 +151,6 @@ class LocomotionEnv(Env):
     # be another process's).
     device = jax.local_devices()[0]
     self.mjx_model = mjx.put_model(model, device=device)
-    parallel.avoid_shardy_crash(len(jax.local_devices()))  # for any program that runs it
 
     joint_ids = [model.joint(n).id for n in self.joints]
     self._qadr = np.array([model.jnt_qposadr[j] for j in joint_ids])

@@ -9,6 +9,16 @@ import mujoco
 import numpy as np
 
 
+def _renderer(model: mujoco.MjModel, height: int, width: int) -> mujoco.Renderer:
+  try:
+    return mujoco.Renderer(model, height=height, width=width)
+  except mujoco.FatalError as error:
+    raise RuntimeError(
+        f"MuJoCo cannot render ({error}): it chose its GL backend when first imported "
+        f"(MUJOCO_GL={os.environ.get('MUJOCO_GL')!r} now); on Linux without a display, call "
+        "mjx_hopper.setup(), or set MUJOCO_GL=egl, before importing mjx_hopper.envs") from None
+
+
 def render_frames(model: mujoco.MjModel, qpos, width: int = 320, height: int = 240,
                   camera: str = "track") -> np.ndarray:
   """uint8 RGB frames of shape ([T,] height, width, 3), one per row of `qpos` ([T,] nq)."""
@@ -18,7 +28,7 @@ def render_frames(model: mujoco.MjModel, qpos, width: int = 320, height: int = 2
                      f"got {qpos.shape}")
   data = mujoco.MjData(model)
   frames = []
-  with mujoco.Renderer(model, height=height, width=width) as renderer:
+  with _renderer(model, height, width) as renderer:
     for q in np.atleast_2d(qpos):
       data.qpos[:] = q
       mujoco.mj_kinematics(model, data)

@@ -4,7 +4,7 @@
     mjx-hopper train --env my_events:HighJump --env-set height_weight=5.0   # a task of your own
     mjx-hopper sweep --seeds 4 --set learning_rate=1e-4,3e-4 [train's flags]
     mjx-hopper extract --checkpoint DIR --member 3|best --out DIR
-    mjx-hopper eval --checkpoint DIR [--member 0|best] [--episodes 16] [--video out.mp4]
+    mjx-hopper eval --checkpoint DIR [--member M|best] [--episodes 16] [--video out.mp4]
     mjx-hopper eval --policy policy.npz | --pretrained Humanoid [--video out.mp4]
     mjx-hopper export --checkpoint DIR [--member M|best] [--latest] --out policy.npz
     mjx-hopper plot RUN [RUN ...] [--out curves.png] [--x env_steps|wall_s]
@@ -21,23 +21,30 @@ import argparse
 import os
 import sys
 
+import mjx_hopper
+
 
 VIDEO = "runs/eval/policy.mp4"  # eval's video, unless --video names another
 
 
 def main(argv: list[str] | None = None) -> None:
   """Runs the command line `argv` (default: the process's); a user's error ends it in one line."""
-  _quiet_xla()
+  argv = sys.argv[1:] if argv is None else argv
+  try:
+    mjx_hopper.setup(cpu_devices=_cpu_devices(argv))  # before the parser imports JAX
+  except ValueError as error:  # JAX started with other CPU devices (main called in a process)
+    raise SystemExit(f"mjx-hopper: {error}") from None
   if os.getcwd() not in sys.path:  # as `python -m` does: --env my_events:Jump finds ./my_events.py
     sys.path.insert(0, os.getcwd())
-  args = build_parser().parse_args(sys.argv[1:] if argv is None else argv)
+  args = build_parser().parse_args(argv)
   try:
     if getattr(args, "help", False):  # train's or sweep's, once every flag is read
       from mjx_hopper import flags
       bases = {args.command: flags.base_config(args, args.command)}
       build_parser(bases).parse_args([args.command]).parser.print_help()
       return
-    _setup_jax(args.cpu_devices)
+    if args.cpu_devices < 1:
+      raise ValueError(f"--cpu-devices must be >= 1, got {args.cpu_devices}")
     args.func(args)
   except (ValueError, FileNotFoundError) as error:
     raise SystemExit(f"mjx-hopper {args.command}: {error}") from None
@@ -79,7 +86,7 @@ def _eval_flags(e: argparse.ArgumentParser, _base) -> None:
   source.add_argument("--policy", help="a policy file written by mjx-hopper export")
   source.add_argument("--pretrained", metavar="ROBOT",
                       help="the policy shipped for a robot (Hopper, ..., Humanoid)")
-  _add_member(e, default=0)
+  _add_member(e, default=None)
   _add_latest(e)
   e.add_argument("--episodes", type=int, default=16)
   e.add_argument("--seed", type=int, default=0)
@@ -122,7 +129,7 @@ def _add_cpu_devices(parser: argparse.ArgumentParser, default) -> None:
 def _add_member(parser: argparse.ArgumentParser, **kwargs) -> None:
   parser.add_argument("--member", type=_member, **kwargs,
                       help="a sweep's member: its index (log.csv's member), or best: the member "
-                           "of the best evaluation")
+                           "of the best evaluation; a single run's needs none")
 
 
 def _add_latest(parser: argparse.ArgumentParser) -> None:
@@ -159,15 +166,16 @@ def train(args: argparse.Namespace) -> None:
 
 def sweep(args: argparse.Namespace) -> None:
   """Trains a sweep's members at once: log.csv (a row per member per chunk and evaluation),
-  curves.png, a ranking, checkpoints; over several processes, each its share."""
-  from mjx_hopper import flags, loop, parallel
+  curves.png, a ranking, checkpoints; with --distributed, over several processes as one."""
+  from mjx_hopper import distributed, flags, loop
   if args.seeds is not None and args.seeds < 1:
     raise ValueError(f"--seeds must be >= 1, got {args.seeds}")
-  process = None
-  if args.distributed or args.coordinator or args.num_processes or args.process_id is not None:
-    process = parallel.join_processes(args.coordinator, args.num_processes, args.process_id)
+  cluster = distributed.Cluster(args.coordinator, args.num_processes, args.process_id)
+  if any(v is not None for v in cluster) and not args.distributed:
+    raise ValueError("--coordinator, --num-processes and --process-id place a process of a "
+                     "--distributed sweep: add --distributed")
   loop.run(flags.run_config(args, "sweep"), checkpoint_dir=args.checkpoint_dir,
-           progress=not args.no_progress, process=process)
+           progress=not args.no_progress, distributed_run=args.distributed and cluster)
 
 
 def settings(args: argparse.Namespace) -> None:
@@ -250,25 +258,17 @@ COMMANDS = {
 }
 
 
-def _quiet_xla() -> None:
-  """XLA's C++ log at errors only, where this process may use XLA's GSPMD partitioner
-  (`parallel.SHARDY_CRASHES`): GSPMD warns at every compile that it is deprecated, and XLA
-  offers no way to silence that one line. XLA reads it when JAX is first imported, so this
-  runs before; a TF_CPP_MIN_LOG_LEVEL already set wins."""
-  import importlib.metadata
-  version = tuple(int(p) for p in importlib.metadata.version("jax").split(".")[:2])
-  if version >= (0, 11):  # parallel.SHARDY_CRASHES, read without importing JAX
-    os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "2")
-
-
-def _setup_jax(cpu_devices: int) -> None:
-  """Splits the CPU into `cpu_devices` XLA devices and turns on the persistent compile cache,
-  before JAX starts its backends."""
-  if cpu_devices < 1:
-    raise ValueError(f"--cpu-devices must be >= 1, got {cpu_devices}")
-  import mjx_hopper
-  os.environ["XLA_FLAGS"] = mjx_hopper.xla_flags_with_cpu_devices(cpu_devices)
-  mjx_hopper.use_compile_cache()
+def _cpu_devices(argv: list[str]) -> int | None:
+  """--cpu-devices's value in `argv`, read before the parser, which imports JAX. Unless given,
+  one per core, where JAX has not started (`main` called in a process that used it keeps its
+  devices). None where it is not an integer >= 1, which the parser then refuses."""
+  pre = argparse.ArgumentParser(add_help=False)
+  pre.add_argument("--cpu-devices", default=None)
+  value = pre.parse_known_args(argv)[0].cpu_devices
+  if value is None:
+    from mjx_hopper import jax_private
+    return None if jax_private.backends_started() else os.cpu_count() or 1
+  return int(value) if value.isdigit() and int(value) >= 1 else None
 
 
 if __name__ == "__main__":

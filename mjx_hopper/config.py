@@ -12,14 +12,17 @@ import itertools
 import json
 from typing import Any
 
-import jax
 
-from mjx_hopper import agents, compat, envs
+import mjx_hopper
+from mjx_hopper import agents, envs
 from mjx_hopper.fields import setting
 from mjx_hopper.pbt import PBT
 from mjx_hopper.train import TrainConfig
 
 EVAL_ON = ("auto", "host", "train")
+# What a saved config holds besides RunConfig's fields (a checkpoint's config item, config.json).
+SAVED_EXTRAS = ("agent_config", "member_indices", "processes", "record", "versions",
+                "checkpoint_format")
 TRAINER_DYNAMIC = ("replay_ratio",)  # the trainer's settings a sweep may vary
 
 
@@ -110,10 +113,11 @@ class RunConfig:
     """The task's env, built with its settings."""
     return envs.make(self.task(), **self.task_settings())
 
-  def evaluates_on_host(self) -> bool:
-    """Whether evaluations run on the host's CPU, beside training (`eval_on`)."""
+  def evaluates_on_host(self, backend: str) -> bool:
+    """Whether evaluations run on the host's CPU, beside training on `backend` (as
+    `jax.default_backend()` names it): `eval_on`."""
     if self.eval_on == "auto":
-      return len(self.members()) == 1 and jax.default_backend() != "cpu"
+      return len(self.members()) == 1 and backend != "cpu"
     return self.eval_on == "host"
 
   def members(self) -> list[dict]:
@@ -148,11 +152,14 @@ class RunConfig:
 
   @classmethod
   def from_json(cls, saved: dict, env: Any = None) -> "RunConfig":
-    """The RunConfig that `to_json` saved (old field names included). `env`, when given, is
-    its task (a class defined in a notebook cannot be imported by another process), which
-    must be the saved one: another is a ValueError saying which."""
-    saved = compat.saved_config(saved)
+    """The RunConfig that `to_json` saved. `env`, when given, is its task (a class defined in
+    a notebook cannot be imported by another process), which must be the saved one: another is
+    a ValueError saying which. A setting this version does not know, or a value it refuses (an
+    older version's name), is a ValueError naming the saved format and this version."""
     fields = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(saved) - fields - set(SAVED_EXTRAS))
+    if unknown:
+      raise ValueError(_unreadable(saved, f"settings it does not know: {', '.join(unknown)}"))
     kwargs = {k: v for k, v in saved.items() if k in fields}
     if env is not None:
       task = envs.task_class(env)
@@ -170,10 +177,19 @@ class RunConfig:
     kwargs["grid"] = {k: tuple(v) for k, v in saved.get("grid", {}).items()}
     if saved.get("pbt") is not None:
       kwargs["pbt"] = PBT(**{**saved["pbt"], "factors": tuple(saved["pbt"]["factors"])})
-    return cls(**kwargs)
+    try:
+      return cls(**kwargs)
+    except ValueError as error:
+      raise ValueError(_unreadable(saved, str(error))) from None
 
 
-RunConfig.__init__ = compat.keywords(RunConfig.__init__)  # the old keyword names
+def _unreadable(saved: dict, why: str) -> str:
+  """One line refusing a saved config that this version cannot read, saying why."""
+  by = saved.get("versions", {}).get("mjx_hopper")
+  by = f"mjx_hopper {by}" if by else "an older mjx_hopper"
+  return (f"the saved config (checkpoint format {saved.get('checkpoint_format', 1)}, saved by "
+          f"{by}) is not one mjx_hopper {mjx_hopper.__version__} reads: {why}; 0.x "
+          "versions rename settings freely (CHANGELOG.md): use the version that saved it")
 
 
 def load(path: str) -> "RunConfig":
@@ -187,14 +203,9 @@ def load(path: str) -> "RunConfig":
   if not isinstance(saved, dict) or not {"env", "agent", "train"} <= set(saved):
     raise ValueError(f"--config {path} is not a run's config.json (it lacks env, agent or "
                      "train)")
-  known = {f.name for f in dataclasses.fields(RunConfig)} | set(compat.KEYWORDS) | {
-      "agent_config", "member_indices", "record", "versions", "checkpoint_format"}
-  unknown = sorted(set(saved) - known)
-  if unknown:
-    raise ValueError(f"--config {path} names unknown settings {unknown}")
   try:
     return RunConfig.from_json(saved)
-  except TypeError as error:  # an unknown setting of the trainer's or PBT's
+  except (TypeError, ValueError) as error:  # TypeError: an unknown setting of the trainer's
     raise ValueError(f"--config {path}: {error}") from None
 
 

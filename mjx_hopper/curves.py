@@ -9,11 +9,12 @@ sweep draw their own at the end (curves.png); `mjx-hopper plot` draws several on
 from __future__ import annotations
 
 import csv
-import json
 import math
 import os
 
 import numpy as np
+
+from mjx_hopper.store.run_folder import RunFolder
 
 X_AXES = {"env_steps": "env steps", "wall_s": "wall time (s)"}
 
@@ -89,18 +90,13 @@ def plot(rows: list[dict], grid: dict, path: str, x: str = "env_steps") -> str |
 def read_run(folder: str) -> tuple[list[dict], dict]:
   """The rows of the run in `folder` (its log.csv) and its sweep's grid (config.json's; {} for
   a single run). A folder without log.csv is a FileNotFoundError naming it."""
-  log = os.path.join(folder, "log.csv")
-  if not os.path.isfile(log):
+  run = RunFolder(folder)
+  if not os.path.isfile(run.log):
     raise FileNotFoundError(f"{folder} holds no log.csv: give the folder a run or sweep wrote "
                             "(its out_dir)")
-  with open(log, newline="") as f:
+  with open(run.log, newline="") as f:
     rows = list(csv.DictReader(f))
-  try:
-    with open(os.path.join(folder, "config.json")) as f:
-      grid = json.load(f).get("grid") or {}
-  except (OSError, ValueError):
-    grid = {}
-  return rows, grid
+  return rows, run.grid()
 
 
 def plot_runs(folders: list[str], out: str, x: str = "env_steps") -> str:

@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
 
-from mjx_hopper import parallel, train
+from mjx_hopper import distributed, train
 
 MAX_PENDING = 3  # evaluations running on the host beyond which training waits for the oldest
 
@@ -49,9 +49,6 @@ class Evaluator:
     if on_host:  # the episodes spread evenly over as many CPU devices as they allow
       cpus = jax.devices("cpu")
       count = max(k for k in range(1, len(cpus) + 1) if episodes % k == 0)
-      # The whole process then compiles with GSPMD where Shardy would crash over these devices:
-      # measured no slower to start than switching only the evaluation's compile thread.
-      parallel.avoid_shardy_crash(count)
       self.host = NamedSharding(Mesh(np.array(cpus[:count]), ("host",)), P())
     self.episodes = episodes
     self.best = None         # each member's agent at its best evaluation
@@ -62,25 +59,20 @@ class Evaluator:
     self.copy_agents = jax.jit(lambda tree: jax.tree.map(jnp.copy, tree),
                                out_shardings=trainer.shardings.agent)
     self.select_agents = jax.jit(select_members, out_shardings=trainer.shardings.agent)
-    self.program = None
+    self.program = None      # the compiled evaluation's future, once the run has started it
 
-  def compile_in(self, pool, agent_shapes, trace_now: bool = True) -> None:
-    """Compiles the evaluation in the thread pool `pool`: traced here with `trace_now` (tracing
-    holds Python's lock), else traced in the pool too, after the pool's earlier work."""
-    if trace_now:
-      self.program = pool.submit(self._lower(agent_shapes).compile)
-    else:
-      self.program = pool.submit(lambda: self._lower(agent_shapes).compile())
-
-  def _lower(self, agent):
+  def lower(self, agent_shapes):
+    """The evaluation lowered for the members' agents of `agent_shapes`, on the training's
+    devices or the host's."""
     keys = jax.ShapeDtypeStruct((len(self.seeds), 2), jnp.uint32)
     if self.host is None:
-      return self.trainer.evaluate.lower(agent, keys)
+      return self.trainer.evaluate.lower(agent_shapes, keys)
     devices = list(self.host.mesh.devices.flat)
     evaluate = train.make_evaluate(self.trainer.env, self.trainer.agent, self.episodes,
                                    len(self.seeds), devices)
     agent, keys = jax.tree.map(
-        lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=self.host), (agent, keys))
+        lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=self.host),
+        (agent_shapes, keys))
     return evaluate.lower(agent, keys)
 
   def submit(self, env_steps: int, agent, diverged: np.ndarray) -> None:
@@ -100,7 +92,8 @@ class Evaluator:
     while self.pending and (wait or len(self.pending) > MAX_PENDING
                             or _finished(self.pending[0].started)):
       done = self.pending.pop(0)
-      out.append(Done(done.env_steps, jax.device_get(done.started), done.agent, done.diverged))
+      out.append(Done(done.env_steps, distributed.gather(done.started), done.agent,
+                      done.diverged))
     return out
 
   def keep(self, done: Done, better: np.ndarray) -> None:
@@ -113,7 +106,9 @@ class Evaluator:
       self.best = self.select_agents(better, done.agent, self.best)
 
   def _start(self, pending: Pending):
-    keys = _evaluation_keys(train.seed_bits(self.seeds), train.seed_bits(pending.env_steps))
+    # On the host: over processes, the program takes NumPy as every process's same value.
+    keys = jax.device_get(_evaluation_keys(train.seed_bits(self.seeds),
+                                           train.seed_bits(pending.env_steps)))
     agent = pending.agent
     if self.host is not None:
       agent, keys = jax.device_put((agent, keys), self.host)

@@ -204,29 +204,24 @@ def save(policy: Policy, out: str) -> str:
 def export_checkpoint(directory: str, out: str, member: int | str | None = None,
                       which: str = "best", env: Any = None, print_fn=print) -> str:
   """Writes the policy of a checkpoint in `directory` to the file `out` and returns its path:
-  the agent of the best evaluation, or with which="latest", the latest. `member` is as
-  `runs.extract` takes it (a member's index, or "best": the member of the best evaluation);
-  required for a sweep, optional for a single run. `env` is the run's task, for a class that
-  cannot be imported (see `loop.resume`). Errors are one-line ValueErrors or
-  FileNotFoundErrors, and nothing is written."""
-  from mjx_hopper import checkpoint, runs
+  the agent of the best evaluation, or with which="latest", the latest. `member` is a member's
+  index, or "best" (the member of the best evaluation); required for a sweep, optional for a
+  single run. `env` is the run's task, for a class that cannot be imported (see
+  `loop.resume`). Errors are one-line ValueErrors or FileNotFoundErrors, and nothing is
+  written."""
+  from mjx_hopper import runs
 
-  runs.check_which(which)
-  mngr = runs.open_checkpoints(directory)
-  step, saved = checkpoint.load_newest(mngr, lambda s: checkpoint.read_config(mngr, s), print_fn)
-  position = _member_position(directory, saved, member)
-  cfg, state, trainer = runs.load_policy(directory, position, env=env, which=which,
-                                         print_fn=print_fn)
-  best = which == "best" and checkpoint.has_best(mngr, step)
-  evaluation = _evaluation(saved.get("record", {}), position, best, cfg.eval_episodes,
-                           step * trainer.config.steps_per_iteration)
+  cfg, state, trainer, saved, position, best = runs.load_member(directory, member, env, which,
+                                                                print_fn)
+  evaluation = _evaluation(saved.record, position, best, cfg.eval_episodes,
+                           saved.step * trainer.config.steps_per_iteration)
   policy = policy_of(cfg.agent, cfg.agent_config(), state.policy,
                      trainer.env.observation_size, trainer.env.action_size,
-                     task=_task(cfg),
-                     member=saved.get("member_indices", [0])[position],
-                     evaluation=evaluation, checkpoint_format=saved.get("checkpoint_format", 1),
+                     task=_task(cfg), member=saved.indices[position],
+                     evaluation=evaluation,
+                     checkpoint_format=saved.item.get("checkpoint_format", 1),
                      versions={"mjx_hopper": mjx_hopper.__version__, "numpy": np.__version__},
-                     trained_with=saved.get("versions", {}), run_config=cfg.to_json())
+                     trained_with=saved.item.get("versions", {}), run_config=cfg.to_json())
   save(policy, out)
   score = "" if evaluation["return"] is None else f", return {evaluation['return']:.1f}"
   print_fn(f"exported the {evaluation['which']} policy of {directory}{score} "
@@ -249,25 +244,6 @@ def _evaluation(record: dict, position: int, best: bool, episodes: int, env_step
   score = record.get("best_return", [None] * (position + 1))[position]
   at = record.get("best_env_steps", [None] * (position + 1))[position]
   return {"which": "best", "return": score, "env_steps": at, "episodes": episodes}
-
-
-def _member_position(directory: str, saved: dict, member: int | str | None) -> int:
-  """The position, among the checkpoint's members, of `member` (an index as log.csv names it,
-  or "best"); None is the only member of a single run."""
-  indices = list(saved.get("member_indices", [0]))
-  if member is None:
-    if len(indices) > 1:
-      raise ValueError(f"{directory} holds a sweep of {len(indices)} members: give the member "
-                       "to export (--member INDEX, or --member best)")
-    return 0
-  if member == "best":
-    from mjx_hopper import runs
-    return runs.best_position(directory, saved.get("record", {}))
-  if isinstance(member, bool) or not isinstance(member, (int, np.integer)):
-    raise ValueError(f"member takes a member's index or 'best', got {member!r}")
-  if member not in indices:
-    raise ValueError(f"member {member} is not in {directory}: it holds members {indices}")
-  return indices.index(member)
 
 
 # ---- Evaluating a file (JAX) ------------------------------------------------------------------

@@ -7,9 +7,8 @@ from __future__ import annotations
 import argparse
 import ast
 import dataclasses
-import sys
 
-from mjx_hopper import compat, config, presets
+from mjx_hopper import config, presets
 from mjx_hopper.config import RunConfig
 from mjx_hopper.pbt import PBT
 from mjx_hopper.train import TrainConfig
@@ -26,14 +25,6 @@ def flag_name(field) -> str:
   return "--" + field.name.replace("_", "-")
 
 
-class _Flag(argparse.Action):
-  """Stores a flag's value; an old name of the flag (`compat.FLAGS`) says so on stderr."""
-
-  def __call__(self, parser, namespace, values, option_string=None):
-    compat.flag(option_string, lambda line: print(f"mjx-hopper: {line}", file=sys.stderr))
-    setattr(namespace, self.dest, values)
-
-
 def add_run_flags(t: argparse.ArgumentParser, base, sweep: bool = False) -> None:
   """train's and sweep's flags: one per setting of the config (its help, type and, as shown,
   the value `base` holds), and the conveniences that become settings. Only flags given
@@ -46,9 +37,6 @@ def add_run_flags(t: argparse.ArgumentParser, base, sweep: bool = False) -> None
     kind = {"int": int, "float": float}.get(str(f.type).split(" |")[0], str)
     t.add_argument(flag_name(f), dest=f.name, type=kind, default=argparse.SUPPRESS,
                    help=f.metadata["help"] + ("" if base is None else f" (default: {now})"))
-    for old in [name for name, (new, _) in compat.FLAGS.items() if new == flag_name(f)]:
-      t.add_argument(old, dest=f.name, action=_Flag, type=kind, default=argparse.SUPPRESS,
-                     help=argparse.SUPPRESS)
   t.add_argument("--preset", default=None,
                  help="the robot's settings: cpu or gpu (mjx_hopper.presets); default cpu")
   t.add_argument("--config", default=None, metavar="FILE",
@@ -73,11 +61,13 @@ def _add_sweep_flags(w: argparse.ArgumentParser) -> None:
                  help="members per setting: seeds SEED to SEED+N-1 (becomes the config's "
                       "seeds; default 1, or a --config's seeds)")
   w.add_argument("--distributed", action="store_true",
-                 help="a sweep over processes, each told its place by its launcher (SLURM, "
-                      "Open MPI): each trains its share of the members")
-  w.add_argument("--coordinator", action=_Flag, default=None, help=argparse.SUPPRESS)
-  w.add_argument("--num-processes", type=int, default=None, help="a sweep over processes")
-  w.add_argument("--process-id", type=int, default=None, help="this process's index")
+                 help="one sweep over several processes (JAX's distributed runtime), each "
+                      "told its place by its launcher (SLURM, Open MPI) or the next flags")
+  w.add_argument("--coordinator", default=None, metavar="HOST:PORT",
+                 help="process 0's address for --distributed")
+  w.add_argument("--num-processes", type=int, default=None, help="processes of --distributed")
+  w.add_argument("--process-id", type=int, default=None,
+                 help="this process's index under --distributed")
   w.add_argument("--pbt", action="store_true",
                  help="population-based training: the worst members copy the best and "
                       "perturb the swept settings (docs/pbt.md)")
@@ -116,6 +106,8 @@ def run_config(args: argparse.Namespace, command: str = "train") -> RunConfig:
   train_names = {f.name for f in dataclasses.fields(TrainConfig)}
   train_given = {k: v for k, v in given.items() if k in train_names}
   run_given = {k: v for k, v in given.items() if k not in train_names}
+  if "total_env_steps" in run_given:  # a step count given alone is the whole budget
+    run_given.setdefault("max_minutes", None)
   fixed, grid = overrides(args.set), {}
   if command == "sweep":
     dynamic = config.dynamic_settings(run_given.get("agent", base.agent),

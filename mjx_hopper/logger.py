@@ -1,5 +1,5 @@
 """Host-side logging between compiled chunks: every row to a CSV (and, when asked, to
-TensorBoard and Weights & Biases), and a short terminal line every `time_delta` seconds (like
+TensorBoard and Weights & Biases), and a short terminal line every `log_every` seconds (like
 acme's TerminalLogger).
 
 A row is a dict with a "kind" ("train" or "eval"), "env_steps" and numbers. The CSV,
@@ -17,10 +17,8 @@ import logging
 import math
 import os
 import time
-from collections.abc import Mapping
 from typing import Callable, Sequence
 
-from mjx_hopper import agents
 
 # (row field, terminal text with {} for its value) pairs.
 RETURNS = (("episode_return", "train return {}"), ("eval_return", "eval return {}"))
@@ -29,22 +27,6 @@ EVAL_FIELDS = (("env_steps", "{} env steps"), ("eval_return", "eval return {}"),
                ("eval_return_std", "std {}"), ("eval_length", "episode length {}"))
 
 
-class _LearnerFields(Mapping):
-  """{agent: its terminal line's learner fields}, as the agents declare them."""
-
-  def __getitem__(self, name):
-    if name not in agents.list_agents():
-      raise KeyError(name)
-    return agents.learner_fields(name)
-
-  def __iter__(self):
-    return iter(agents.list_agents())
-
-  def __len__(self):
-    return len(agents.list_agents())
-
-
-LEARNER_FIELDS = _LearnerFields()
 # Fields whose NaN means "none this time" (no episode ended in the chunk): the latest value
 # stands. Any other NaN (a diverged critic, say) is shown as nan.
 KEEP_LATEST = ("episode_return",)
@@ -59,25 +41,26 @@ class Unavailable(ValueError):
 class Logger:
   """Writes every row to `csv_path`, with `tensorboard_dir` to TensorBoard, and with
   `wandb_project` to a Weights & Biases run of that project (with `wandb_config`, the run's
-  config); prints a train row's short line every `time_delta` seconds, and every row passed
+  config); prints a train row's short line every `log_every` seconds, and every row passed
   with force=True.
 
   The CSV's columns are those of the first row plus any added later (the file is rewritten
   when a new column appears); a resumed run appends to it. TensorBoard gets each number of a
-  row as the scalar "<kind>/<field>" at step env_steps, in a new event file per run; a run
-  resumed from `start_step` env steps hides what an interrupted run wrote after that step.
+  row as the scalar "<kind>/<field>" at step env_steps, in a new event file per run. A run
+  resumed from `start_step` env steps drops what an interrupted run wrote after that step (a
+  process killed after its last checkpoint) from both, as its own rows will replace them.
   W&B gets the same scalars, against the custom x-axis "env_steps" (an evaluation may be
   logged after later training rows). Use as a context manager, or call `close`, to flush
   TensorBoard's file and finish the W&B run.
   """
 
-  def __init__(self, csv_path: str | None, time_delta: float = 10.0,
+  def __init__(self, csv_path: str | None, log_every: float = 10.0,
                print_fn: Callable[[str], None] = print, learner_fields: Fields = (),
                tensorboard_dir: str | None = None, start_step: int = 0,
                id_fields: Sequence[str] = (), wandb_project: str | None = None,
                wandb_config: dict | None = None):
     self.wandb = _wandb_run(wandb_project, wandb_config, csv_path, print_fn)  # first: it may fail
-    self.csv_path, self.time_delta, self.print_fn = csv_path, time_delta, print_fn
+    self.csv_path, self.log_every, self.print_fn = csv_path, log_every, print_fn
     self.learner_fields, self.id_fields = tuple(learner_fields), tuple(id_fields)
     self.rows: list[dict] = []
     self.columns: list[str] = []
@@ -89,7 +72,10 @@ class Logger:
         with open(csv_path, newline="") as f:
           reader = csv.DictReader(f)
           self.columns = list(reader.fieldnames or [])
-          self.rows = list(reader)
+          rows = list(reader)
+        self.rows = [r for r in rows if float(r["env_steps"]) <= start_step]
+        if len(self.rows) < len(rows):
+          self._rewrite_csv()
     self.tensorboard = _tensorboard_writer(tensorboard_dir, start_step)
 
   def write(self, row: dict, force: bool = False) -> None:
@@ -103,7 +89,7 @@ class Logger:
     if self.tensorboard is not None or self.wandb is not None:
       self._write_scalars(row)
     now = time.monotonic()
-    if force or now - self._last_print >= self.time_delta:
+    if force or now - self._last_print >= self.log_every:
       self._last_print = now
       self.print_fn(self.line(row))
 
@@ -140,13 +126,16 @@ class Logger:
     new = [k for k in row if k not in self.columns]
     if new or not os.path.exists(self.csv_path):
       self.columns += new
-      with open(self.csv_path, "w", newline="") as f:
-        writer = csv.DictWriter(f, self.columns)
-        writer.writeheader()
-        writer.writerows(self.rows)
+      self._rewrite_csv()
       return
     with open(self.csv_path, "a", newline="") as f:
       csv.DictWriter(f, self.columns).writerow(row)
+
+  def _rewrite_csv(self) -> None:
+    with open(self.csv_path, "w", newline="") as f:
+      writer = csv.DictWriter(f, self.columns)
+      writer.writeheader()
+      writer.writerows(self.rows)
 
   def _write_scalars(self, row: dict) -> None:
     """Each number of `row` to TensorBoard and W&B as "<kind>/<field>"; a sweep member's as

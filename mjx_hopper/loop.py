@@ -7,9 +7,9 @@ steps, checkpoints and progress.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
-import json
 import math
 import os
 import sys
@@ -20,12 +20,14 @@ import jax
 import numpy as np
 from tqdm.auto import tqdm
 
-from mjx_hopper import (agents, checkpoint, compat, parallel, pbt, runlock, runs, start, sweep,
-                        train)
+import mjx_hopper
+from mjx_hopper import agents, distributed, pbt, runlock, runs, start, store, sweep, train
 from mjx_hopper.config import RunConfig
 from mjx_hopper.evaluator import Evaluator
 from mjx_hopper.logger import Logger, check_services
 from mjx_hopper.members import Members
+from mjx_hopper.stop import StopRequest
+from mjx_hopper.store.run_folder import RunFolder, check_processes, config_item
 
 ProgressFn = Callable[[int, dict], Any]
 
@@ -51,7 +53,7 @@ class Result:
 
 
 def run(cfg: RunConfig, checkpoint_dir: str | None = None, progress: bool = True,
-        print_fn=print, process: tuple[int, int] | None = None,
+        print_fn=print, distributed_run: "bool | distributed.Cluster" = False,
         progress_fn: ProgressFn | None = None) -> Result:
   """Trains until `total_env_steps`, evaluating every `eval_every` env steps and at the end.
 
@@ -60,15 +62,24 @@ def run(cfg: RunConfig, checkpoint_dir: str | None = None, progress: bool = True
   SIGTERM saves after the chunk in flight. `progress_fn(env_steps, metrics)` is called after
   every chunk and every evaluation with log.csv's fields (a sweep's: one value per member);
   returning False ends the run as `max_minutes` does, and an exception from it (or from a
-  logger's sink) ends it as Ctrl-C does, then is raised. `process` = (index, count) trains this
-  process's share of a sweep's members. The run holds `out_dir`'s lock (`runlock`) throughout.
+  logger's sink) ends it as Ctrl-C does, then is raised. With `distributed_run` (True: from the
+  launcher's variables, or a `distributed.Cluster`) this process is one of several that train
+  the members together over every process's devices (docs/sweeps.md); process 0 writes the
+  files, says the lines and calls progress_fn. The run holds `out_dir`'s lock (`runlock`)
+  throughout. It calls `mjx_hopper.setup()`: after JAX has started, XLA's flags stay as they were.
   """
+  mjx_hopper.setup()
+  if distributed_run:
+    distributed.join(distributed_run)  # before anything runs on a device
+  primary = distributed.primary()
   check_services(cfg.wandb, cfg.tensorboard_dir)  # before a compile, which exit waits for
-  say = _above_progress_bars(print_fn)
-  with runlock.hold(_out_dir(cfg, process), say):
-    parts, state = _open(cfg, checkpoint_dir, say, process, progress_fn)
-    with checkpoint.StopRequest() as stop, parts.logger, _UserCode(parts, stop) as user:
-      state = _train(parts, state, progress, stop)
+  say = _above_progress_bars(print_fn) if primary else _silent
+  folder = RunFolder.of(cfg)
+  with _lock(folder.path, say, primary), distributed.watch(folder.path):
+    parts, state = _open(cfg, checkpoint_dir, say, progress_fn if primary else None)
+    with StopRequest() as stop, parts.logger, _naming_the_checkpoint_at_an_error(parts):
+      user = _UserCode(stop)
+      state = _train(parts, state, progress, stop, user)
     result = _finish(parts, state, stop)
   user.raise_error()
   return result
@@ -85,6 +96,28 @@ def resume(directory: str, progress: bool = True, print_fn=print, env: Any = Non
              print_fn=print_fn, progress_fn=progress_fn)
 
 
+def _silent(line: str) -> None:
+  """The lines of a process other than process 0, which says them."""
+
+
+@contextlib.contextmanager
+def _lock(folder: str, say, primary: bool):
+  """Process 0 holds `folder`'s lock (`runlock.hold`); where it cannot, every process ends."""
+  error = None
+  with contextlib.ExitStack() as stack:
+    if primary:
+      try:
+        stack.enter_context(runlock.hold(folder, say))
+      except runlock.Locked as locked:
+        error = locked
+    refused, = distributed.agree(error is not None)
+    if error is not None:
+      raise error
+    if refused:
+      raise runlock.Locked(f"process 0 could not take {folder}'s lock: another run holds it")
+    yield
+
+
 @dataclasses.dataclass
 class _Parts:
   """One call of `run`: its config and the parts that own each step between chunks."""
@@ -94,7 +127,7 @@ class _Parts:
   evaluator: Evaluator
   chunk: Callable
   pbt_step: Callable | None
-  saver: checkpoint.Saver
+  saver: store.Saver
   logger: Logger
   display: sweep.Report
   until: "_Until"
@@ -113,51 +146,65 @@ class _Parts:
     return env_steps // period > before // period and env_steps < self.cfg.total_env_steps
 
 
-def _train(p: _Parts, state: train.TrainState, progress: bool, stop) -> train.TrainState:
-  """Chunks until the run's env steps or deadline, a stop (a signal, or progress_fn's False),
-  its target, or every member diverged."""
+def _train(p: _Parts, state: train.TrainState, progress: bool, stop, user: "_UserCode"
+           ) -> train.TrainState:
+  """Chunks until the run's env steps or deadline, a stop (a signal, progress_fn's False, or
+  an exception from the user's code), its target, or every member diverged."""
   cfg, members, evaluator = p.cfg, p.members, p.evaluator
   env_steps = p.env_steps(state)
   bar = _progress_bar(cfg.total_env_steps, env_steps) if progress and not p.until.reached(
       env_steps) else None
   next_eval = (env_steps // cfg.eval_every + 1) * cfg.eval_every
-  stopped = False  # by progress_fn
-  while not (stopped or stop.requested or p.until.reached(env_steps) or members.done()):
+  asked = False  # by progress_fn
+  while True:
+    # Over processes, what one process alone knows (a signal, its clock, progress_fn) is
+    # agreed on, so that every process makes the same choices.
+    stopped, signalled = distributed.agree(asked or p.until.reached(env_steps), stop.requested)
+    _signalled_elsewhere(stop, signalled)
+    if stopped or signalled or members.done():
+      break
     before, t0 = env_steps, time.perf_counter()
     state, metrics, agents_before = p.chunk(state)
     env_steps = p.env_steps(state)
     members.check(env_steps, metrics, p.chunk.finite(state.agent))
     state = p.chunk.freeze(state, agents_before, members.diverged)
     rate = (env_steps - before) * len(members) / (time.perf_counter() - t0)
-    stopped = _log_train(p, state, env_steps, rate, metrics)
+    asked |= _log_train(p, user, state, env_steps, rate, metrics)
     if members.all_diverged():
       break  # this state is not evaluated, and never saved
-    last = stopped or p.until.reached(env_steps)
+    last, signalled, saving = distributed.agree(
+        asked or p.until.reached(env_steps), stop.requested, p.saver.due())
+    _signalled_elsewhere(stop, signalled)
     if env_steps >= next_eval or last:
       next_eval += cfg.eval_every
       evaluator.submit(env_steps, state.agent, members.diverged)
     pbt_now = p.pbt_due(before, env_steps)
-    saving = p.saver.due()
     # The last evaluation, PBT's (which needs the returns) and a checkpoint's (which holds
     # them) wait; the others do not.
     for done in evaluator.collect(wait=last or pbt_now or saving):
       better = members.evaluated(done.env_steps, done.returns, done.diverged)
       evaluator.keep(done, better)
-      stopped |= _log_evaluation(p, done)
+      asked |= _log_evaluation(p, user, done)
     if pbt_now:
       state = p.pbt_step(state, evaluator.latest.returns, env_steps, members)
     if saving:
       p.saver.save(state, evaluator.best, members)
     _show(bar, p, env_steps, rate)
-  _close(p, state, bar)
+  _close(p, user, state, bar)
   return state
 
 
-def _close(p: _Parts, state: train.TrainState, bar) -> None:
+def _signalled_elsewhere(stop, signalled: bool) -> None:
+  """Where another process of the run was signalled, stops this one too, saying so."""
+  if signalled and not stop.requested:
+    stop.request("stopped by a signal to another process")
+
+
+def _close(p: _Parts, user: "_UserCode", state: train.TrainState, bar) -> None:
   """After the last chunk: the evaluations still running, the bar, the last checkpoint."""
   for done in p.evaluator.collect(wait=True):
     p.evaluator.keep(done, p.members.evaluated(done.env_steps, done.returns, done.diverged))
-    _log_evaluation(p, done)
+    _log_evaluation(p, user, done)
   if bar is not None:
     bar.close()
   if not p.members.all_diverged():
@@ -165,56 +212,60 @@ def _close(p: _Parts, state: train.TrainState, bar) -> None:
   p.saver.finish(state)
 
 
-def _open(cfg: RunConfig, checkpoint_dir: str | None, say, process, progress_fn):
+def _open(cfg: RunConfig, checkpoint_dir: str | None, say, progress_fn):
   """The parts of a run, and the state to train from (fresh, or the newest readable
   checkpoint's), with the training chunk compiling meanwhile, then the evaluation."""
   t_start = time.perf_counter()
-  everyone = cfg.members()
-  indices = parallel.process_share(len(everyone), process)
-  mine = [everyone[i] for i in indices]
-  if cfg.pbt is not None and len(mine) < 2:
-    raise ValueError(f"PBT needs at least 2 members per process; this one has {len(mine)}")
-  out_dir = _out_dir(cfg, process)
-  os.makedirs(out_dir, exist_ok=True)
-  checkpoint_dir = checkpoint_dir or os.path.join(out_dir, "checkpoints")
+  mine = cfg.members()
+  indices = list(range(len(mine)))
+  primary = distributed.primary()
+  folder = RunFolder.of(cfg)
+  os.makedirs(folder.path, exist_ok=True)
+  checkpoint_dir = checkpoint_dir or folder.checkpoints
   trainer = runs.build(cfg, len(mine))
-  members = Members(mine, indices, single=len(everyone) == 1, pbt=cfg.pbt is not None,
+  members = Members(mine, indices, single=len(mine) == 1, pbt=cfg.pbt is not None,
                     target=cfg.stop_at_return, say=say)
-  evaluator = Evaluator(trainer, mine, cfg.eval_episodes, cfg.evaluates_on_host())
+  # Evaluating on the host's CPU beside training is one process's choice: not over processes.
+  evaluator = Evaluator(trainer, mine, cfg.eval_episodes,
+                        cfg.evaluates_on_host(jax.default_backend())
+                        and distributed.count() == 1)
   fresh = functools.partial(runs.init, cfg, trainer, mine)
-  started = functools.cache(lambda: start.start(trainer, fresh, evaluator))
+  started = None
   if not os.path.isdir(checkpoint_dir) or not os.listdir(checkpoint_dir):
-    started()  # a fresh run: compiling from here, while the checkpoints and the log open
-  saved_config = {**cfg.to_json(), "member_indices": indices}
+    # A fresh run: compiling from here, while the checkpoints and the log open.
+    started = start.start(trainer, fresh, evaluator)
+  saved_config = config_item(cfg, indices, distributed.count())
   per_iteration = trainer.config.steps_per_iteration
-  saver = checkpoint.Saver(checkpoint.manager(checkpoint_dir, cfg.keep_checkpoints),
-                           saved_config, cfg.checkpoint_minutes, per_iteration, say)
-  training = (saver.mngr.latest_step() or 0) * per_iteration < cfg.total_env_steps
-  resumed = checkpoint.resume(
-      saver.mngr, started().state.result() if training else fresh(), saved_config, say,
+  saver = store.Saver(store.manager(checkpoint_dir, cfg.keep_checkpoints), saved_config,
+                      cfg.checkpoint_minutes, per_iteration, say)
+  check_processes(saver.mngr, distributed.count())
+  if started is None and (saver.mngr.latest_step() or 0) * per_iteration < cfg.total_env_steps:
+    started = start.start(trainer, fresh, evaluator)  # a resumed run that trains on
+  resumed = store.resume(
+      saver.mngr, started.state.result() if started else fresh(), saved_config, say,
       defaults={"agent_config": _field_defaults(cfg.agent_config()), "env_settings": {}})
   members.restore(resumed.record)
   evaluator.best = resumed.best
-  with open(os.path.join(out_dir, "config.json"), "w") as f:  # once resuming is agreed
-    json.dump(saved_config, f, indent=1)
+  if primary:
+    folder.write_config(saved_config)  # once resuming is agreed
   env_steps = train.iterations(resumed.state) * per_iteration
-  chunk = started() if env_steps < cfg.total_env_steps else None  # or an older step was read
+  if env_steps >= cfg.total_env_steps:
+    started = None  # nothing left to train
+  elif started is None:  # an older step than the newest was read
+    started = start.start(trainer, fresh, evaluator)
+  if started is not None:
+    evaluator.program = started.evaluation
   display = sweep.Report(cfg.grid, members, say)
-  logger = Logger(os.path.join(out_dir, "log.csv"), cfg.log_every, display.logger_print,
-                  agents.learner_fields(cfg.agent), cfg.tensorboard_dir, start_step=env_steps,
-                  id_fields=display.id_fields, wandb_project=cfg.wandb,
+  logger = Logger(folder.log if primary else None, cfg.log_every, display.logger_print,
+                  agents.learner_fields(cfg.agent), cfg.tensorboard_dir if primary else None,
+                  start_step=env_steps, id_fields=display.id_fields,
+                  wandb_project=cfg.wandb if primary else None,
                   wandb_config=saved_config)
   say(_header(cfg, trainer, len(mine), members.single))
   pbt_step = cfg.pbt and pbt.make_step(cfg.pbt, cfg.grid, trainer, cfg.seed, say)
-  parts = _Parts(cfg, trainer, members, evaluator, _Chunk(chunk, evaluator, members), pbt_step,
+  parts = _Parts(cfg, trainer, members, evaluator, _Chunk(started, evaluator, members), pbt_step,
                  saver, logger, display, _Until(cfg, t_start), progress_fn, say)
   return parts, resumed.state
-
-
-def _out_dir(cfg: RunConfig, process) -> str:
-  """The folder of this process's log, config and (by default) checkpoints."""
-  return (os.path.join(cfg.out_dir, f"process{process[0]}") if process and process[1] > 1
-          else cfg.out_dir)
 
 
 class _Chunk:
@@ -222,7 +273,8 @@ class _Chunk:
   before it."""
 
   def __init__(self, started: start.Started | None, evaluator: Evaluator, members: Members):
-    self.program, self._finite = (started.chunk, started.finite) if started else (None, None)
+    self.program, self._refill, self._finite = (
+        (started.chunk, started.refill, started.finite) if started else (None, None, None))
     self.single = members.single
     self._copy, self._select = evaluator.copy_agents, evaluator.select_agents
 
@@ -230,12 +282,13 @@ class _Chunk:
     """(state after the chunk, its metrics on the host, a sweep's agents before it (None for a
     single run, which stops when it diverges))."""
     before = None if self.single else self._copy(state.agent)
+    state = state._replace(env=self._refill.result()(state.env))  # its episode starts
     state, metrics = self.program.result()(state)
-    return state, jax.device_get(metrics), before
+    return state, distributed.gather(metrics), before
 
   def finite(self, agent) -> np.ndarray:
     """(members,): whether every float of each member's `agent` is finite."""
-    return jax.device_get(self._finite.result()(agent))
+    return distributed.gather(self._finite.result()(agent))
 
   def freeze(self, state: train.TrainState, before, diverged: np.ndarray) -> train.TrainState:
     """`state` with the agents of the `diverged` members taken back to `before`."""
@@ -261,60 +314,59 @@ class _Until:
 class _UserCode:
   """Calls the user's code between chunks (progress_fn, the logger's sinks) so that its first
   exception ends the run as Ctrl-C does: the chunk is finished and saved (unless its state is
-  no longer finite), then `raise_error` raises it. Any other error leaving the loop first waits
-  for the save in flight and names the newest checkpoint."""
+  no longer finite), then `raise_error` raises it."""
 
-  def __init__(self, parts: _Parts, stop: checkpoint.StopRequest):
-    self.parts, self.stop, self.error = parts, stop, None
-    if parts.progress_fn is not None:
-      parts.progress_fn = self._guard(parts.progress_fn, "progress_fn")
-    parts.logger.write = self._guard(parts.logger.write, "the logger")
+  def __init__(self, stop: StopRequest):
+    self.stop, self.error = stop, None
 
-  def _guard(self, call: Callable, name: str) -> Callable:
-    def guarded(*args, **kwargs):
-      try:
-        return call(*args, **kwargs)
-      except Exception as error:  # noqa: BLE001 - raised once the state is saved
-        if self.error is None:
-          self.error = error
-          self.stop.request(f"stopped by {name}'s {type(error).__name__}")
-    return guarded
+  def call(self, name: str, fn: Callable, *args, **kwargs):
+    """`fn(*args, **kwargs)`; None where it raised."""
+    try:
+      return fn(*args, **kwargs)
+    except Exception as error:  # noqa: BLE001 - raised once the state is saved
+      if self.error is None:
+        self.error = error
+        self.stop.request(f"stopped by {name}'s {type(error).__name__}")
 
   def raise_error(self) -> None:
     if self.error is not None:
       raise self.error
 
-  def __enter__(self) -> "_UserCode":
-    return self
 
-  def __exit__(self, kind, error, traceback) -> bool:
-    if isinstance(error, (Exception, KeyboardInterrupt)) and not isinstance(
-        error, checkpoint.SaveFailed):
-      mngr = self.parts.saver.mngr
+@contextlib.contextmanager
+def _naming_the_checkpoint_at_an_error(parts: _Parts):
+  """Where an error leaves the loop (not a failed save, which names its own), waits for the save
+  in flight and says which checkpoint resumes the run."""
+  try:
+    yield
+  except (Exception, KeyboardInterrupt) as error:
+    if not isinstance(error, store.SaveFailed):
+      mngr = parts.saver.mngr
       try:
-        checkpoint.finish(mngr)
+        store.finish(mngr)
         kept = mngr.latest_step()
-        self.parts.say(f"the run stopped at an error: {mngr.directory} holds "
-                       + (f"its checkpoint step {kept}, which resumes it" if kept is not None
-                          else "no checkpoint of it"))
-      except checkpoint.SaveFailed as failed:
-        self.parts.say(f"the run stopped at an error; {failed}")
-    return False
+        parts.say(f"the run stopped at an error: {mngr.directory} holds "
+                  + (f"its checkpoint step {kept}, which resumes it" if kept is not None
+                     else "no checkpoint of it"))
+      except store.SaveFailed as failed:
+        parts.say(f"the run stopped at an error; {failed}")
+    raise
 
 
-def _log_train(p: _Parts, state, env_steps: int, rate: float, metrics: dict) -> bool:
+def _log_train(p: _Parts, user: _UserCode, state, env_steps: int, rate: float,
+               metrics: dict) -> bool:
   """Logs a chunk: a row per member, and a sweep's terminal line. Returns whether progress_fn
   asked to stop."""
-  updates = np.asarray(jax.device_get(state.updates))
+  updates = np.asarray(distributed.gather(state.updates))
   rows = [{"kind": "train", **p.members.tags(m), "env_steps": env_steps,
            "updates": int(updates[m]), "wall_s": p.until.elapsed(), "steps_per_s": rate,
            **{k: float(v[m]) for k, v in metrics.items()}} for m in range(len(p.members))]
   if not p.members.all_diverged():
     p.display.trained(env_steps, rate, metrics["episode_return"], p.cfg.log_every)
-  return _log(p, env_steps, rows)
+  return _log(p, user, env_steps, rows)
 
 
-def _log_evaluation(p: _Parts, done) -> bool:
+def _log_evaluation(p: _Parts, user: _UserCode, done) -> bool:
   """Logs a finished evaluation: a row per member, and a sweep's terminal line. Returns whether
   progress_fn asked to stop."""
   returns = done.result["return"]
@@ -324,19 +376,19 @@ def _log_evaluation(p: _Parts, done) -> bool:
            "eval_length": float(np.mean(done.result["length"][m]))}
           for m in range(len(p.members))]
   p.display.evaluated(done.env_steps, done.returns)
-  return _log(p, done.env_steps, rows)
+  return _log(p, user, done.env_steps, rows)
 
 
-def _log(p: _Parts, env_steps: int, rows: list[dict]) -> bool:
+def _log(p: _Parts, user: _UserCode, env_steps: int, rows: list[dict]) -> bool:
   """Writes `rows` to the logger, then hands them to progress_fn. Returns whether it returned
   False."""
   for row in rows:
-    p.logger.write(row, force=row["kind"] == "eval")
+    user.call("the logger", p.logger.write, row, force=row["kind"] == "eval")
   if p.progress_fn is None:
     return False
   metrics = dict(rows[0]) if p.members.single else {
       k: rows[0][k] if k == "kind" else np.array([row[k] for row in rows]) for k in rows[0]}
-  return p.progress_fn(env_steps, metrics) is False
+  return user.call("progress_fn", p.progress_fn, env_steps, metrics) is False
 
 
 def _show(bar, p: _Parts, env_steps: int, rate: float) -> None:
@@ -351,7 +403,9 @@ def _finish(p: _Parts, state: train.TrainState, stop) -> Result:
   evaluation = None if p.evaluator.latest is None else p.evaluator.latest.result
   if p.members.single and evaluation is not None:
     evaluation = jax.tree.map(lambda x: x[0], evaluation)  # a single run is one member
-  p.display.finish(p.logger.rows, os.path.dirname(p.logger.csv_path))
+  folder = RunFolder.of(p.cfg)
+  if distributed.primary():
+    p.display.finish(p.logger.rows, folder.path)
   directory = p.saver.mngr.directory
   if p.members.all_diverged():
     kept = p.saver.mngr.latest_step()
@@ -364,7 +418,7 @@ def _finish(p: _Parts, state: train.TrainState, stop) -> Result:
   if p.members.single and evaluation is not None:
     parts.append(f"evaluation return {np.mean(evaluation['return']):.1f} over "
                  f"{len(evaluation['return'])} episodes")
-  parts.append(f"log: {p.logger.csv_path}")
+  parts.append(f"log: {folder.log}")
   if p.cfg.tensorboard_dir:
     parts.append(f"TensorBoard: {p.cfg.tensorboard_dir}")
   parts.append(f"checkpoint: {directory}")
@@ -378,7 +432,8 @@ def _header(cfg: RunConfig, trainer: train.Trainer, count: int, single: bool) ->
   per_chunk = config.steps_per_iteration * config.iterations_per_chunk
   return (f"{cfg.task_id} with {cfg.agent} ({cfg.agent_preset}): "
           f"{'' if single else f'{count} members, '}{config.num_envs} envs{each} on "
-          f"{len(jax.local_devices())} {jax.local_devices()[0].platform} device(s), "
+          f"{len(jax.devices())} {jax.devices()[0].platform} device(s)"
+          f"{f' of {distributed.count()} processes' if distributed.count() > 1 else ''}, "
           f"{per_chunk:,} env steps and "
           f"{config.updates_per_iteration * config.iterations_per_chunk:,} updates per chunk"
           f"{'' if single else ' per member'}")
@@ -405,10 +460,6 @@ def _above_progress_bars(print_fn: Callable[[str], None]) -> Callable[[str], Non
       print_fn(line)
       sys.stdout.flush()
   return say
-
-
-def __getattr__(name: str):
-  return compat.moved(__name__, name)  # this module's old names
 
 
 __all__ = ["Result", "RunConfig", "resume", "run"]

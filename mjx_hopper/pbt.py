@@ -8,6 +8,7 @@ import dataclasses
 import jax
 import numpy as np
 
+from mjx_hopper import distributed
 from mjx_hopper.fields import check_types
 
 
@@ -120,8 +121,7 @@ def make_step(pbt: PBT, grid: dict, trainer, seed: int, say):
                          static_argnames="data")
 
   def step(state, returns, env_steps: int, members):
-    hparams = jax.device_get(state.agent.hparams)
-    ratio = np.asarray(jax.device_get(state.replay_ratio))
+    hparams, ratio = distributed.gather((state.agent.hparams, state.replay_ratio))
     values = {name: np.asarray(ratio if name == "replay_ratio" else hparams[name])
               for name in grid}
     quanta = {name: 1 for name, v in values.items() if np.issubdtype(v.dtype, np.integer)}

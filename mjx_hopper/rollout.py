@@ -8,7 +8,7 @@ import jax
 import jax.numpy as jnp
 
 from mjx_hopper import parallel
-from mjx_hopper.envs import AutoReset, LocomotionEnv
+from mjx_hopper.envs import EpisodeStarts, LocomotionEnv
 
 Policy = Callable[[jax.Array, jax.Array], jax.Array]  # (obs (O,), key) -> action (A,)
 
@@ -34,23 +34,24 @@ def episodes(env: LocomotionEnv, policy: Policy, key: jax.Array, num_episodes: i
   (num_episodes, episode_steps), 0 after an episode ends.
   """
   reset_key, policy_key = jax.random.split(key)
-  keys = (jax.random.split(reset_key, num_episodes), jax.random.split(policy_key, num_episodes))
+  # The first states come into the episodes' program as the chunk's env states come into the
+  # chunk's, so that both share one trace of the env's step.
+  first = parallel.per_device(jax.vmap(env.reset), num_episodes, devices)(
+      jax.random.split(reset_key, num_episodes))
   result = parallel.per_device(
-      lambda keys: _local_episodes(env, policy, keys, record_qpos, record_rewards),
-      num_episodes, devices)(keys)
+      lambda state, keys: _local_episodes(env, policy, state, keys, record_qpos, record_rewards),
+      num_episodes, devices)(first, jax.random.split(policy_key, num_episodes))
   if record_qpos:
     result["qpos"] = result["qpos"][0]
   return result
 
 
-def _local_episodes(env, policy, keys, record_qpos, record_rewards):
-  """`episodes` on one device's share of (reset keys, policy keys)."""
-  reset_keys, policy_keys = keys
-  state = jax.vmap(env.reset)(reset_keys)
-  zeros = jnp.zeros(reset_keys.shape[0])
+def _local_episodes(env, policy, state, policy_keys, record_qpos, record_rewards):
+  """`episodes` on one device's share of (first states, policy keys)."""
+  zeros = jnp.zeros(policy_keys.shape[0])
   totals = {"length": zeros, "return": zeros, **{k: zeros for k in state.metrics}}
   qpos = jnp.zeros((env.episode_steps + 1, env.mj_model.nq)) + state.pipeline_state.qpos[0]
-  rewards = jnp.zeros((reset_keys.shape[0], env.episode_steps)) if record_rewards else None
+  rewards = jnp.zeros((policy_keys.shape[0], env.episode_steps)) if record_rewards else None
 
   def running(carry):
     t, state = carry[:2]
@@ -89,15 +90,18 @@ def _where_rows(rows: jax.Array, new: jax.Array, old: jax.Array) -> jax.Array:
 
 
 def make_stepper(env: LocomotionEnv, num_envs: int, steps: int):
-  """Compiled `init(key) -> state` and `run(state, key) -> (state, summed reward)`, which steps
-  `num_envs` auto-resetting envs `steps` times with random actions over the local devices."""
-  env = AutoReset(env)
+  """Compiled `init(key) -> state` and `run(state, key) -> (state, summed reward)`, which makes
+  fresh episode starts, then steps `num_envs` auto-resetting envs `steps` times with random
+  actions over the local devices: as a training chunk does."""
+  env = EpisodeStarts.for_steps(env, steps)
   policy = random_policy(env.action_size)
 
   def init(key):
     return parallel.shard(jax.vmap(env.reset)(jax.random.split(key, num_envs)))
 
   def local_run(state, env_keys):
+    state = jax.vmap(env.refill)(state)
+
     def one_step(state, t):
       step_keys = jax.vmap(jax.random.fold_in, (0, None))(env_keys, t)
       state = jax.vmap(env.step)(state, jax.vmap(policy)(state.obs, step_keys))

@@ -22,15 +22,18 @@ class Started(NamedTuple):
   """Futures of what a run waits for before it trains."""
   state: concurrent.futures.Future    # the members' fresh TrainState
   chunk: concurrent.futures.Future    # the compiled training chunk
+  refill: concurrent.futures.Future   # the compiled refill of the episode starts
   finite: concurrent.futures.Future   # compiled `finite_members` of the members' agents
+  evaluation: concurrent.futures.Future  # the compiled evaluation (`Evaluator.lower`)
 
 
 def start(trainer: train.Trainer, init, evaluator) -> Started:
-  """Starts making the fresh state (`init()`) and compiling the chunk, the evaluation (which
-  `evaluator` keeps) and the finiteness check. The chunk and the state come first, side by side,
-  as the first training row waits for both. The programs are traced here, in turn, since tracing
-  holds Python's lock; the state's program is traced in its thread, and on a small CPU the
-  evaluation in the chunk's, once the chunk is compiled."""
+  """Starts making the fresh state (`init()`) and compiling the chunk, the refill of its episode
+  starts, the finiteness check and `evaluator`'s evaluation. The chunk and the state come
+  first, side by side; the refill and the check follow the state in its thread, and the
+  evaluation the chunk in its own, once the first training row's programs are compiled. The
+  programs are traced here, in turn, since tracing holds Python's lock; the state's program is
+  traced in its thread, and on a small CPU the evaluation in the chunk's."""
   shapes = jax.tree.map(
       lambda sharding, part: jax.tree.map(
           lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sharding), part),
@@ -40,13 +43,21 @@ def start(trainer: train.Trainer, init, evaluator) -> Started:
   # check. Tracing the evaluation here, during the chunk's compile, brings it forward where
   # cores are to spare; on a small CPU it slowed the compiles that the first row waits for.
   lines = [concurrent.futures.ThreadPoolExecutor(1), concurrent.futures.ThreadPoolExecutor(1)]
-  chunk = lines[0].submit(trainer.train_chunk.lower(shapes).compile)
+  chunk = lines[0].submit(trainer.chunk.lower(shapes).compile)
   state = lines[1].submit(init)
-  evaluator.compile_in(lines[0], shapes.agent, trace_now=_cores() >= TRACE_BESIDE_FROM_CORES)
+  refill = lines[1].submit(trainer.refill.lower(shapes.env).compile)
   finite = lines[1].submit(finite_members.lower(shapes.agent).compile)
+  lowered = evaluator.lower(shapes.agent) if _cores() >= TRACE_BESIDE_FROM_CORES else None
+
+  def evaluation_after_the_first_row():
+    # A CPU compiles one program at a time (jax_private.one_cpu_compile_at_a_time): the
+    # evaluation waits for the programs of the first training row.
+    finite.result()
+    return (lowered or evaluator.lower(shapes.agent)).compile()
+  evaluation = lines[0].submit(evaluation_after_the_first_row)
   for line in lines:
     line.shutdown(wait=False)
-  return Started(state, chunk, finite)
+  return Started(state, chunk, refill, finite, evaluation)
 
 
 @jax.jit

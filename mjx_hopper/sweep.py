@@ -29,7 +29,7 @@ import time
 
 import numpy as np
 
-from mjx_hopper import compat, curves
+from mjx_hopper import curves
 from mjx_hopper.curves import group_label, mean_interval
 from mjx_hopper.logger import RETURNS
 from mjx_hopper.runs import check_which
@@ -181,7 +181,3 @@ class Report:
     path = curves.plot(rows, self.grid, os.path.join(out_dir, "curves.png"))
     if path is not None:
       self.say(f"learning curves: {path}")
-
-
-def __getattr__(name: str):
-  return compat.moved(__name__, name)  # this module's old names

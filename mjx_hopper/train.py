@@ -1,4 +1,4 @@
-"""The compiled trainer: one TrainState pytree, and `train_chunk`, a single jitted scan.
+"""The compiled trainer: one TrainState pytree, and `chunk`, a single jitted scan.
 
 An iteration collects `unroll_length` steps of `num_envs` envs, inserts them into the replay and
 runs replay_ratio * num_envs * unroll_length / batch_size updates. Every leaf has a leading axis
@@ -10,7 +10,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-from typing import Any, NamedTuple
+from typing import Any, Callable, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -20,7 +20,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
 from mjx_hopper import parallel, replay, rollout
 from mjx_hopper.fields import check_types, setting
 from mjx_hopper.agents.base import Agent
-from mjx_hopper.envs import AutoReset, LocomotionEnv
+from mjx_hopper.envs import EpisodeStarts, LocomotionEnv
 
 AXIS = "devices"    # a member's devices: its envs, replay and batches are split over them
 MEMBERS = "members"
@@ -87,7 +87,7 @@ class TrainState(NamedTuple):
 
   agent: Any                     # the agent's own pytree (params, ..., hparams)
   replay: replay.ReplayState     # leaves (rows, num_envs, ...)
-  env: Any                       # batch of AutoReset env states, leading axis num_envs
+  env: Any                       # batch of EpisodeStarts env states, leading axis num_envs
   episode_return: jax.Array      # (num_envs,) return so far of each env's current episode
   key: jax.Array
   iteration: jax.Array           # () int32 iterations done
@@ -101,20 +101,28 @@ class Trainer(NamedTuple):
   init(seeds (S,), hparams=None) -> TrainState: each member from jax.random.PRNGKey(seed);
     hparams: {name: (S,)} of the agent's dynamic settings and "replay_ratio", defaulting to the
     config's.
-  train_chunk(state) -> (state, metrics (S,)): the agent's metrics averaged over the chunk,
-    "episodes" ended, their mean "episode_return" (NaN if none) and "learning".
+  chunk(state) -> (state, metrics (S,)): `iterations_per_chunk` iterations; metrics: the agent's
+    metrics averaged over the chunk, "episodes" ended, their mean "episode_return" (NaN if
+    none) and "learning".
+  refill(env states) -> env states: fresh episode starts, made before each chunk
+    (EpisodeStarts).
   evaluate(agent_states, keys) -> "return", "length" (S, episodes).
   shardings: each TrainState part's NamedSharding.
   """
 
-  init: Any
-  train_chunk: Any
-  evaluate: Any
+  init: Callable[..., TrainState]
+  chunk: jax.stages.Wrapped
+  refill: jax.stages.Wrapped
+  evaluate: jax.stages.Wrapped
   config: TrainConfig
   env: LocomotionEnv
   agent: Agent
   num_members: int
-  shardings: Any
+  shardings: TrainState          # of NamedSharding
+
+  def train_chunk(self, state: TrainState) -> tuple[TrainState, dict]:
+    """Fresh episode starts, then a chunk: (state, metrics)."""
+    return self.chunk(state._replace(env=self.refill(state.env)))
 
 
 def mesh_shape(num_members: int, num_devices: int) -> tuple[int, int]:
@@ -173,31 +181,34 @@ def layout(num_members: int, devices: list) -> Layout:
 def make_trainer(env: LocomotionEnv, agent: Agent, cfg: TrainConfig, eval_episodes: int = 16,
                  num_members: int = 1, dynamic_updates: bool = False,
                  devices: list | None = None) -> Trainer:
-  """The compiled trainer of `num_members` members on `devices` (default: the local ones).
+  """The compiled trainer of `num_members` members on `devices` (default: every process's).
 
   With `dynamic_updates` each member's update count follows its own replay_ratio, up to `cfg`'s;
   without, all run `cfg`'s.
   """
-  where = layout(num_members, list(jax.local_devices() if devices is None else devices))
+  where = layout(num_members, list(jax.devices() if devices is None else devices))
   cfg.check(where.group_size)
-  return Trainer(_make_init(env, agent, cfg, where, num_members),
-                 _make_chunk(env, agent, cfg, where, dynamic_updates),
-                 make_evaluate(env, agent, eval_episodes, num_members), cfg, env, agent,
+  train_env = EpisodeStarts.for_steps(env, cfg.unroll_length * cfg.iterations_per_chunk)
+  return Trainer(_make_init(train_env, agent, cfg, where, num_members),
+                 _make_chunk(train_env, agent, cfg, where, dynamic_updates),
+                 _make_refill(train_env, where),
+                 make_evaluate(env, agent, eval_episodes, num_members, where.mesh), cfg, env, agent,
                  num_members, where.shardings)
 
 
 def make_evaluate(env: LocomotionEnv, agent: Agent, eval_episodes: int, num_members: int,
-                  devices: list | None = None):
-  """Trainer.evaluate: each member's `eval_episodes` episodes, jitted, over `devices`."""
+                  devices: list | Mesh | None = None):
+  """Trainer.evaluate: each member's `eval_episodes` episodes, jitted, over `devices` (a
+  list, or the trainer's mesh: `parallel.per_device`)."""
   # One member's evaluation as plain code (vmap of one traces much slower), several under vmap.
   return jax.jit(per_member(
       lambda s, k: evaluate(env, agent, s, k, eval_episodes, devices=devices), num_members))
 
 
-def _make_init(env: LocomotionEnv, agent: Agent, cfg: TrainConfig, where: Layout,
+def _make_init(train_env: EpisodeStarts, agent: Agent, cfg: TrainConfig, where: Layout,
                num_members: int):
   """Trainer.init: the members' fresh TrainState, placed on the mesh."""
-  train_env = AutoReset(env)
+  env = train_env.env
 
   def init_member(seed, hp):
     agent_key, env_key, key = jax.random.split(jax.random.PRNGKey(seed), 3)
@@ -230,7 +241,17 @@ def _make_init(env: LocomotionEnv, agent: Agent, cfg: TrainConfig, where: Layout
   return init
 
 
-def _collect(agent: Agent, train_env: AutoReset, unroll_length: int, agent_state, env_state,
+def _make_refill(train_env: EpisodeStarts, where: Layout):
+  """Trainer.refill: each env's fresh episode starts, made where its env lives."""
+  def refill(env_states):
+    return where.members(jax.vmap(train_env.refill))(env_states)
+  return jax.jit(jax.shard_map(refill, mesh=where.mesh, in_specs=(where.specs.env,),
+                               out_specs=where.specs.env, check_vma=False),
+                 in_shardings=(where.shardings.env,), out_shardings=where.shardings.env,
+                 donate_argnums=0)
+
+
+def _collect(agent: Agent, train_env: EpisodeStarts, unroll_length: int, agent_state, env_state,
              episode_return, key):
   """One member's envs' steps: (env, return, steps (T, n, ...), ended (count, return sum))."""
   def one(carry, step_key):
@@ -283,11 +304,11 @@ def _metric_shapes(env: LocomotionEnv, agent: Agent):
                         jax.eval_shape(agent.init, key), example, key)
 
 
-def _make_chunk(env: LocomotionEnv, agent: Agent, cfg: TrainConfig, where: Layout,
+def _make_chunk(train_env: EpisodeStarts, agent: Agent, cfg: TrainConfig, where: Layout,
                 dynamic_updates: bool):
-  """Trainer.train_chunk: `iterations_per_chunk` iterations, under shard_map over the mesh."""
-  members = where.members
-  collect = functools.partial(_collect, agent, AutoReset(env), cfg.unroll_length)
+  """Trainer.chunk: `iterations_per_chunk` iterations, under shard_map over the mesh."""
+  members, env = where.members, train_env.env
+  collect = functools.partial(_collect, agent, train_env, cfg.unroll_length)
   learn = functools.partial(_learn, agent, cfg, where, dynamic_updates)
   min_rows = max(-(-cfg.min_replay // cfg.num_envs), agent.n_step)
   max_updates = cfg.updates_per_iteration
@@ -347,8 +368,11 @@ def seed_bits(seeds) -> np.ndarray:
 
 
 def iterations(state: TrainState) -> int:
-  """Iterations done (the same for every member)."""
-  return int(np.asarray(jax.device_get(state.iteration)).reshape(-1)[0])
+  """Iterations done (the same for every member), read from this process's members."""
+  count = state.iteration
+  if isinstance(count, jax.Array):
+    count = count.addressable_data(0)
+  return int(np.asarray(jax.device_get(count)).reshape(-1)[0])
 
 
 def per_member(fn, local_members: int):
@@ -365,7 +389,7 @@ def per_member(fn, local_members: int):
 
 def evaluate(env: LocomotionEnv, agent: Agent, agent_state, key: jax.Array,
              num_episodes: int, record_qpos: bool = False,
-             devices: list | None = None) -> dict[str, jax.Array]:
+             devices: list | Mesh | None = None) -> dict[str, jax.Array]:
   """`num_episodes` episodes of one member's deterministic policy, over `devices`.
 
   Returns "return" and "length" (num_episodes,), each reward term's mean, and with `record_qpos`

@@ -10,7 +10,7 @@ import time
 import jax
 import jax.numpy as jnp
 
-from mjx_hopper import checkpoint, train
+from mjx_hopper import store, train
 
 CONFIG = {"env": "Hopper", "agent": "d4pg", "seed": 0}
 
@@ -27,12 +27,12 @@ def state(step: int, rows: int = 256) -> train.TrainState:
 
 
 if __name__ == "__main__":
-  mngr = checkpoint.manager(sys.argv[1])
-  checkpoint.save(mngr, state(1), CONFIG)
-  checkpoint.finish(mngr)
+  mngr = store.manager(sys.argv[1])
+  store.save(mngr, state(1), CONFIG)
+  store.finish(mngr)
   # About 1 GB of random floats (zstd cannot shrink them): seconds of writing.
   big = state(2, rows=4_000_000)._replace(
       replay=jax.random.normal(jax.random.PRNGKey(0), (4_000_000, 64)))
-  checkpoint.save(mngr, big, CONFIG)
+  store.save(mngr, big, CONFIG)
   print("saving step 2", flush=True)
   time.sleep(600)

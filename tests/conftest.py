@@ -26,12 +26,14 @@ os.environ.setdefault("MJX_HOPPER_JAX_CACHE",
                       os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", ".cache", "jax"))
 
 import jax  # noqa: E402
+import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
 import mjx_hopper  # noqa: E402
-from mjx_hopper import config, runs  # noqa: E402
 
-mjx_hopper.use_compile_cache()
+mjx_hopper.setup()  # before MuJoCo is imported, which reads MUJOCO_GL once
+
+from mjx_hopper import config, runs  # noqa: E402
 
 
 def _frozen(x):
@@ -89,7 +91,8 @@ def pytest_collection_modifyitems(items):
 
 
 ROBOTS = ("Hopper", "Walker2D", "HalfCheetah", "Ant", "Humanoid")
-_ENVS, _BULLET = {}, {}
+ORACLE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "oracle")
+_ENVS, _ORACLE = {}, {}
 
 
 def make_env(env_id):
@@ -100,21 +103,18 @@ def make_env(env_id):
   return _ENVS[env_id]
 
 
-def make_bullet(env_id):
-  from mjx_hopper.envs import pybullet_oracle
-  if env_id not in _BULLET:
-    _BULLET[env_id] = pybullet_oracle.make(env_id)
-  return _BULLET[env_id]
+def oracle(name):
+  """What PyBullet computed for robot `name` (or "euler"), as tests/record_oracle.py recorded
+  it in tests/oracle/NAME.npz: a dict of arrays, without the `meta` record."""
+  if name not in _ORACLE:
+    with np.load(os.path.join(ORACLE, f"{name}.npz")) as data:
+      _ORACLE[name] = {k: data[k] for k in data.files if k != "meta"}
+  return _ORACLE[name]
 
 
 @pytest.fixture(scope="session")
 def hopper():
   return make_env("Hopper")
-
-
-@pytest.fixture(scope="session")
-def bullet_hopper():
-  return make_bullet("Hopper")
 
 
 @pytest.fixture(scope="session")

@@ -1,4 +1,5 @@
-"""Brax's wrappers and Brax's own PPO and SAC trainers on our envs (docs/brax.md).
+"""Brax's wrappers and Brax's own PPO trainer on our envs (docs/brax.md; its SAC runs in
+test_docs.py, as the page has it).
 
 The trainers run tiny (8 envs, 20-step episodes, 16-unit networks) on conftest's two CPU
 devices, so their pmap really splits the envs.
@@ -13,8 +14,6 @@ import pytest
 from brax.envs.wrappers import training
 from brax.training.agents.ppo import networks as ppo_networks
 from brax.training.agents.ppo import train as ppo
-from brax.training.agents.sac import networks as sac_networks
-from brax.training.agents.sac import train as sac
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from mjx_hopper import envs
@@ -40,10 +39,11 @@ def device_put_replicated(tree, devices):
 
 @pytest.fixture(scope="module")
 def brax_trainers():
-  """Brax's PPO and SAC `train` with the shim installed, for this module's tests."""
+  """Brax's PPO `train` with the shim installed, for this module's tests (SAC's runs in
+  test_docs, as docs/brax.md has it)."""
   with pytest.MonkeyPatch.context() as patch:
     patch.setattr(jax, "device_put_replicated", device_put_replicated, raising=False)
-    yield ppo.train, sac.train
+    yield ppo.train
 
 
 def test_step_keeps_every_key_a_wrapper_added(hopper, hopper_reset):
@@ -225,7 +225,7 @@ def check_progress(progress, env_steps, losses):
 
 @pytest.mark.slow
 def test_brax_ppo_trains_on_our_env(brax_trainers):
-  train_ppo, _ = brax_trainers
+  train_ppo = brax_trainers
   # One iteration collects 8 envs x 4 steps x 4 minibatches = 128 env steps; 2 of them.
   params, progress = small_run(
       train_ppo, num_timesteps=256, unroll_length=4, batch_size=8, num_minibatches=4,
@@ -238,17 +238,3 @@ def test_brax_ppo_trains_on_our_env(brax_trainers):
   assert int(normalizer.count.lo) == 256  # it saw the observation of every env step
   assert policy["params"]["hidden_1"]["kernel"].shape == (16, 6)  # mean and scale of 3
   assert value["params"]["hidden_1"]["kernel"].shape == (16, 1)
-
-
-@pytest.mark.slow
-def test_brax_sac_trains_on_our_env(brax_trainers):
-  _, train_sac = brax_trainers
-  # 16 prefill steps (2 x 8 envs), then 6 x 8 env steps with one update each.
-  params, progress = small_run(
-      train_sac, num_timesteps=64, batch_size=8, min_replay_size=16,
-      network_factory=functools.partial(sac_networks.make_sac_networks, hidden_layer_sizes=(16,)))
-  check_progress(progress, 64, ["actor_loss", "critic_loss", "alpha_loss"])
-  normalizer, policy = params
-  assert normalizer.mean.shape == (15,)
-  assert int(normalizer.count.lo) == 64  # it saw every env step's observation, prefill's too
-  assert policy["params"]["hidden_1"]["kernel"].shape == (16, 6)

@@ -19,7 +19,7 @@ import pytest
 from etils import epath
 
 import mjx_hopper
-from mjx_hopper import agents, checkpoint, cli, loop, runs, train
+from mjx_hopper import agents, cli, loop, runs, store, train
 from checkpoint_worker import CONFIG, state
 from test_train import TINY_ARGS
 
@@ -27,10 +27,10 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 
 
 def saved_steps(directory, *steps):
-  mngr = checkpoint.manager(str(directory))
+  mngr = store.manager(str(directory))
   for step in steps:
-    checkpoint.save(mngr, state(step), CONFIG)
-  checkpoint.finish(mngr)
+    store.save(mngr, state(step), CONFIG)
+  store.finish(mngr)
   return mngr
 
 
@@ -54,14 +54,14 @@ def test_killed_mid_save_keeps_the_previous_checkpoint(tmp_path):
     proc.wait()
   leftovers = [name for name in os.listdir(directory) if "tmp" in name]
   assert leftovers, "the kill came after step 2 was finished: make it bigger"
-  mngr = checkpoint.manager(str(directory))
+  mngr = store.manager(str(directory))
   assert mngr.all_steps() == [1]
-  assert_same(checkpoint.resume(mngr, state(0), CONFIG)[:2], (state(1), 1))
+  assert_same(store.resume(mngr, state(0), CONFIG)[:2], (state(1), 1))
   # The next run resumes from step 1 and saves over the half-written step.
-  checkpoint.save(mngr, state(2), CONFIG)
-  checkpoint.finish(mngr)
+  store.save(mngr, state(2), CONFIG)
+  store.finish(mngr)
   assert mngr.all_steps() == [1, 2]
-  assert_same(checkpoint.resume(checkpoint.manager(str(directory)), state(0), CONFIG)[:2],
+  assert_same(store.resume(store.manager(str(directory)), state(0), CONFIG)[:2],
               (state(2), 2))
 
 
@@ -79,19 +79,19 @@ def test_a_failed_save_keeps_the_earlier_checkpoint_and_no_partial_files(tmp_pat
   capfd.readouterr()
   with monkeypatch.context() as patch:
     full_disk(patch)
-    with pytest.raises(checkpoint.SaveFailed) as failed:
-      checkpoint.save(mngr, state(2), CONFIG)
-      checkpoint.finish(mngr)
+    with pytest.raises(store.SaveFailed) as failed:
+      store.save(mngr, state(2), CONFIG)
+      store.finish(mngr)
   assert str(failed.value) == (f"checkpoint step 2 was not saved in {directory}: No space left "
                                "on device (ENOSPC); step 1, saved before it, is intact")
   assert sorted(os.listdir(directory)) == ["1", "manifests"]  # no *.orbax-checkpoint-tmp
   err = capfd.readouterr().err  # orbax's tracebacks of it are left out
   assert "Traceback" not in err and "never retrieved" not in err, err
   # The earlier checkpoint resumes bit for bit, and the next save works.
-  assert_same(checkpoint.resume(checkpoint.manager(str(directory)), state(0), CONFIG)[:2],
+  assert_same(store.resume(store.manager(str(directory)), state(0), CONFIG)[:2],
               (state(1), 1))
-  checkpoint.save(mngr, state(3), CONFIG)
-  checkpoint.finish(mngr)
+  store.save(mngr, state(3), CONFIG)
+  store.finish(mngr)
   assert mngr.all_steps() == [1, 3]
 
 
@@ -105,7 +105,7 @@ def test_a_run_keeps_training_through_failed_saves_and_its_last_one_raises(tmp_p
   """The policy of docs/checkpoints.md: each failed save is one line (the first says that
   training goes on), a failed last save is raised, and a save that works again says so."""
   lines = []
-  saver = checkpoint.Saver(saved_steps(tmp_path, 1), CONFIG, 10, 8, lines.append)
+  saver = store.Saver(saved_steps(tmp_path, 1), CONFIG, 10, 8, lines.append)
   where = f"checkpoint step {{}} was not saved in {tmp_path}: No space left on device (ENOSPC)"
 
   def no_space(step, args):  # (the first test has orbax's own writer fail, at any moment)
@@ -116,7 +116,7 @@ def test_a_run_keeps_training_through_failed_saves_and_its_last_one_raises(tmp_p
     saver.save(state(2), None, Record())
     saver.save(state(3), None, Record())
     saver.save(state(4), None, Record(), last=True)
-    with pytest.raises(checkpoint.SaveFailed, match=re.escape(
+    with pytest.raises(store.SaveFailed, match=re.escape(
         where.format(4) + "; 24 env steps are not saved since step 1, which is intact")):
       saver.finish(state(4))
   assert lines == [
@@ -127,7 +127,7 @@ def test_a_run_keeps_training_through_failed_saves_and_its_last_one_raises(tmp_p
   saver.save(state(5), None, Record())
   saver.finish(state(5))
   assert lines[2:] == [f"checkpoint step 5 is saved in {tmp_path}, after 2 failed save(s)"]
-  assert_same(checkpoint.resume(checkpoint.manager(str(tmp_path)), state(0), CONFIG)[:2],
+  assert_same(store.resume(store.manager(str(tmp_path)), state(0), CONFIG)[:2],
               (state(5), 5))
 
 
@@ -139,16 +139,16 @@ def test_a_save_that_cannot_fit_is_refused_without_touching_the_folder(tmp_path,
              for root, _, names in os.walk(directory / "1") for name in names)
   usage = shutil.disk_usage(directory)
   monkeypatch.setattr(shutil, "disk_usage", lambda path: usage._replace(free=size - 1))
-  with pytest.raises(checkpoint.SaveFailed, match=(
+  with pytest.raises(store.SaveFailed, match=(
       rf"^checkpoint step 2 was not saved in {directory}: a step takes about "
       rf"{size / 1e3:.0f} kB and its disk has {(size - 1) / 1e3:.0f} kB free \(nothing was "
       r"written\); step 1, saved before it, is intact$")):
-    checkpoint.save(mngr, state(2), CONFIG)
+    store.save(mngr, state(2), CONFIG)
   assert sorted(os.walk(directory)) == before
   # Without an earlier step, the estimate is the arrays' own bytes.
   monkeypatch.setattr(shutil, "disk_usage", lambda path: usage._replace(free=1000))
-  with pytest.raises(checkpoint.SaveFailed, match="no step is saved there"):
-    checkpoint.save(checkpoint.manager(str(tmp_path / "empty")), state(1), CONFIG)
+  with pytest.raises(store.SaveFailed, match="no step is saved there"):
+    store.save(store.manager(str(tmp_path / "empty")), state(1), CONFIG)
   assert os.listdir(tmp_path / "empty") == []
 
 
@@ -170,8 +170,8 @@ def test_unreadable_newest_step_falls_back_and_names_the_file(tmp_path, fault):
   else:
     os.remove(victim)
   lines = []
-  restored, step, best, record = checkpoint.resume(
-      checkpoint.manager(str(directory)), state(0), CONFIG, print_fn=lines.append)
+  restored, step, best, record = store.resume(
+      store.manager(str(directory)), state(0), CONFIG, print_fn=lines.append)
   assert_same(restored, state(1))
   assert best is None and record == {}  # saved without either
   assert step == 1
@@ -187,7 +187,7 @@ def test_every_step_unreadable_is_an_error_that_overwrites_nothing(tmp_path):
   os.remove(newest_data_file(directory, 1))
   before = sorted(os.listdir(directory))
   with pytest.raises(ValueError, match="no readable checkpoint .* nothing was overwritten"):
-    checkpoint.resume(checkpoint.manager(str(directory)), state(0), CONFIG, print_fn=print)
+    store.resume(store.manager(str(directory)), state(0), CONFIG, print_fn=print)
   assert sorted(os.listdir(directory)) == before
 
 
@@ -196,14 +196,14 @@ def test_a_state_laid_out_otherwise_is_named_and_nothing_is_overwritten(tmp_path
   version's, say, before a new dynamic setting) is refused with a warning that says so."""
   directory = tmp_path / "ckpt"
   saved_steps(directory, 1)
-  files = checkpoint._files(str(directory))
+  files = store.manifests.files(str(directory))
   fresh = state(0)
   fresh = fresh._replace(agent={**fresh.agent, "new_setting": jax.numpy.zeros(())})
   lines = []
   with pytest.raises(ValueError, match="no readable checkpoint .* nothing was overwritten"):
-    checkpoint.resume(checkpoint.manager(str(directory)), fresh, CONFIG, print_fn=lines.append)
+    store.resume(store.manager(str(directory)), fresh, CONFIG, print_fn=lines.append)
   assert len(lines) == 1 and "laid out otherwise than this version of mjx_hopper's" in lines[0]
-  assert checkpoint._files(str(directory)) == files
+  assert store.manifests.files(str(directory)) == files
 
 
 @pytest.mark.parametrize("make", ["missing", "empty"])
@@ -213,7 +213,7 @@ def test_missing_or_empty_directory_starts_fresh(tmp_path, make):
     directory.mkdir()
   lines = []
   fresh = state(0)
-  restored, step, _, _ = checkpoint.resume(checkpoint.manager(str(directory)), fresh, CONFIG,
+  restored, step, _, _ = store.resume(store.manager(str(directory)), fresh, CONFIG,
                                            print_fn=lines.append)
   assert restored is fresh and step is None
   assert lines == [f"no checkpoint in {directory}: starting a fresh run"]
@@ -223,13 +223,13 @@ def test_missing_or_empty_directory_starts_fresh(tmp_path, make):
 def test_another_config_is_refused_naming_it_and_nothing_is_overwritten(tmp_path, change):
   directory = tmp_path / "ckpt"
   saved_steps(directory, 1)
-  files = checkpoint._files(str(directory))
+  files = store.manifests.files(str(directory))
   key = next(iter(change))
-  with pytest.raises(checkpoint.ConfigMismatch,
+  with pytest.raises(store.ConfigMismatch,
                      match=f"from another config \\({key}: saved {CONFIG[key]!r}, now "
                            f"{change[key]!r}\\)"):
-    checkpoint.resume(checkpoint.manager(str(directory)), state(0), {**CONFIG, **change})
-  assert checkpoint._files(str(directory)) == files
+    store.resume(store.manager(str(directory)), state(0), {**CONFIG, **change})
+  assert store.manifests.files(str(directory)) == files
 
 
 def test_a_checkpoint_without_a_newer_setting_resumes_at_its_default(tmp_path):
@@ -238,53 +238,55 @@ def test_a_checkpoint_without_a_newer_setting_resumes_at_its_default(tmp_path):
   now = dataclasses.asdict(agents.config("d4pg", "cpu"))
   older = {k: v for k, v in now.items() if k != "compute_dtype"}
   directory = tmp_path / "ckpt"
-  mngr = checkpoint.manager(str(directory))
-  checkpoint.save(mngr, state(1), {**CONFIG, "agent_config": older})
-  checkpoint.finish(mngr)
+  mngr = store.manager(str(directory))
+  store.save(mngr, state(1), {**CONFIG, "agent_config": older})
+  store.finish(mngr)
   defaults = {"agent_config": loop._field_defaults(agents.config("d4pg"))}
   assert defaults["agent_config"]["compute_dtype"] == "float32"
-  assert_same(checkpoint.resume(checkpoint.manager(str(directory)), state(0),
+  assert_same(store.resume(store.manager(str(directory)), state(0),
                                 {**CONFIG, "agent_config": now}, print_fn=lambda _: None,
                                 defaults=defaults)[0], state(1))
   other = {**CONFIG, "agent_config": {**now, "compute_dtype": "bfloat16"}}
-  with pytest.raises(checkpoint.ConfigMismatch, match="agent_config: saved .*'float32'.*"
+  with pytest.raises(store.ConfigMismatch, match="agent_config: saved .*'float32'.*"
                                                       "now .*'bfloat16'"):
-    checkpoint.resume(checkpoint.manager(str(directory)), state(0), other, defaults=defaults)
+    store.resume(store.manager(str(directory)), state(0), other, defaults=defaults)
 
 
 def test_a_checkpoint_records_its_format(tmp_path):
   mngr = saved_steps(tmp_path / "ckpt", 1)
-  saved = checkpoint.read_config(mngr, 1)
-  assert saved["checkpoint_format"] == checkpoint.FORMAT
+  saved = store.read_config(mngr, 1)
+  assert saved["checkpoint_format"] == store.items.FORMAT
   assert saved["versions"]["mjx_hopper"] == mjx_hopper.__version__
 
 
-@pytest.mark.parametrize("saved_format", [0, 2])
-def test_a_checkpoint_of_another_format_is_refused_in_one_line(tmp_path, monkeypatch,
-                                                               saved_format):
+@pytest.mark.parametrize("offset", [-1, 1])
+def test_a_checkpoint_of_another_format_is_refused_in_one_line(tmp_path, monkeypatch, offset):
   # A format this version does not read, older or newer: saved as if by another version.
-  monkeypatch.setattr(checkpoint, "FORMAT", saved_format)
+  reads = store.items.FORMAT
+  saved_format = reads + offset
+  monkeypatch.setattr(store.items, "FORMAT", saved_format)
   directory = tmp_path / "ckpt"
   saved_steps(directory, 1)
-  monkeypatch.setattr(checkpoint, "FORMAT", 1)
-  files = checkpoint._files(str(directory))
-  with pytest.raises(checkpoint.FormatMismatch) as error:
-    checkpoint.resume(checkpoint.manager(str(directory)), state(0), CONFIG,
-                      print_fn=lambda line: pytest.fail(f"printed {line!r}"))
+  monkeypatch.setattr(store.items, "FORMAT", reads)
+  files = store.manifests.files(str(directory))
+  with pytest.raises(store.FormatMismatch) as error:
+    store.resume(store.manager(str(directory)), state(0), CONFIG,
+                 print_fn=lambda line: pytest.fail(f"printed {line!r}"))
   message = str(error.value)
   assert "\n" not in message
   assert f"has format {saved_format} (saved by mjx_hopper {mjx_hopper.__version__})" in message
-  assert "reads format 1:" in message and "nothing was written" in message
-  assert ("or newer" if saved_format > 1 else "to resume or evaluate it") in message
-  assert checkpoint._files(str(directory)) == files
+  assert f"reads format {reads}:" in message and "nothing was written" in message
+  assert ("or newer" if offset > 0 else "to resume or evaluate it") in message
+  assert store.manifests.files(str(directory)) == files
 
 
 def test_a_checkpoint_without_a_format_is_format_1(monkeypatch):
-  checkpoint.check_format({"env": "Hopper"}, "DIR")  # saved before formats were recorded
-  monkeypatch.setattr(checkpoint, "OLDEST_FORMAT", 2)
-  monkeypatch.setattr(checkpoint, "FORMAT", 3)
-  with pytest.raises(checkpoint.FormatMismatch, match="has format 1 .* reads formats 2 to 3"):
-    checkpoint.check_format({"env": "Hopper"}, "DIR")
+  monkeypatch.setattr(store.items, "OLDEST_FORMAT", 1)
+  store.check_format({"env": "Hopper"}, "DIR")  # saved before formats were recorded
+  monkeypatch.setattr(store.items, "OLDEST_FORMAT", 2)
+  monkeypatch.setattr(store.items, "FORMAT", 3)
+  with pytest.raises(store.FormatMismatch, match="has format 1 .* reads formats 2 to 3"):
+    store.check_format({"env": "Hopper"}, "DIR")
 
 
 # A tiny D4PG run: 2 chunks of 5 iterations (40 env steps each); learning starts at iteration 3.
@@ -296,6 +298,7 @@ def train_in_fresh_process(out, steps):
                   "--out-dir", str(out)], check=True, stdout=subprocess.DEVNULL)
 
 
+@pytest.mark.slow
 def test_resume_is_bit_exact_in_fresh_processes(tmp_path):
   # The straight run here (it compiles the programs, which the compile cache then gives the
   # fresh processes); the split run in two fresh processes, the second resuming the first's.

@@ -6,7 +6,10 @@ import os
 import subprocess
 import sys
 
+import pytest
+
 import mjx_hopper
+from mjx_hopper import runtime
 
 # Compiles one small program with the cache in argv[1], as a CPU with features argv[2] when
 # given (standing in for another machine), and prints where the cache went and JAX's cache
@@ -16,9 +19,8 @@ import json, sys
 import jax, jax.numpy as jnp
 import mjx_hopper
 if len(sys.argv) > 2:
-  mjx_hopper._cpu_features = lambda: sys.argv[2]
-directory = mjx_hopper.use_compile_cache(sys.argv[1])
-jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+  mjx_hopper.runtime._cpu_features = lambda: sys.argv[2]
+directory = mjx_hopper.setup(sys.argv[1])
 events = []
 jax.monitoring.register_event_listener(lambda name, **kwargs: events.append(name))
 jax.jit(lambda x: jnp.sin(x) @ x.T + 1.0)(jnp.ones((8, 8))).block_until_ready()
@@ -35,10 +37,10 @@ def compile_once(cache, *features):
 
 
 def test_cpu_key_names_the_feature_set(monkeypatch):
-  monkeypatch.setattr(mjx_hopper, "_cpu_features", lambda: "avx2 fma sse4_2")
+  monkeypatch.setattr(runtime, "_cpu_features", lambda: "avx2 fma sse4_2")
   key = mjx_hopper.cpu_key()
   assert key == mjx_hopper.cpu_key()
-  monkeypatch.setattr(mjx_hopper, "_cpu_features", lambda: "avx2 avx512f fma sse4_2")
+  monkeypatch.setattr(runtime, "_cpu_features", lambda: "avx2 avx512f fma sse4_2")
   assert mjx_hopper.cpu_key() != key
   assert key.split("-")[0] == (os.uname().machine or "cpu")
 
@@ -56,3 +58,40 @@ def test_another_cpu_compiles_afresh(tmp_path):
   assert other["directory"] != first["directory"]
   assert other["misses"] >= 1 and other["hits"] == 0
   assert os.listdir(other["directory"])  # the other CPU's programs are kept apart
+
+
+# Runs the CLI (argv[2:]) with the compile cache in $MJX_HOPPER_JAX_CACHE, then writes to
+# argv[1] how many programs XLA compiled and how many came from the cache.
+TRAIN = """
+import atexit, json, sys
+import jax
+events = []
+jax.monitoring.register_event_listener(lambda name, **kwargs: events.append(name))
+jax.monitoring.register_event_duration_secs_listener(
+    lambda name, duration, **kwargs: events.append(name))
+atexit.register(lambda: json.dump({
+    "compiled": events.count("/jax/compilation_cache/cache_misses"),
+    "loaded": events.count("/jax/compilation_cache/cache_hits"),
+    "backend_compiles": events.count("/jax/core/compile/backend_compile_duration")},
+    open(sys.argv[1], "w")))
+from mjx_hopper import cli
+cli.main(sys.argv[2:])
+"""
+
+
+@pytest.mark.slow
+def test_a_second_run_compiles_nothing(tmp_path):
+  """The same short training twice, each in a fresh process on the suite's cache: the second
+  loads every program, small ones included (what the first did not load, it compiled)."""
+  from test_train import TINY_ARGS
+  env = dict(os.environ)
+  counts = []
+  for run in ("first", "second"):
+    record = tmp_path / f"{run}.json"
+    subprocess.run([sys.executable, "-c", TRAIN, str(record), *TINY_ARGS, "--total-env-steps",
+                    "80", "--out-dir", str(tmp_path / run)], env=env, check=True,
+                   capture_output=True, text=True)
+    counts.append(json.loads(record.read_text()))
+  first, second = counts
+  assert first["compiled"] + first["loaded"] >= 6
+  assert second["compiled"] == 0 and second["loaded"] == first["compiled"] + first["loaded"]

@@ -14,16 +14,17 @@ import textwrap
 import tomllib
 
 import jax
+import numpy as np
 import pytest
 
-from mjx_hopper import cli
+from mjx_hopper import cli, envs
 
 ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..")
 PAGES = ["README.md"] + sorted(os.path.relpath(p, ROOT)
                                for p in glob.glob(os.path.join(ROOT, "docs", "*.md")))
 # The programs the pages may name: a command whose first word is another fails, to be added here.
 PROGRAMS = ("mjx-hopper", ".venv/bin/mjx-hopper", "bash", "python", "pip", ".venv/bin/pip",
-            "cd", "git", "srun", "time")
+            "cd", "git", "srun", "mpirun", "time")
 FLAG = re.compile(r"(?<![\w-])--[a-z0-9][\w-]*")
 
 
@@ -86,8 +87,8 @@ def extras() -> set[str]:
 
 def problems(words: list[str], top: set[str]) -> list[str]:
   """What is wrong with one command, [] if nothing."""
-  while words and (re.match(r"^[A-Z_]+=", words[0]) or words[0] in ("time", "srun")):
-    words = words[1:] if words[0] != "srun" else words[next(
+  while words and (re.match(r"^[A-Z_]+=", words[0]) or words[0] in ("time", "srun", "mpirun")):
+    words = words[1:] if words[0] not in ("srun", "mpirun") else words[next(
         i for i, w in enumerate(words) if w.endswith("mjx-hopper")):]
   program, args = words[0], words[1:]
   used = {a.split("=")[0] for a in args if a.startswith("--")}
@@ -106,7 +107,9 @@ def problems(words: list[str], top: set[str]) -> list[str]:
     given = args[1] if args[0] == "scripts/setup.sh" and len(args) > 1 else None
     return [] if given is None or given in extras() or given.isupper() else [  # or a placeholder
         f"no extra {given!r}"]
-  if program == "python" and args and args[0].startswith("benchmarks/"):
+  if program == "python" and args[:2] == ["-m", "build"]:  # pyproject's wheel, into dist/
+    return []
+  if program == "python" and args and args[0].startswith(("benchmarks/", "tests/")):
     return sorted(used - script_flags(args[0]))
   if program.endswith("pip") and args[:1] == ["install"]:
     named = re.findall(r"\.\[([\w,]+)\]", " ".join(args))
@@ -159,8 +162,20 @@ def test_the_brax_pages_code_runs_as_written_in_order(monkeypatch):
   scope = {}
   with contextlib.redirect_stdout(io.StringIO()) as printed:
     exec(compile(code, "docs/brax.md", "exec"), scope)  # noqa: S102 - the page's own code
-  assert "eval/episode_progress" in scope["metrics"]
+  # Brax's SAC trained on our env: its evaluations carry our reward terms, its losses finite.
+  metrics = scope["metrics"]
+  assert {f"eval/episode_{name}" for name in envs.REWARD_TERMS} <= set(metrics)
+  for name in ("eval/episode_reward", "training/actor_loss", "training/critic_loss",
+               "training/alpha_loss"):
+    assert np.isfinite(metrics[name]), name
   assert len(printed.getvalue().splitlines()) == 2  # progress_fn at each evaluation
   models, in_axes = scope["heavier_torso"](scope["env"].sys, jax.random.split(
       jax.random.PRNGKey(0), 4))
   assert models.body_mass.shape == (4, scope["env"].mj_model.nbody)
+
+
+def test_the_design_page_names_every_module():
+  with open(os.path.join(ROOT, "docs", "design.md")) as f:
+    named = set(re.findall(r"`(\w+\.py)`", f.read()))
+  modules = {os.path.basename(p) for p in glob.glob(os.path.join(ROOT, "mjx_hopper", "*.py"))}
+  assert modules - {"__init__.py"} <= named, f"docs/design.md omits {modules - named}"

@@ -1,5 +1,5 @@
-"""Episode statistics under random and zero actions, against PyBullet's own envs; and a video
-of one (here, so that it reuses this file's compiled episodes in the same test worker).
+"""Episode statistics under random and zero actions, against PyBullet's own envs (their
+episodes as tests/record_oracle.py recorded them in tests/oracle/); and a video of one (here, so that it reuses this file's compiled episodes in the same test worker).
 
 The contact models differ (Bullet's hard contacts, MuJoCo's soft ones), so episodes agree in
 distribution, not step for step. A mean passes when |ours - bullet| <= max(rel * |bullet|, abs)
@@ -10,8 +10,8 @@ docs/fidelity.md (64 episodes each), the second the sampling noise of the few ep
 import numpy as np
 import pytest
 
-from conftest import ROBOTS, make_bullet, make_env, mjx_episodes
-from mjx_hopper.envs import pybullet_oracle, render
+from conftest import ROBOTS, make_env, mjx_episodes, oracle
+from mjx_hopper.envs import render
 
 pytestmark = pytest.mark.slow
 
@@ -36,10 +36,9 @@ LOOSER = {
     ("Humanoid", "zero"): {"length": (0.3, 1.0), "return": (0.3, 2.0),
                            "joints_at_limit_cost": (0.0, 0.08)},
 }
+# PyBullet's episodes per policy (HalfCheetah's and Ant's random ones are fewer and longer: see
+# tests/record_oracle.py); the noise term widens with fewer.
 BULLET_EPISODES = {"random": 30, "zero": 10}
-# HalfCheetah's and Ant's random episodes run to 1,000 and about 800 steps (the others' to
-# 12-20), so their per-step means vary little from episode to episode: 10 episodes measure
-# them, in a third of PyBullet's 13-16 s for 30 (the noise term widens with fewer).
 FEWER_EPISODES = {("HalfCheetah", "random"): 10, ("Ant", "random"): 10}
 
 
@@ -47,7 +46,8 @@ FEWER_EPISODES = {("HalfCheetah", "random"): 10, ("Ant", "random"): 10}
 @pytest.mark.parametrize("robot", ROBOTS)
 def test_episode_statistics_match_bullet(robot, policy):
   episodes = FEWER_EPISODES.get((robot, policy), BULLET_EPISODES[policy])
-  bullet = pybullet_oracle.run_episodes(make_bullet(robot), episodes, policy, seed=0)
+  bullet = {name: oracle(robot)[f"{policy}_{name}"] for name in TOLERANCE}
+  assert {len(v) for v in bullet.values()} == {episodes}
   ours = {k: v for k, v in mjx_episodes(robot)[policy].items() if k != "qpos"}
   assert set(ours) == set(TOLERANCE)
   tolerance = dict(TOLERANCE, **LOOSER.get((robot, policy), {}))

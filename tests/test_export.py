@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import mjx_hopper
-from mjx_hopper import agents, checkpoint, cli, export, loop, runlock, runs
+from mjx_hopper import agents, cli, export, loop, runlock, runs, store
 from checkpoint_worker import CONFIG, state as fake_state
 from test_train import TINY
 
@@ -210,14 +210,14 @@ def test_export_of_a_run_acts_as_its_policy_and_records_its_task(run_dir, tmp_pa
   obs = observations()
   np.testing.assert_allclose(policy(obs), np.asarray(jax.jit(trainer.agent.policy)(
       agent_state, obs)), rtol=0, atol=1e-5)
-  mngr = checkpoint.manager(directory)
-  record = checkpoint.read_config(mngr, mngr.latest_step())["record"]
+  mngr = store.manager(directory)
+  record = store.read_config(mngr, mngr.latest_step())["record"]
   meta = policy.meta
   assert meta["task"] == {"env": "Hopper", "episode_steps": 30, "env_settings": {}}
   assert (meta["observation_size"], meta["action_size"]) == (O, A)
   assert meta["evaluation"] == {"which": "best", "return": record["best_return"][0],
                                 "env_steps": record["best_env_steps"][0], "episodes": 2}
-  assert meta["format"] == export.FORMAT and meta["checkpoint_format"] == checkpoint.FORMAT
+  assert meta["format"] == export.FORMAT and meta["checkpoint_format"] == store.items.FORMAT
   assert meta["versions"]["mjx_hopper"] == mjx_hopper.__version__
   assert meta["agent"] == "d4pg" and meta["run_config"]["agent"] == "d4pg"
   assert lines[-1].startswith(f"exported the best policy of {directory}, return ")
@@ -259,11 +259,11 @@ def test_export_without_a_checkpoint_writes_nothing(tmp_path):
 
 def test_export_of_a_sweep_needs_a_member_it_holds(tmp_path):
   directory = str(tmp_path / "ckpt")
-  mngr = checkpoint.manager(directory)
-  checkpoint.save(mngr, fake_state(1), {**CONFIG, "member_indices": [0, 1]})
-  checkpoint.finish(mngr)
+  mngr = store.manager(directory)
+  store.save(mngr, fake_state(1), {**TINY.to_json(), "member_indices": [0, 1]})
+  store.finish(mngr)
   out = tmp_path / "policy.npz"
-  with pytest.raises(ValueError, match="holds a sweep of 2 members: give the member to export "
+  with pytest.raises(ValueError, match="holds a sweep of 2 members: give a member's index "
                                        r"\(--member INDEX, or --member best\)"):
     export.export_checkpoint(directory, str(out))
   with pytest.raises(ValueError, match=r"member 5 is not in .*: it holds members \[0, 1\]"):
@@ -275,12 +275,12 @@ def test_export_of_a_sweep_needs_a_member_it_holds(tmp_path):
 
 def test_export_of_a_newer_checkpoint_format_writes_nothing(tmp_path, monkeypatch):
   directory = str(tmp_path / "ckpt")
-  monkeypatch.setattr(checkpoint, "FORMAT", checkpoint.FORMAT + 1)
-  mngr = checkpoint.manager(directory)
-  checkpoint.save(mngr, fake_state(1), CONFIG)
-  checkpoint.finish(mngr)
+  monkeypatch.setattr(store.items, "FORMAT", store.items.FORMAT + 1)
+  mngr = store.manager(directory)
+  store.save(mngr, fake_state(1), CONFIG)
+  store.finish(mngr)
   monkeypatch.undo()
-  with pytest.raises(checkpoint.FormatMismatch, match=f"has format {checkpoint.FORMAT + 1}"):
+  with pytest.raises(store.FormatMismatch, match=f"has format {store.items.FORMAT + 1}"):
     export.export_checkpoint(directory, str(tmp_path / "policy.npz"))
   assert not (tmp_path / "policy.npz").exists()
 

@@ -14,7 +14,7 @@ gymnasium = pytest.importorskip("gymnasium")
 from gymnasium.utils.env_checker import check_env  # noqa: E402
 from gymnasium.vector import AutoresetMode  # noqa: E402
 
-from mjx_hopper import envs  # noqa: E402
+from mjx_hopper import envs, parallel  # noqa: E402
 
 EPISODE_STEPS = 12
 
@@ -55,6 +55,7 @@ def test_the_single_env_steps_as_the_jax_env(hopper12):
     assert (terminated, truncated) == (False, t == EPISODE_STEPS - 1)  # a tenth: it stands
 
 
+@pytest.mark.slow
 def test_the_vector_env_steps_as_the_jax_env_and_resets_in_the_same_step(hopper12):
   n = 4
   vec = envs.to_gymnasium(hopper12, num_envs=n)
@@ -63,7 +64,10 @@ def test_the_vector_env_steps_as_the_jax_env_and_resets_in_the_same_step(hopper1
   assert vec.observation_space.shape == (n, 15) and vec.action_space.shape == (n, 3)
   auto = envs.AutoReset(hopper12)
   state = jax.jit(jax.vmap(auto.reset))(jax.random.split(jax.random.PRNGKey(5), n))
-  step = jax.jit(jax.vmap(auto.step))
+  # Split over the devices as the vector env splits its envs: on jax 0.12, XLA:CPU compiles a
+  # program over 2 devices to other last bits than the same per-device code on one device,
+  # and the Hopper's contacts grow them past 1e-5 within an episode.
+  step = jax.jit(parallel.per_device(jax.vmap(auto.step), n))
   obs, _ = vec.reset(seed=5)
   np.testing.assert_allclose(obs, np.asarray(state.obs), rtol=1e-6, atol=1e-6)
   seen = {"terminated": 0, "truncated": 0}

@@ -11,11 +11,10 @@ import pytest
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 LEAVES = ("agents", "envs")  # installed as mjx_hopper.agents, mjx_hopper.envs
-# What agents/ and envs/ may import from mjx_hopper/ (compat: the old names, which import
-# nothing of the host layer until one is used); everything else there is the host layer
-# (loop, config, evaluator, members, pbt, runs, sweep, checkpoint, logger, cli, notebook,
+# What agents/ and envs/ may import from mjx_hopper/; everything else there is the host layer
+# (loop, config, evaluator, members, pbt, runs, sweep, store, logger, cli, notebook,
 # presets, export, ...), which uses the leaves and never the reverse.
-SHARED = {"agents", "compat", "envs", "fields", "parallel"}
+SHARED = {"agents", "envs", "fields", "parallel"}
 
 HISTORY = re.compile(r"\b\d{4}-\d{2}-\d{2}\b|H100|H200|\b2 cores\b|\b2-core\b|BENCHMARKS\.md"
                      r"|history\.md", re.IGNORECASE)

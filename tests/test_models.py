@@ -1,4 +1,5 @@
-"""Each robot's model against PyBullet's: masses, inertias, torques, limits, timing, specs."""
+"""Each robot's model against PyBullet's: masses, inertias, torques, limits, timing, specs, as
+tests/record_oracle.py recorded them in tests/oracle/."""
 
 import itertools
 
@@ -6,9 +7,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from conftest import ROBOTS, make_bullet, make_env
+from conftest import ROBOTS, make_env, oracle
 from mjx_hopper import envs
-from mjx_hopper.envs import pybullet_oracle
 
 TOTAL_MASS = {"Hopper": 15.82, "Walker2D": 23.6772, "HalfCheetah": 38.1878, "Ant": 182.176,
               "Humanoid": 42.116}  # kg, read from PyBullet 3.2.7
@@ -18,8 +18,8 @@ SIZES = {"Hopper": (15, 3), "Walker2D": (22, 6), "HalfCheetah": (26, 6), "Ant": 
 
 @pytest.mark.parametrize("robot", ROBOTS)
 def test_link_masses_within_one_percent(robot):
-  env, bullet = make_env(robot), make_bullet(robot)
-  theirs = pybullet_oracle.link_masses(bullet)
+  env, bullet = make_env(robot), oracle(robot)
+  theirs = dict(zip(bullet["parts"], bullet["masses"]))
   ours = {env.mj_model.body(i).name: env.mj_model.body_mass[i]
           for i in range(1, env.mj_model.nbody)}
   assert sorted(ours) == sorted(theirs)
@@ -30,36 +30,28 @@ def test_link_masses_within_one_percent(robot):
 
 @pytest.mark.parametrize("robot", ROBOTS)
 def test_inertias_are_bullets(robot):
-  env, bullet = make_env(robot), make_bullet(robot)
-  client = bullet._p
-  for name, part in bullet.robot.parts.items():
-    info = client.getDynamicsInfo(part.bodies[part.bodyIndex], part.bodyPartIndex)
-    if info[0] > 0:
-      np.testing.assert_allclose(env.mj_model.body(name).inertia, info[2], rtol=1e-4,
-                                 err_msg=name)  # where it sits: the mass-matrix test
+  env, bullet = make_env(robot), oracle(robot)
+  assert len(bullet["inertias"]) == len(bullet["parts"]) > 0
+  for name, inertia in zip(bullet["parts"], bullet["inertias"]):
+    np.testing.assert_allclose(env.mj_model.body(name).inertia, inertia, rtol=1e-4,
+                               err_msg=name)  # where it sits: the mass-matrix test
 
 
 @pytest.mark.parametrize("robot", ROBOTS)
 def test_joint_space_mass_matrix_matches_bullet(robot):
-  """At random joint angles (the root at rest pose): the whole matrix for planar robots, the
+  """At 3 random joint angles (the root at rest pose): the whole matrix for planar robots, the
   joints' block for free-floating ones (Bullet orders its base coordinates differently). The
   bodies' part only: the Humanoid's hinges add an armature of their own (humanoid.xml)."""
-  env, bullet = make_env(robot), make_bullet(robot)
+  env, bullet = make_env(robot), oracle(robot)
   model, data = env.mj_model, mujoco.MjData(env.mj_model)
-  rng = np.random.default_rng(0)
-  pybullet_oracle.set_state(bullet, env, model.qpos0, np.zeros(model.nv))
   free = env._root == "free"
-  for _ in range(3):
-    data.qpos[:] = model.qpos0
-    data.qpos[env._qadr] = rng.uniform(-0.5, 0.5, env.action_size)
-    if not free:
-      data.qpos[:3] = rng.uniform(-0.5, 0.5, 3)
+  assert len(bullet["mass_matrix"]) == 3
+  for qpos, theirs in zip(bullet["mass_matrix_qpos"], bullet["mass_matrix"]):
+    data.qpos[:] = qpos
     mujoco.mj_forward(model, data)
     ours = np.zeros((model.nv, model.nv))
     mujoco.mj_fullM(model, data, ours)
     ours -= np.diag(model.dof_armature)
-    joint_angles = data.qpos[7:] if free else data.qpos  # Bullet takes no base coordinates
-    theirs = np.array(bullet._p.calculateMassMatrix(bullet.robot.objects[0], list(joint_angles)))
     if free:
       ours, theirs = ours[6:, 6:], theirs[6:, 6:]
     np.testing.assert_allclose(ours, theirs, rtol=1e-4, atol=1e-5)
@@ -67,11 +59,9 @@ def test_joint_space_mass_matrix_matches_bullet(robot):
 
 @pytest.mark.parametrize("robot", ROBOTS)
 def test_torques_are_power_times_power_coef(robot):
-  env, bullet = make_env(robot), make_bullet(robot)
-  robot_b = bullet.robot
-  # What apply_action multiplies by: the Humanoid's own motor_power list, else power_coef.
-  coefs = getattr(robot_b, "motor_power", [j.power_coef for j in robot_b.ordered_joints])
-  expected = robot_b.power * np.array(coefs)
+  """Bullet's torque at |a| = 1 is power times what apply_action multiplies by (the Humanoid's
+  own motor_power list, else each joint's power_coef)."""
+  env, expected = make_env(robot), oracle(robot)["torques"]
   model, data = env.mj_model, mujoco.MjData(env.mj_model)
   data.ctrl[:] = np.where(np.arange(model.nu) % 2, -1.0, 3.0)  # 3 is clipped to 1
   mujoco.mj_forward(model, data)
@@ -81,35 +71,34 @@ def test_torques_are_power_times_power_coef(robot):
 
 @pytest.mark.parametrize("robot", ROBOTS)
 def test_joints_and_limits_in_action_order(robot):
-  env, bullet = make_env(robot), make_bullet(robot)
-  joints = bullet.robot.ordered_joints
-  assert env.joints == tuple(j.joint_name for j in joints)
-  for j in joints:
-    lower, upper = env.mj_model.joint(j.joint_name).range
-    assert (lower, upper) == pytest.approx((j.lowerLimit, j.upperLimit), abs=1e-5)
+  env, bullet = make_env(robot), oracle(robot)
+  assert env.joints == tuple(bullet["joints"])
+  for name, limits in zip(bullet["joints"], bullet["joint_limits"]):
+    lower, upper = env.mj_model.joint(name).range
+    assert (lower, upper) == pytest.approx(tuple(limits), abs=1e-5)
 
 
 @pytest.mark.parametrize("robot", ROBOTS)
 def test_timing_root_and_feet(robot):
-  env, bullet = make_env(robot), make_bullet(robot)
-  assert env.dt == pytest.approx(bullet.scene.dt)
-  assert env.n_substeps == bullet.scene.frame_skip == 4
+  env, bullet = make_env(robot), oracle(robot)
+  assert env.dt == pytest.approx(bullet["dt"])
+  assert env.n_substeps == bullet["frame_skip"] == 4
   assert env.mj_model.opt.timestep == pytest.approx(0.0165 / 4)
   assert env._root == ("free" if robot in ("Ant", "Humanoid") else "planar")
-  assert env.feet == tuple(bullet.robot.foot_list)
-  assert env.initial_z == pytest.approx(bullet.robot.initial_z, abs=1e-6)
-  assert env.electricity_cost == bullet.electricity_cost
-  assert env.stall_torque_cost == pytest.approx(bullet.stall_torque_cost)
-  assert env._n_parts == len(bullet.robot.parts)
+  assert env.feet == tuple(bullet["feet"])
+  assert env.initial_z == pytest.approx(bullet["initial_z"], abs=1e-6)
+  assert env.electricity_cost == bullet["electricity_cost"]
+  assert env.stall_torque_cost == pytest.approx(bullet["stall_torque_cost"])
+  assert env._n_parts == bullet["part_count"]
 
 
 @pytest.mark.parametrize("robot", ROBOTS)
 def test_specs(robot):
-  env, bullet = make_env(robot), make_bullet(robot)
+  env, bullet = make_env(robot), oracle(robot)
   obs_size, act_size = SIZES[robot]
   action, obs, reward = env.action_spec(), env.observation_spec(), env.reward_spec()
-  assert action.shape == bullet.action_space.shape == (act_size,)
-  assert obs.shape == bullet.observation_space.shape == (obs_size,)
+  assert action.shape == (bullet["action_size"],) == (act_size,)
+  assert obs.shape == (bullet["observation_size"],) == (obs_size,)
   assert reward.shape == ()
   assert {np.dtype(s.dtype) for s in (action, obs, reward)} == {np.dtype(np.float32)}
   np.testing.assert_array_equal(action.minimum, -1.0)

@@ -108,6 +108,7 @@ def test_a_registered_agent_trains_sweeps_checkpoints_and_resumes(linear, tmp_pa
   np.testing.assert_allclose(policy(obs), np.tanh(obs @ np.asarray(state.policy)), rtol=1e-6)
 
 
+@pytest.mark.slow
 def test_the_terminal_line_shows_its_learner_metrics(linear, tmp_path, capsys):
   cfg = dataclasses.replace(notebook.tiny(loop.RunConfig(env="Hopper", agent=linear)),
                             log_every=0.0, out_dir=str(tmp_path))
@@ -119,6 +120,7 @@ def test_the_terminal_line_shows_its_learner_metrics(linear, tmp_path, capsys):
 def test_an_agent_without_an_exported_policy_trains_but_is_not_exported():
   agents.register("unexported", make_linear, PRESETS)
   try:
+    assert agents.config("unexported") == PRESETS["cpu"]  # no "acme" preset: "cpu" is its default
     state = agents.make("unexported", 3, 2).init(jax.random.PRNGKey(0))
     with pytest.raises(ValueError, match="cannot export agent 'unexported': it was registered "
                                          "without an exported_policy"):

@@ -1,32 +1,14 @@
-"""Observations, body positions and speeds against PyBullet's `calc_state`, state for state."""
+"""Observations, body positions and speeds against PyBullet's `calc_state`, state for state, as
+tests/record_oracle.py recorded them in tests/oracle/."""
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-import pybullet
 import pytest
 
-from conftest import ROBOTS, make_bullet, make_env
+from conftest import ROBOTS, make_env, oracle
 from mjx_hopper import envs
-from mjx_hopper.envs import base, pybullet_oracle
-
-def random_state(env, rng, airborne=False):
-  """qpos, qvel with every joint inside its limits (in the middle half of its range when
-  airborne, so that no limit is reached within a step), a perturbed root, random speeds."""
-  model = env.mj_model
-  qpos = np.array(model.qpos0)
-  limits = model.jnt_range[[model.joint(j).id for j in env.joints]]
-  middle, half = limits.mean(1), (limits[:, 1] - limits[:, 0]) / 2
-  spread = 0.5 if airborne else 1.0
-  qpos[env._qadr] = rng.uniform(middle - spread * half, middle + spread * half)
-  if env._root == "planar":
-    qpos[:3] += rng.uniform(-0.3, 0.3, 3)
-    qpos[1] += 0.6 if airborne else 0.0
-  else:
-    qpos[:3] += rng.uniform(-0.3, 0.3, 3) + (0.0, 0.0, 0.6 if airborne else 0.0)
-    quat = rng.normal(size=4) * [3, 0.3, 0.3, 0.3]  # mostly upright, any heading
-    qpos[3:7] = quat / np.linalg.norm(quat)
-  return qpos, rng.uniform(-2, 2, model.nv) * (0.5 if airborne else 1.0)
+from mjx_hopper.envs import base
 
 
 @pytest.fixture(scope="module")
@@ -42,13 +24,13 @@ def init_state():
 
 @pytest.mark.parametrize("robot", ROBOTS)
 def test_reset_observation_matches_bullet(robot, init_state):
-  env, bullet = make_env(robot), make_bullet(robot)
-  for seed in range(3):
-    bullet.seed(seed)
-    with pybullet_oracle.quiet():
-      bullet_obs = bullet.reset()
+  """Bullet's reset with seeds 0, 1 and 2 (tests/record_oracle.py): its observation from its
+  joints' positions, and ours from the same."""
+  env, bullet = make_env(robot), oracle(robot)
+  assert len(bullet["reset_obs"]) == 3
+  for positions, bullet_obs in zip(bullet["reset_joint_positions"], bullet["reset_obs"]):
     qpos = np.array(env.mj_model.qpos0)
-    qpos[env._qadr] = [j.get_position() for j in bullet.robot.ordered_joints]
+    qpos[env._qadr] = positions
     state = init_state(robot)(qpos, np.zeros(env.mj_model.nv))
     np.testing.assert_allclose(state.obs, bullet_obs, atol=2e-5)
     assert state.obs.dtype == jnp.float32
@@ -56,20 +38,21 @@ def test_reset_observation_matches_bullet(robot, init_state):
 
 @pytest.mark.parametrize("robot", ROBOTS)
 def test_observation_matches_bullet_at_random_states(robot, init_state):
-  env, bullet = make_env(robot), make_bullet(robot)
-  rng = np.random.default_rng(1)
-  for _ in range(10):
-    qpos, qvel = random_state(env, rng)
-    bullet_obs = pybullet_oracle.set_state(bullet, env, qpos, qvel)
+  """At 10 random states (every joint within its limits, a perturbed root, random speeds) put
+  into Bullet's robot by hand."""
+  env, bullet = make_env(robot), oracle(robot)
+  assert len(bullet["random_qpos"]) == 10
+  for i, (qpos, qvel) in enumerate(zip(bullet["random_qpos"], bullet["random_qvel"])):
     state = init_state(robot)(qpos, qvel)
-    np.testing.assert_allclose(state.obs, bullet_obs, atol=5e-5)
+    np.testing.assert_allclose(state.obs, bullet["random_obs"][i], atol=5e-5)
     robot_state = state.info["robot"]
-    np.testing.assert_allclose(robot_state.body_xyz, bullet.robot.body_xyz, atol=1e-5)
-    np.testing.assert_allclose(env.torso_speed(state), bullet.robot_body.speed(), atol=1e-5)
+    np.testing.assert_allclose(robot_state.body_xyz, bullet["random_body_xyz"][i], atol=1e-5)
+    np.testing.assert_allclose(env.torso_speed(state), bullet["random_torso_speed"][i],
+                               atol=1e-5)
     positions = env.body_positions(state)
-    assert sorted(positions) == sorted(pybullet_oracle.link_masses(bullet))
-    for name, xyz in positions.items():
-      np.testing.assert_allclose(xyz, bullet.robot.parts[name].pose().xyz(), atol=1e-5)
+    assert sorted(positions) == sorted(bullet["parts"])
+    for name, xyz in zip(bullet["parts"], bullet["random_part_xyz"][i]):
+      np.testing.assert_allclose(positions[name], xyz, atol=1e-5)
 
 
 class BulletHumanoid(envs.Humanoid):
@@ -79,20 +62,17 @@ class BulletHumanoid(envs.Humanoid):
     model.dof_armature[:] = 0.0
 
 
-def one_step(env, bullet, seed, count=2):
-  """From `count` random airborne states, one control step of ours and of Bullet's: our
-  observations before and after it, Bullet's after it, our progress and Bullet's."""
+def one_step(env, bullet, seed):
+  """From the random airborne states that Bullet stepped once with rng seed `seed`
+  (tests/record_oracle.py), one control step of ours: our observations before and after it,
+  Bullet's after it, our progress and Bullet's."""
   step, init = jax.jit(env.step), jax.jit(env.init_state)
-  rng = np.random.default_rng(seed)
-  for _ in range(count):
-    qpos, qvel = random_state(env, rng, airborne=True)
-    action = rng.uniform(-1, 1, env.action_size) * 0.3
-    pybullet_oracle.set_state(bullet, env, qpos, qvel)
-    bullet.potential = bullet.robot.calc_potential()
-    bullet_obs, _, _, _ = bullet.step(action)
+  names = ("qpos", "qvel", "action", "obs", "progress")
+  for qpos, qvel, action, bullet_obs, bullet_progress in zip(
+      *(bullet[f"step{seed}_{k}"] for k in names)):
     start = init(qpos, qvel)
     state = step(start, jnp.asarray(action, jnp.float32))
-    yield start.obs, state.obs, bullet_obs, float(state.metrics["progress"]), bullet.rewards[1]
+    yield start.obs, state.obs, bullet_obs, float(state.metrics["progress"]), bullet_progress
 
 
 @pytest.mark.parametrize("robot", ROBOTS)
@@ -107,7 +87,7 @@ def test_one_step_matches_bullet(robot):
     speed[[8 + 2 * i + k for i in arms for k in (0, 1)]] = True
   # Free-floating robots agree less well (fidelity.md): their base is Bullet's root link.
   tolerance = 0.01 if env._root == "planar" else 0.05
-  for _, obs, bullet_obs, progress, bullet_progress in one_step(env, make_bullet(robot), 2):
+  for _, obs, bullet_obs, progress, bullet_progress in one_step(env, oracle(robot), 2):
     assert progress == pytest.approx(bullet_progress, rel=0.02, abs=0.02)
     np.testing.assert_allclose(obs[~speed], bullet_obs[~speed], atol=tolerance)
     np.testing.assert_allclose(obs[3:6], bullet_obs[3:6], atol=0.05)
@@ -116,11 +96,12 @@ def test_one_step_matches_bullet(robot):
 def test_humanoid_armature_only_slows_the_joints():
   """The shipped Humanoid's hinge armature leaves the pose after a step as Bullet's, and its
   joints' speeds change less in the step than without armature."""
-  env, bullet = make_env("Humanoid"), make_bullet("Humanoid")
+  env, bullet = make_env("Humanoid"), oracle("Humanoid")
   positions = 8 + 2 * np.arange(len(env.joints))
   speeds = positions + 1
-  shipped = one_step(env, bullet, 3, count=4)
-  without = list(one_step(BulletHumanoid(), bullet, 3, count=4))
+  assert len(bullet["step3_obs"]) == 4
+  shipped = one_step(env, bullet, 3)
+  without = list(one_step(BulletHumanoid(), bullet, 3))
   for (start, obs, bullet_obs, _, _), (_, free, _, _, _) in zip(shipped, without):
     np.testing.assert_allclose(obs[positions], bullet_obs[positions], atol=0.05)
     np.testing.assert_allclose(obs[speeds], bullet_obs[speeds], atol=0.15)
@@ -141,13 +122,11 @@ def test_feet_contact_lags_one_step(hopper, hopper_reset, hopper_step):
 
 
 def test_quat_to_rpy_matches_bullet():
-  rng = np.random.default_rng(0)
-  quats = rng.normal(size=(200, 4))
-  quats /= np.linalg.norm(quats, axis=1, keepdims=True)
-  ours = np.asarray(jax.vmap(base.quat_to_rpy)(jnp.asarray(quats)))
-  for q, rpy in zip(quats, ours):
-    w, x, y, z = q
-    np.testing.assert_allclose(rpy, pybullet.getEulerFromQuaternion([x, y, z, w]), atol=2e-5)
+  """Against pybullet.getEulerFromQuaternion on 200 random unit quaternions (w, x, y, z)."""
+  bullet = oracle("euler")
+  assert bullet["quats"].shape == (200, 4)
+  ours = np.asarray(jax.vmap(base.quat_to_rpy)(jnp.asarray(bullet["quats"])))
+  np.testing.assert_allclose(ours, bullet["rpy"], atol=2e-5)
 
 
 def test_progress_is_float32_safe(hopper):

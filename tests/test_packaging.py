@@ -37,6 +37,9 @@ def test_the_wheel_holds_the_package_and_its_data(wheel):
   packages = {name.split("/")[0] for name in names}
   assert {p for p in packages if not p.endswith(".dist-info")} == {"mjx_hopper"}
   assert "mjx_hopper/py.typed" in names
+  inside = [os.path.relpath(folder, ROOT) for folder, _, files in
+            os.walk(os.path.join(ROOT, "mjx_hopper")) if "__init__.py" in files]
+  assert {f"{p}/__init__.py" for p in inside} <= set(names)  # every sub-package (store/)
   assert {n for n in names if n.startswith("mjx_hopper/envs/assets/")} == {
       f"mjx_hopper/envs/assets/{m}.xml" for m in ("hopper", "walker2d", "half_cheetah", "ant",
                                                    "humanoid")}

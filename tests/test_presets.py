@@ -1,11 +1,17 @@
 """The per-robot presets, how the CLI starts from them, and stopping a run at a target return."""
 
 import dataclasses
+import json
+import pathlib
+import sys
 
 import pytest
 
 from mjx_hopper import agents, cli, envs, flags, loop, presets, train
 from test_train import TINY  # a tiny Hopper run: 4 envs, eval every 40 env steps
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent.parent / "benchmarks"))
+import report  # noqa: E402  (the results behind the README's table; files only)
 
 
 def test_every_robot_has_a_valid_gpu_and_cpu_preset():
@@ -18,8 +24,44 @@ def test_every_robot_has_a_valid_gpu_and_cpu_preset():
       cfg = presets.run_config(env, kind, max_minutes=1.0)
       assert (cfg.env, cfg.agent, cfg.train, cfg.max_minutes) == (env, preset.agent,
                                                                    preset.train, 1.0)
+      assert cfg.total_env_steps == preset.env_steps
   # The 2-core CPU's Hopper preset is what the README's main job runs.
   assert presets.get("Hopper", "cpu").train == train.TrainConfig()
+
+
+@pytest.mark.parametrize("kind, table", [("gpu", report.GPU), ("cpu", report.CPU)])
+def test_each_preset_is_the_one_its_results_measured_with_the_budget_they_need(kind, table):
+  # The README's table and the preset name one score, and the preset trains long enough to
+  # reach it: 1.5 times its slowest seed's env steps and minutes (report.budget).
+  for robot in report.ROBOTS:
+    preset, names = presets.get(robot, kind), table[robot]
+    for name in names:
+      ran = report.load(name)["figures"]
+      assert ran["target"] == preset.target, (robot, kind, name)
+      assert [ran["agent"], ran["agent_overrides"], ran["train"]] == json.loads(json.dumps(
+          (preset.agent, preset.agent_overrides, dataclasses.asdict(preset.train)))), name
+    assert (preset.env_steps, preset.minutes) == report.budget(names), (robot, kind)
+
+
+def test_the_budget_is_the_presets_unless_a_run_says_otherwise():
+  hopper = presets.get("Hopper", "cpu")
+  cfg = presets.run_config("Hopper", "cpu")
+  assert (cfg.total_env_steps, cfg.max_minutes) == (hopper.env_steps, hopper.minutes)
+  cfg = presets.run_config("Hopper", "cpu", total_env_steps=1000, max_minutes=None)
+  assert (cfg.total_env_steps, cfg.max_minutes) == (1000, None)
+  walker = presets.get("Walker2D", "gpu")
+  cfg = run_config("--env", "Walker2D", "--preset", "gpu")
+  assert (cfg.total_env_steps, cfg.max_minutes) == (walker.env_steps, walker.minutes)
+  cfg = run_config("--env", "Walker2D", "--preset", "gpu", "--total-env-steps", "5000",
+                   "--max-minutes", "0.5")
+  assert (cfg.total_env_steps, cfg.max_minutes) == (5000, 0.5)
+  # A step count given alone is the whole budget: the preset's minutes do not cut it short.
+  cfg = presets.run_config("Hopper", "cpu", total_env_steps=1000)
+  assert (cfg.total_env_steps, cfg.max_minutes) == (1000, None)
+  cfg = run_config("--env", "Walker2D", "--preset", "gpu", "--total-env-steps", "5000")
+  assert (cfg.total_env_steps, cfg.max_minutes) == (5000, None)
+  sweep = flags.run_config(cli.build_parser().parse_args(["sweep", "--preset", "gpu"]), "sweep")
+  assert sweep.total_env_steps == presets.get("Hopper", "gpu").env_steps
 
 
 def test_every_agents_robot_settings_are_valid():
@@ -88,6 +130,7 @@ def test_cli_starts_from_the_robot_preset():
       "d4pg", "cpu", train.TrainConfig(), 200_000)
 
 
+@pytest.mark.slow
 def test_run_stops_once_every_member_reaches_the_target(tmp_path, capsys):
   cfg = dataclasses.replace(TINY, out_dir=str(tmp_path), stop_at_return=-1e9, seeds=(0, 1),
                             total_env_steps=10**6)

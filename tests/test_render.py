@@ -18,6 +18,7 @@ def test_one_frame(robot):
     env.render(np.zeros(5))
 
 
+@pytest.mark.slow
 def test_demo_prints_throughput_and_writes_video(tmp_path, capsys):
   cli.demo(cli.build_parser().parse_args(
       ["demo", "--num-envs", "4", "--steps", "100", "--out", str(tmp_path)]))

@@ -72,7 +72,7 @@ def test_a_python_without_venv_gets_debians_package(tmp_path):
 def test_the_notebooks_install_cell_runs_without_apt(tmp_path):
   with open(os.path.join(SCRIPTS, "..", "notebooks", "robolympics.ipynb")) as f:
     cell = next("".join(c["source"]) for c in json.load(f)["cells"]
-                if "".join(c["source"]).startswith("REPO_URL"))
+                if c["cell_type"] == "code" and "\nREPO_URL = " in "".join(c["source"]))
   env = dict(os.environ, PATH=str(tmp_path), MJX_HOPPER_SHORT="1")  # no apt, no dpkg
   done = subprocess.run([sys.executable, "-c", cell], env=env, capture_output=True, text=True,
                         cwd=tmp_path)
@@ -81,3 +81,21 @@ def test_the_notebooks_install_cell_runs_without_apt(tmp_path):
   assert lines[:2] == ["no apt here: skipped Mesa's EGL packages (for videos, install your "
                        "system's EGL)", "to install: nothing"]
   assert lines[2] == f"JAX {version('jax')}, as it was installed"
+
+
+def test_the_floor_job_pins_each_runtime_dependency_to_its_lower_bound(tmp_path):
+  import tomllib
+  root = os.path.join(SCRIPTS, "..")
+  with open(os.path.join(root, "pyproject.toml"), "rb") as f:
+    dependencies = tomllib.load(f)["project"]["dependencies"]
+  done = subprocess.run([sys.executable, os.path.join(root, ".ci", "floor_constraints.py"),
+                         os.path.join(root, "pyproject.toml")], capture_output=True, text=True)
+  assert done.returncode == 0, done.stderr
+  pins = dict(line.split("==") for line in done.stdout.split())
+  assert len(pins) == len(dependencies) and pins["jax"] == "0.9.2"
+  (tmp_path / "pyproject.toml").write_text('[project]\ndependencies = ["jax<0.13"]\n')
+  done = subprocess.run([sys.executable, os.path.join(root, ".ci", "floor_constraints.py"),
+                         str(tmp_path / "pyproject.toml")], capture_output=True, text=True)
+  assert done.returncode == 1
+  assert done.stderr == ("'jax<0.13' in pyproject.toml has no lower bound (>=X) to pin the "
+                         "floor job to\n")

@@ -1,18 +1,21 @@
 """Sweeps: members of one compiled program, each the single run of its settings, resumable,
-extractable, and split over processes with jax.distributed."""
+extractable, and spread over processes with jax.distributed."""
 
+import contextlib
 import csv
 import dataclasses
 import os
 import signal
+import socket
 import subprocess
 import sys
+import time
 
 import jax
 import numpy as np
 import pytest
 
-from mjx_hopper import checkpoint, cli, loop, runs, train
+from mjx_hopper import cli, loop, runs, store, sweep, train
 from mjx_hopper.pbt import PBT, exploit_explore
 from test_train import TINY, TINY_ARGS, member
 
@@ -40,6 +43,24 @@ def assert_close(a, b, rtol):
     elif x.size:
       np.testing.assert_allclose(x, y, rtol=0, atol=rtol * (np.abs(y).max() + 1),
                                  err_msg=jax.tree_util.keystr(path))
+
+
+# From jax 0.12, shard_map passes the constants its function closes over (the robot's model)
+# into each device's program through XLA `Sharding` custom calls, which XLA does not fold: a
+# program over 2 devices then computes other arithmetic than the same code on one device (the
+# Hopper's step: 650 against 649 multiplies, 360 against 353 adds before optimisation; 1.6e-3
+# apart in observations after 20 steps, from the first). Before 0.12 the two agree bit for bit,
+# and the floor job checks that.
+EXACT_ACROSS_DEVICE_COUNTS = jax.__version_info__ < (0, 12)
+
+
+def assert_as_its_single_run(a, b):
+  """A member on a device of two against its single run on one device: bit for bit where
+  EXACT_ACROSS_DEVICE_COUNTS, else as close as vmapped members are (`assert_close`)."""
+  if EXACT_ACROSS_DEVICE_COUNTS:
+    assert_same(a, b)
+  else:
+    assert_close(a, b, rtol=5e-2)
 
 
 @pytest.fixture(scope="module")
@@ -70,8 +91,8 @@ def test_member_is_bit_identical_to_its_single_run(single):
   user_path = run_chunks(single, runs.init(dataclasses.replace(TINY, seed=1), single,
                                            [{"seed": 1}]))
   for i, (one, one_metrics) in enumerate([single_run(single, members[0]), user_path]):
-    assert_same(member(state, i), member(one))
-    assert_same(member(metrics, i), member(one_metrics))
+    assert_as_its_single_run(member(state, i), member(one))
+    assert_as_its_single_run(member(metrics, i), member(one_metrics))
   assert_same(user_path, single_run(single, members[1]))
   first, second = (jax.tree.leaves(member(state, i).agent.policy)[0] for i in range(2))
   assert not np.array_equal(first, second)  # the learning rates made a difference
@@ -156,35 +177,6 @@ def test_replay_ratio_and_n_step_sweep_each_member_their_own():
   ratios = [m["replay_ratio"] for m in cfg.members()]
   assert list(state.updates) == [3 * int(r) for r in ratios]  # 8 transitions, batch 8
   assert list(state.agent.hparams["n_step"]) == [m["n_step"] for m in cfg.members()]
-
-
-@pytest.mark.slow
-def test_two_processes_give_one_process_results(tmp_path):
-  # jax.distributed: two processes of one CPU device each train one member each; one process
-  # with two devices (this one) trains both, one per device: the same program per member.
-  # TINY's evaluation and atoms, so that this process's run is the trainer of
-  # test_member_is_bit_identical_to_its_single_run's two members, already compiled.
-  args = [*TINY_ARGS[2:], "--seeds", "2", "--total-env-steps", "40", "--eval-episodes",
-          str(TINY.eval_episodes), "--set", f"num_atoms={TINY.agent_overrides['num_atoms']}"]
-  args[args.index("train")] = "sweep"
-  procs = [subprocess.Popen([sys.executable, "-m", "mjx_hopper.cli", "--cpu-devices", "1", *args,
-                             "--out-dir", str(tmp_path / "two"),
-                             "--num-processes", "2", "--process-id", str(i)],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-           for i in range(2)]
-  for proc in procs:
-    out, _ = proc.communicate(timeout=600)
-    assert proc.returncode == 0, out
-  cli.main(["--cpu-devices", "2", *args, "--out-dir", str(tmp_path / "one")])
-  _, both, _ = runs.restore(str(tmp_path / "one" / "checkpoints"))
-  for i in range(2):
-    folder = tmp_path / "two" / f"process{i}"
-    _, mine, _ = runs.restore(str(folder / "checkpoints"))
-    assert_same(member(mine), member(both, i))
-    with open(folder / "log.csv") as f:
-      assert {int(r["member"]) for r in csv.DictReader(f)} == {i}  # its own members' results
-  mngr = checkpoint.manager(str(tmp_path / "two" / "process1" / "checkpoints"))
-  assert checkpoint.read_config(mngr, mngr.latest_step())["member_indices"] == [1]
 
 
 def reference_pbt_step(returns, diverged, values, ranges, quanta, pbt, rng):
@@ -293,7 +285,7 @@ def test_a_diverged_member_is_frozen_and_the_others_go_on_unchanged(single, tmp_
   assert ("[diverged] member 1 at 40 env steps: " in out and "parameters not finite; frozen "
           "at its last finite agent" in out)
   sane, _ = single_run(single, cfg.members()[0], chunks=3)
-  assert_same(member(result.state, 0), member(sane))
+  assert_as_its_single_run(member(result.state, 0), member(sane))
   # Member 1 diverged in its first chunk: its agent stays the one it started with.
   trainer = runs.build(cfg)
   assert_same(member(result.state.agent, 1),
@@ -338,29 +330,161 @@ def test_pbt_replaces_a_diverged_member_resumes_exactly_and_extracts(tmp_path, c
   assert_same(agent, member(straight.best, best))
 
 
+# A 4-member PBT sweep: members (sigma, learning_rate) 0 (0.1, 1e-3), 1 (0.1, 1e30),
+# 2 (0.3, 1e-3) and 3 (0.3, 1e30). Members 1 and 3 diverge in the first chunk, and PBT gives each
+# a copy of the best member at the first evaluation.
+PBT_SWEEP = [*TINY_ARGS[3:], "--total-env-steps", "200", "--set", "num_atoms=11",
+             "--set", "sigma=0.1,0.3", "--set", "learning_rate=1e-3,1e30", "--pbt",
+             "--pbt-every", "1"]
+
+
+def free_port() -> int:
+  with socket.socket() as s:
+    s.bind(("localhost", 0))
+    return s.getsockname()[1]
+
+
+def start_processes(out_dir, flags, env=None) -> list[subprocess.Popen]:
+  """Two processes of one CPU device each, of one sweep over JAX's distributed runtime."""
+  return [subprocess.Popen([sys.executable, "-m", "mjx_hopper.cli", "--cpu-devices", "1",
+                            "sweep", *PBT_SWEEP, "--out-dir", str(out_dir), "--distributed",
+                            *flags(i)], env={**os.environ, **(env(i) if env else {})},
+                           stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+          for i in range(2)]
+
+
+@contextlib.contextmanager
+def two_processes(out_dir, flags, env=None):
+  """`start_processes`, killed (with what they printed kept) if the test ends before they do."""
+  procs = start_processes(out_dir, flags, env)
+  try:
+    yield procs
+  finally:
+    for proc in procs:
+      if proc.poll() is None:
+        proc.kill()
+      proc.communicate()
+
+
+def read_until(proc, prefix: str) -> str:
+  """What `proc` prints up to and including its first line that starts with `prefix`."""
+  lines = []
+  for line in proc.stdout:
+    lines.append(line)
+    if line.startswith(prefix):
+      return "".join(lines)
+  raise AssertionError(f"the process ended (exit {proc.wait()}) before a line {prefix!r}:\n"
+                       + "".join(lines))
+
+
+def finish(proc, code: int = 0) -> str:
+  """The rest of what `proc` prints, once it has ended with exit status `code`."""
+  out, _ = proc.communicate(timeout=600)
+  assert proc.returncode == code, out
+  return out
+
+
+def explicit(port: int):
+  return lambda i: ["--coordinator", f"localhost:{port}", "--num-processes", "2",
+                    "--process-id", str(i), "--checkpoint-minutes", "0"]
+
+
+def eval_rows(folder) -> list[tuple]:
+  with open(folder / "log.csv") as f:
+    return [(r["member"], r["env_steps"], r["eval_return"], r["sigma"], r["learning_rate"],
+             r["parent"], r["diverged"]) for r in csv.DictReader(f) if r["kind"] == "eval"]
+
+
 @pytest.mark.slow
-def test_pbt_over_two_processes_keeps_a_population_per_process(tmp_path):
-  # Members (sigma, learning_rate): 0 (0.1, 1e-3), 1 (0.1, 1e30), 2 (0.3, 1e-3), 3 (0.3, 1e30);
-  # process 0 trains 0 and 1, process 1 trains 2 and 3. Each replaces its own diverged member
-  # with a copy of its own sane one: no member crosses processes.
-  args = [*TINY_ARGS[2:], "--total-env-steps", "80", "--set", "num_atoms=11", "--set", "sigma=0.1,0.3",
-          "--set", "learning_rate=1e-3,1e30", "--pbt", "--pbt-every", "1"]
-  args[args.index("train")] = "sweep"
-  procs = [subprocess.Popen([sys.executable, "-m", "mjx_hopper.cli", "--cpu-devices", "1", *args,
-                             "--out-dir", str(tmp_path),
-                             "--num-processes", "2", "--process-id", str(i)],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-           for i in range(2)]
-  outs = []
-  for proc in procs:
-    out, _ = proc.communicate(timeout=600)
-    assert proc.returncode == 0, out
-    outs.append(out)
-  for i, (sane, absurd) in enumerate([(0, 1), (2, 3)]):
-    assert f"[pbt] 40 env steps: member {absurd} copies member {sane}, with" in outs[i]
-    with open(tmp_path / f"process{i}" / "log.csv") as f:
-      rows = [r for r in csv.DictReader(f) if r["kind"] == "eval"]
-    assert {int(r["member"]) for r in rows} == {sane, absurd}
-    assert [(r["parent"], r["diverged"]) for r in rows if int(r["member"]) == absurd] == [
-        (str(absurd), "1"), (str(sane), "0")]
-    assert (tmp_path / f"process{i}" / "pbt.png").exists()
+@pytest.mark.timeout(1200)  # a run that compiles, then two of two processes, one compiling
+def test_two_processes_train_one_population_as_one_process_through_their_faults(tmp_path):
+  # The population to match: one process of two devices, straight through. On two processes
+  # of one CPU device each, process 0 holds members 0 and 1 and process 1 holds 2 and 3: the
+  # mesh of one process with two devices, so the same program.
+  cli.main(["--cpu-devices", "2", "sweep", *PBT_SWEEP, "--out-dir", str(tmp_path / "one")])
+  two = tmp_path / "two"
+  checkpoints = str(two / "checkpoints")
+
+  # Process 1 killed after the first save: process 0 ends in one line that names it.
+  with two_processes(two, explicit(free_port())) as procs:
+    read_until(procs[0], "[train] 40 env steps")
+    deadline = time.monotonic() + 300
+    while not (two / "checkpoints" / "5").is_dir():  # the first save, finished
+      assert procs[0].poll() is None and time.monotonic() < deadline, finish(procs[0])
+      time.sleep(0.05)
+    procs[1].kill()
+    last = finish(procs[0], code=1).strip().splitlines()[-1]
+    assert last == (f"mjx-hopper: process 1 (pid {procs[1].pid} on {socket.gethostname()}) is "
+                    "gone: this process ends too; run the same command on every process to "
+                    "resume from the last checkpoint")
+  killed = store.manager(checkpoints).latest_step()
+  assert killed is not None and killed < 25
+
+  # Resumed under SLURM (jax.distributed reads each process's place from SLURM's variables), to
+  # the end: the same members as one process's, bit for bit.
+  start = free_port() % 4096  # JAX's coordinator port under SLURM: job id % 4096 + 61440
+  job = next(j for j in range(start, start + 4096) if _port_free(j % 4096 + 61440))
+  with two_processes(two, lambda i: ["--checkpoint-minutes", "0"], env=lambda i: {
+      "SLURM_JOB_ID": str(job), "SLURM_STEP_NODELIST": "localhost", "SLURM_NTASKS": "2",
+      "SLURM_PROCID": str(i), "SLURM_LOCALID": str(i), "SLURM_STEP_NUM_NODES": "1"}) as procs:
+    outs = [finish(proc) for proc in procs]
+  assert f"resumed from {checkpoints}, step {killed}" in outs[0]
+  assert "done: 200 env steps" in outs[0] and "done: " not in outs[1]  # process 0 says them
+  assert (two / "log.csv").exists() and not (two / "process0").exists()
+  _, states, _ = runs.restore(checkpoints)
+  _, one, _ = runs.restore(str(tmp_path / "one" / "checkpoints"))
+  assert_same(jax.device_get(states), jax.device_get(one))
+  evaluations = eval_rows(two)
+  assert evaluations == eval_rows(tmp_path / "one")
+  grid = {"sigma": (0.1, 0.3), "learning_rate": (1e-3, 1e30)}
+  rows = {}
+  for name in ("one", "two"):
+    with open(tmp_path / name / "log.csv") as f:
+      rows[name] = list(csv.DictReader(f))
+  assert sweep.population_ranking(rows["two"], grid) == sweep.population_ranking(
+      rows["one"], grid)
+  assert (two / "pbt.png").stat().st_size > 10_000
+  # PBT's first step: each diverged member copies a member, one of them on the other process.
+  parents = {int(r[0]): int(r[5]) for r in evaluations if r[1] == "80"}
+  assert parents[1] in (0, 2) and parents[3] in (0, 2)
+  assert any(m // 2 != parents[m] // 2 for m in (1, 3))
+
+  # Resuming on another number of processes is refused, and changes nothing.
+  with pytest.raises(SystemExit, match=r"saved by a run over 2 process\(es\), and this run "
+                     r"has 1: resume it on 2"):
+    cli.main(["--cpu-devices", "2", "sweep", *PBT_SWEEP, "--total-env-steps", "240",
+              "--out-dir", str(two)])
+  assert store.manager(checkpoints).latest_step() == 25
+
+
+def _port_free(port: int) -> bool:
+  with socket.socket() as s:
+    try:
+      s.bind(("localhost", port))
+    except OSError:
+      return False
+  return True
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--num-processes", "2", "--process-id", "0"], "add --distributed"),
+    (["--distributed", "--num-processes", "2", "--process-id", "2"],
+     "process id 2 is not in 0 to 1"),
+    (["--distributed", "--coordinator", "nowhere", "--num-processes", "2", "--process-id", "0"],
+     "the coordinator must be host:port, got 'nowhere'"),
+])
+def test_bad_process_flags_are_one_line(argv, message):
+  with pytest.raises(SystemExit, match=message):
+    cli.main([*TINY_ARGS[:2], "sweep", *TINY_ARGS[3:], "--seeds", "2", *argv])
+
+
+def test_a_busy_coordinator_port_is_one_line():
+  with socket.socket() as busy:
+    busy.bind(("localhost", 0))
+    busy.listen()
+    port = busy.getsockname()[1]
+    with pytest.raises(SystemExit, match=f"the coordinator address localhost:{port} is already "
+                       "in use, or not this host's: choose another port"):
+      cli.main([*TINY_ARGS[:2], "sweep", *TINY_ARGS[3:], "--seeds", "2", "--distributed",
+                "--coordinator", f"localhost:{port}", "--num-processes", "2", "--process-id",
+                "0"])

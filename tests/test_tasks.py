@@ -182,6 +182,7 @@ def test_a_notebook_class_is_passed_again_in_a_new_process(jump_run, tmp_path, m
   assert type(trainer.env) is NotebookJump
 
 
+@pytest.mark.slow
 def test_the_cli_trains_evaluates_and_records_a_task_by_path(tmp_path, capsys):
   args = [a for a in TINY_ARGS if a != "Hopper"]
   args[args.index("--env")] = "--env=mjx_hopper.envs.events:HighJump"

@@ -9,8 +9,8 @@ import jax
 import numpy as np
 import pytest
 
-from mjx_hopper import (checkpoint, cli, envs, evaluator, logger, loop, notebook, parallel, runs,
-                        train)
+from mjx_hopper import (agents, cli, distributed, evaluator, logger, loop, notebook, runs, start,
+                        store, train)
 
 # The notebook's short mode (notebook.tiny): the run of the notebook's own cells and of
 # test_notebook_helpers, so that they share its compiled programs (and, in one test worker,
@@ -87,33 +87,6 @@ def test_state_is_sharded_and_params_replicated(trainer):
   np.testing.assert_array_equal(a, b)  # data-parallel learner: identical copies
 
 
-@pytest.mark.parametrize("version, devices, chosen, shardy", [
-    ((0, 9, 2), 2, None, True), ((0, 11, 2), 1, None, True), ((0, 11, 2), 2, None, False),
-    ((0, 11, 2), 2, "true", True)])
-def test_meshes_and_envs_avoid_shardy_where_it_crashes(monkeypatch, version, devices, chosen,
-                                                       shardy):
-  """jax 0.11.2's Shardy segfaults on our programs over 2 devices (parallel's docstring): a mesh
-  of several devices, or an env in a process that has them, switches such a jax to GSPMD; a
-  single device, jax 0.9 and a partitioner the user chose are left alone."""
-  before = jax.config.jax_use_shardy_partitioner
-  monkeypatch.setattr(jax, "__version_info__", version)
-  if chosen is None:
-    monkeypatch.delenv("JAX_USE_SHARDY_PARTITIONER", raising=False)
-  else:
-    monkeypatch.setenv("JAX_USE_SHARDY_PARTITIONER", chosen)
-  try:
-    jax.config.update("jax_use_shardy_partitioner", True)
-    mesh = parallel.mesh(jax.devices()[:devices], ("d",))
-    assert mesh.devices.size == devices
-    assert jax.config.jax_use_shardy_partitioner is shardy
-    if devices == 2:  # this process has 2 devices: building an env decides the same way
-      jax.config.update("jax_use_shardy_partitioner", True)
-      envs.make("Hopper")
-      assert jax.config.jax_use_shardy_partitioner is shardy
-  finally:
-    jax.config.update("jax_use_shardy_partitioner", before)
-
-
 def test_same_seed_same_run(trainer, two_chunks):
   first, _, _ = two_chunks
   again, _ = trainer.train_chunk(trainer.init([0]))
@@ -149,14 +122,13 @@ def test_bad_run_config():
     loop.RunConfig(eval_on="cpu")
 
 
-def test_where_evaluations_run(monkeypatch):
+def test_where_evaluations_run():
   """"auto" evaluates on the host's CPU a single run that trains on an accelerator."""
-  assert not TINY.evaluates_on_host()  # it trains on the CPU
-  assert dataclasses.replace(TINY, eval_on="host").evaluates_on_host()
-  monkeypatch.setattr(loop.jax, "default_backend", lambda: "gpu")
-  assert TINY.evaluates_on_host()
-  assert not dataclasses.replace(TINY, seeds=(0, 1)).evaluates_on_host()  # a sweep (or PBT)
-  assert not dataclasses.replace(TINY, eval_on="train").evaluates_on_host()
+  assert not TINY.evaluates_on_host("cpu")  # it trains on the CPU
+  assert dataclasses.replace(TINY, eval_on="host").evaluates_on_host("cpu")
+  assert TINY.evaluates_on_host("gpu")
+  assert not dataclasses.replace(TINY, seeds=(0, 1)).evaluates_on_host("gpu")  # a sweep (or PBT)
+  assert not dataclasses.replace(TINY, eval_on="train").evaluates_on_host("gpu")
 
 
 def test_run_logs_checkpoints_and_resumes(tmp_path, capsys):
@@ -222,7 +194,7 @@ def test_every_agent_trains_from_the_same_cli(tmp_path, capsys, agent, extra):
   cli.main([*TINY_ARGS, "--agent", agent, *extra, "--total-env-steps", "80", "--out-dir", str(tmp_path)])
   # The terminal lines are short: the agent's learner figures, not every logged field.
   last = [line for line in capsys.readouterr().out.splitlines() if line.startswith("[train]")][-1]
-  for _, text in logger.LEARNER_FIELDS[agent]:
+  for _, text in agents.learner_fields(agent):
     assert "| " + text.format("") in last, text
   assert "q_min" not in last and "nan" not in last
   with open(tmp_path / "log.csv") as f:
@@ -261,7 +233,7 @@ def test_a_run_that_diverges_stops_and_keeps_its_last_finite_checkpoint(tmp_path
   assert "[diverged] at 120 env steps: critic_loss not finite" in out
   assert f"the last finite checkpoint is step 10 in {tmp_path / 'checkpoints'}" in out
   assert "diverged: 120 env steps" in out and len(calls) == 3
-  assert checkpoint.manager(str(tmp_path / "checkpoints")).all_steps() == [5, 10]
+  assert store.manager(str(tmp_path / "checkpoints")).all_steps() == [5, 10]
   last = [r for r in result.history if r["kind"] == "train"][-1]
   assert np.isnan(last["critic_loss"])  # the diverged chunk's row is logged
   # The evaluations due at 40 and 80 env steps ran, however long their compile took.
@@ -276,7 +248,7 @@ def test_evaluations_due_while_the_evaluation_compiles_are_kept_and_done_later(t
   """An evaluation due before its program is compiled does not hold up training: the agents of
   that moment are kept and evaluated once it is, with the same results as evaluated on time."""
   cfg = dataclasses.replace(TINY, total_env_steps=160)  # an evaluation due after every chunk
-  compile_in = evaluator.Evaluator.compile_in
+  begin = start.start
 
   class Compiling:
     """The evaluation's future, reported unfinished for the first `late` chunks, and finished
@@ -293,10 +265,10 @@ def test_evaluations_due_while_the_evaluation_compiles_are_kept_and_done_later(t
       return self.future.result()
 
   def run(late):
-    def slow_compile(self, pool, shapes, **kwargs):
-      compile_in(self, pool, shapes, **kwargs)
-      self.program = Compiling(self.program, late)
-    monkeypatch.setattr(evaluator.Evaluator, "compile_in", slow_compile)
+    def slow_compile(*args):
+      started = begin(*args)
+      return started._replace(evaluation=Compiling(started.evaluation, late))
+    monkeypatch.setattr(start, "start", slow_compile)
     return loop.run(dataclasses.replace(cfg, out_dir=str(tmp_path / str(late))), progress=False)
   on_time, deferred = run(0), run(2)
   order = [(r["kind"], int(r["env_steps"])) for r in deferred.history]
@@ -313,12 +285,13 @@ def test_evaluations_due_while_the_evaluation_compiles_are_kept_and_done_later(t
 def _evaluations_compiled_first_and_never_finished(monkeypatch):
   """The evaluation compiled before training starts, and every poll of a host evaluation's
   result saying unfinished (after asking JAX), so that only waiting logs one."""
-  compile_in, finished = evaluator.Evaluator.compile_in, evaluator._finished
+  begin, finished = start.start, evaluator._finished
 
-  def compiled_first(self, pool, shapes, **kwargs):
-    compile_in(self, pool, shapes, **kwargs)
-    self.program.result()
-  monkeypatch.setattr(evaluator.Evaluator, "compile_in", compiled_first)
+  def compiled_first(*args):
+    started = begin(*args)
+    started.evaluation.result()
+    return started
+  monkeypatch.setattr(start, "start", compiled_first)
   monkeypatch.setattr(evaluator, "_finished", lambda started: finished(started) and False)
 
 
@@ -381,7 +354,7 @@ def test_host_evaluations_pending_at_a_divergence_or_a_checkpoint_still_count(tm
                    progress=False)
   first = next(r for r in saved.history if r["kind"] == "eval")
   assert saved.history.index(first) == 1  # logged before the first checkpoint, not after 80
-  record = checkpoint.read_config(checkpoint.manager(str(tmp_path / "saves" / "checkpoints")),
+  record = store.read_config(store.manager(str(tmp_path / "saves" / "checkpoints")),
                                   5)["record"]
   assert record["best_return"] == [pytest.approx(first["eval_return"])]
   assert record["best_env_steps"] == [40]
@@ -403,7 +376,7 @@ def test_progress_fn_sees_every_row_and_its_false_ends_the_run_cleanly(tmp_path)
     rows = list(csv.DictReader(f))
   assert [(int(r["env_steps"]), r["kind"]) for r in rows] == [(s, k) for s, k, _ in calls]
   assert calls[-1][2] == pytest.approx(float(rows[-1]["eval_return"]))
-  assert checkpoint.manager(str(tmp_path / "checkpoints")).all_steps() == [
+  assert store.manager(str(tmp_path / "checkpoints")).all_steps() == [
       train.iterations(result.state)] == [10]
 
 
@@ -434,7 +407,7 @@ def test_an_exception_from_user_code_saves_first_and_the_run_resumes_there(tmp_p
     loop.run(cfg, progress=False, progress_fn=progress_fn)
   assert f"stopped by {where}'s Broken: 80 env steps in" in capsys.readouterr().out
   directory = str(tmp_path / "checkpoints")
-  assert checkpoint.manager(directory).all_steps() == [10]  # (no periodic save was due)
+  assert store.manager(directory).all_steps() == [10]  # (no periodic save was due)
   monkeypatch.undo()
   resumed = loop.resume(directory, progress=False, total_env_steps=120)
   assert f"resumed from {directory}, step 10" in capsys.readouterr().out
@@ -460,3 +433,20 @@ def test_an_error_in_the_chunk_names_the_checkpoint_that_resumes(tmp_path, monke
   assert (f"the run stopped at an error: {directory} holds its checkpoint step 10, which "
           "resumes it") in capsys.readouterr().out
   assert sorted(os.listdir(directory)) == ["10", "5", "manifests"]
+
+
+def test_a_signal_to_another_process_stops_this_one_after_its_chunk_saved(tmp_path, monkeypatch,
+                                                                         capsys):
+  """Where another process of a run over processes was signalled (the flag the processes agree
+  on after each chunk), this one stops after its chunk too, saves, and says why."""
+  agree = distributed.agree
+
+  def signalled_elsewhere(*flags):  # (last, signalled, saving) after a chunk
+    agreed = agree(*flags)
+    return (agreed[0], True, *agreed[2:]) if len(flags) == 3 else agreed
+  monkeypatch.setattr(distributed, "agree", signalled_elsewhere)
+  cfg = dataclasses.replace(TINY, total_env_steps=160, out_dir=str(tmp_path))
+  result = loop.run(cfg, progress=False)
+  assert train.iterations(result.state) * cfg.train.steps_per_iteration == 40
+  assert store.manager(str(tmp_path / "checkpoints")).latest_step() == 5
+  assert "stopped by a signal to another process: 40 env steps" in capsys.readouterr().out

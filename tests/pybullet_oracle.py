@@ -1,6 +1,7 @@
 """PyBullet's own locomotion envs, the reference of the tests and benchmarks.
 
-Needs the test extra (pybullet and gym); the runtime never imports it.
+Needs the oracle extra (pybullet and gym); tests/record_oracle.py, tests/test_oracle.py and the
+benchmarks use it, the runtime and the rest of the suite never.
 """
 
 import contextlib
@@ -44,7 +45,7 @@ def _import_locomotion_envs():
   if "pybullet_envs.gym_locomotion_envs" not in sys.modules:
     spec = importlib.util.find_spec("pybullet_envs")
     if spec is None:
-      raise ImportError("PyBullet is not installed: pip install -e '.[test]'")
+      raise ImportError("PyBullet is not installed: pip install -e '.[oracle]' (Python 3.11)")
     package = types.ModuleType("pybullet_envs")
     package.__path__ = list(spec.submodule_search_locations)
     sys.modules.setdefault("pybullet_envs", package)

@@ -1,0 +1,137 @@
+"""EpisodeStarts: a training step starts new episodes from reset states made before it, drawn as
+`env.reset` draws them, and computes no reset itself."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from mjx_hopper import envs
+
+NUM_ENVS, STARTS, EPISODE = 64, 3, 4
+STEPS = STARTS * EPISODE  # between refills: each env ends exactly STARTS episodes
+
+
+@pytest.fixture(scope="module")
+def short_hopper():
+  """A Hopper whose episodes end every EPISODE steps, so that every env ends STARTS episodes
+  between two refills."""
+  return envs.make("Hopper", episode_steps=EPISODE)
+
+
+@pytest.fixture(scope="module")
+def new_episodes(short_hopper):
+  """Every env's states after the steps that began new episodes, over 4 refills: their qpos,
+  qvel, obs (4, STARTS, NUM_ENVS, ...), and each env's starts as each refill left them."""
+  wrapped = envs.EpisodeStarts(short_hopper, STARTS)
+  action = jnp.zeros((NUM_ENVS, short_hopper.action_size))
+
+  @jax.jit
+  def run(state):
+    state = jax.vmap(wrapped.refill)(state)
+    starts = state.info["starts"]
+
+    def one(state, _):
+      state = jax.vmap(wrapped.step)(state, action)
+      ps = state.pipeline_state
+      return state, (state.done, ps.qpos, ps.qvel, state.obs, state.info["steps"])
+    state, out = jax.lax.scan(one, state, None, length=STEPS)
+    return state, starts, out
+
+  state = jax.jit(jax.vmap(wrapped.reset))(jax.random.split(jax.random.PRNGKey(7), NUM_ENVS))
+  found = {"qpos": [], "qvel": [], "obs": [], "starts": []}
+  for _ in range(4):
+    state, starts, (done, qpos, qvel, obs, steps) = jax.device_get(run(state))
+    ended = done[EPISODE - 1::EPISODE]  # (STARTS, NUM_ENVS): the steps that end an episode
+    assert ended.all() and done.sum() == ended.sum()
+    assert (steps[EPISODE - 1::EPISODE] == 0).all()  # a new episode's count begins again
+    for name, x in (("qpos", qpos), ("qvel", qvel), ("obs", obs)):
+      found[name].append(x[EPISODE - 1::EPISODE])
+    found["starts"].append(starts)
+  return {k: np.stack(v) for k, v in found.items()}
+
+
+def test_new_episodes_start_from_the_starts_in_turn(new_episodes):
+  for r, starts in enumerate(new_episodes["starts"]):
+    for i in range(STARTS):  # episode i after a refill: start i
+      np.testing.assert_array_equal(new_episodes["obs"][r, i], starts["obs"][:, i])
+      np.testing.assert_array_equal(new_episodes["qpos"][r, i],
+                                    starts["pipeline_state"].qpos[:, i])
+
+
+def test_no_start_is_taken_twice(new_episodes):
+  qpos = new_episodes["qpos"].reshape(-1, new_episodes["qpos"].shape[-1])
+  assert len(np.unique(qpos, axis=0)) == len(qpos)
+
+
+def test_starts_are_drawn_as_env_reset_draws_them(short_hopper, new_episodes):
+  """Positions, velocities and first observations of the new episodes against those of
+  `env.reset` from other keys: each dimension's mean and spread agree within sampling error."""
+  n = new_episodes["qpos"][..., 0].size
+  resets = jax.jit(jax.vmap(short_hopper.reset))(jax.random.split(jax.random.PRNGKey(11), n))
+  reference = {"qpos": resets.pipeline_state.qpos, "qvel": resets.pipeline_state.qvel,
+               "obs": resets.obs}
+  for name, ours in new_episodes.items():
+    if name == "starts":
+      continue
+    ours = ours.reshape(n, -1)
+    theirs = np.asarray(reference[name])
+    spread = theirs.std(0)
+    varies = spread > 0
+    np.testing.assert_array_equal(ours[:, ~varies], theirs[:, ~varies])  # constants: exactly
+    # Means within 5 standard errors, standard deviations within 10%.
+    error = spread[varies] / np.sqrt(n)
+    assert (np.abs(ours[:, varies].mean(0) - theirs[:, varies].mean(0)) < 5 * error).all()
+    np.testing.assert_allclose(ours[:, varies].std(0), spread[varies], rtol=0.1)
+
+
+def test_reset_leaves_copies_of_its_own_first_state(short_hopper):
+  state = jax.jit(envs.EpisodeStarts(short_hopper, 2).reset)(jax.random.PRNGKey(0))
+  np.testing.assert_array_equal(state.info["starts"]["obs"], np.stack([state.obs] * 2))
+  assert int(state.info["starts_used"]) == 0
+
+
+def test_an_env_that_ends_more_episodes_takes_its_starts_again_in_turn(short_hopper):
+  wrapped = envs.EpisodeStarts(short_hopper, 2)
+  state = jax.jit(wrapped.refill)(jax.jit(wrapped.reset)(jax.random.PRNGKey(0)))
+  step = jax.jit(wrapped.step)
+  firsts = []
+  for t in range(3 * EPISODE):
+    state = step(state, jnp.zeros(short_hopper.action_size))
+    if t % EPISODE == EPISODE - 1:
+      firsts.append(np.asarray(state.obs))
+  np.testing.assert_array_equal(firsts[2], firsts[0])
+  assert not np.array_equal(firsts[1], firsts[0])
+
+
+def _calls(jaxpr) -> set[str]:
+  """The names of the jitted functions that `jaxpr` calls, at any depth."""
+  names = set()
+  for eqn in jaxpr.eqns:
+    if "name" in eqn.params:
+      names.add(eqn.params["name"])
+    for value in eqn.params.values():
+      for x in value if isinstance(value, (tuple, list)) else (value,):
+        sub = getattr(x, "jaxpr", x)  # a ClosedJaxpr's, or a Jaxpr
+        if hasattr(sub, "eqns"):
+          names |= _calls(sub)
+  return names
+
+
+def test_the_step_computes_no_reset(hopper):
+  """The step's program calls MJX's kinematics only within its physics, where AutoReset's also
+  calls it for the reset that every step makes."""
+  state = jax.vmap(envs.AutoReset(hopper).reset)(jax.random.split(jax.random.PRNGKey(0), 2))
+  action = jnp.zeros((2, hopper.action_size))
+  auto = jax.make_jaxpr(jax.vmap(envs.AutoReset(hopper).step))(state, action)
+  assert "kinematics" in _calls(auto.jaxpr)
+  wrapped = envs.EpisodeStarts(hopper, 2)
+  state = jax.vmap(wrapped.reset)(jax.random.split(jax.random.PRNGKey(0), 2))
+  ours = jax.make_jaxpr(jax.vmap(wrapped.step))(state, action)
+  assert "kinematics" not in _calls(ours.jaxpr) and "_physics" in _calls(ours.jaxpr)
+
+
+@pytest.mark.parametrize("bad", [0, 2.0, "3"])
+def test_bad_number_of_starts(hopper, bad):
+  with pytest.raises(ValueError, match=f"starts must be an integer >= 1, got {bad!r}"):
+    envs.EpisodeStarts(hopper, bad)
