@@ -17,7 +17,6 @@ HARMLESS_LOAD_LINES = ("Target machine feature +prefer-no-",
                        "Assume version compatibility. PjRt-IFRT does not track")
 CHECKED = ("0.9.2", "0.11.2", "0.12.0.1")  # the JAX versions each use here was read and tested in
 _STDERR_LOCK = threading.Lock()
-_CPU_COMPILE_LOCK = threading.RLock()
 
 
 def backends_started() -> bool:
@@ -47,33 +46,6 @@ def quiet_cache_loads() -> None:
 
   quiet_load.quiet = True
   module.get_executable_and_time = quiet_load
-
-
-def compiler():
-  """`jax._src.compiler`, whose `compile_or_get_cached(backend, ...)` compiles a program, or
-  loads it from the persistent cache, and writes what it compiled there."""
-  from jax._src import compiler as module
-  return module
-
-
-def one_cpu_compile_at_a_time() -> None:
-  """Makes this process compile its CPU programs one at a time (once); other backends' compiles
-  are left as they come. On jax 0.12 a worker of CI's suite crashed (a segfault in
-  `executable.serialize()`, as the cache wrote the chunk) while the start's other thread
-  compiled; a run's start compiles on two threads to overlap its tracing with XLA's work."""
-  module = compiler()
-  compile_ = module.compile_or_get_cached
-  if getattr(compile_, "serial", False):
-    return
-
-  def serial(backend, *args, **kwargs):
-    if backend.platform != "cpu":
-      return serial.compile(backend, *args, **kwargs)
-    with _CPU_COMPILE_LOCK:
-      return serial.compile(backend, *args, **kwargs)
-
-  serial.serial, serial.compile = True, compile_
-  module.compile_or_get_cached = serial
 
 
 @contextlib.contextmanager

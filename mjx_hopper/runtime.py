@@ -19,14 +19,14 @@ def setup(compile_cache: str | None = None, cpu_devices: int | None = None) -> s
   """Sets what mjx_hopper needs process-wide; calling it again changes nothing more.
 
   Before JAX starts its backends (else left as they are): MuJoCo's EGL rendering on Linux
-  without a display, cuBLAS rather than Triton for a GPU's matrix products, XLA's CPU split
+  without a display, cuBLAS rather than Triton for a GPU's matrix products, XLA:CPU's own
+  kernels rather than YNNPACK's for a CPU's, XLA's CPU split
   into `cpu_devices` devices, and where this JAX's Shardy crashes (`SHARDY_CRASHES`), XLA's
   C++ log at errors. Then JAX's config: the persistent compile cache, keeping every
   program, in `compile_cache` (None: the folder already set, else $MJX_HOPPER_JAX_CACHE, else
   ~/.cache/mjx_hopper/jax) per `cpu_key()`, GSPMD where Shardy crashes, and gloo's CPU
   collectives where none is chosen (used only by a run over processes). Last, the logs
-  and hooks that leave a failed save to its one line (`store.failures`), and CPU programs
-  compiled one at a time (`jax_private.one_cpu_compile_at_a_time`). Unset environment
+  and hooks that leave a failed save to its one line (`store.failures`). Unset environment
   variables only are set. Returns the compile cache's folder. A `cpu_devices` that JAX's
   started backends do not have is a ValueError.
   """
@@ -53,7 +53,6 @@ def setup(compile_cache: str | None = None, cpu_devices: int | None = None) -> s
   if jax.config.jax_cpu_collectives_implementation is None:
     jax.config.update("jax_cpu_collectives_implementation", "gloo")
   jax_private.quiet_cache_loads()
-  jax_private.one_cpu_compile_at_a_time()
   from mjx_hopper.store import failures
   failures.quiet_failed_saves()
   return directory
@@ -73,6 +72,10 @@ def settings_before_start(system: str, environ, cpu_devices: int | None = None
       out["MUJOCO_GL"] = "egl"
     if "xla_gpu_enable_triton_gemm" not in flags:  # cuBLAS: compiles much faster, runs as fast
       flags = f"{flags} --xla_gpu_enable_triton_gemm=false".strip()
+  if "xla_cpu_experimental_ynn_fusion_type" not in flags:
+    # XLA:CPU's own kernels for matrix products, not YNNPACK's fusions: the CPU chunk runs
+    # faster (benchmarks/results/cpu_iteration_*.json), and compiles no slower.
+    flags = f"{flags} --xla_cpu_experimental_ynn_fusion_type=".strip()
   if flags != environ.get("XLA_FLAGS", ""):
     out["XLA_FLAGS"] = flags
   if _shardy_crashes() and "TF_CPP_MIN_LOG_LEVEL" not in environ:

@@ -50,8 +50,8 @@ def start(trainer: train.Trainer, init, evaluator) -> Started:
   lowered = evaluator.lower(shapes.agent) if _cores() >= TRACE_BESIDE_FROM_CORES else None
 
   def evaluation_after_the_first_row():
-    # A CPU compiles one program at a time (jax_private.one_cpu_compile_at_a_time): the
-    # evaluation waits for the programs of the first training row.
+    # The evaluation's compile waits for the programs of the first training row, which it
+    # would slow where cores are few.
     finite.result()
     return (lowered or evaluator.lower(shapes.agent)).compile()
   evaluation = lines[0].submit(evaluation_after_the_first_row)

@@ -59,14 +59,17 @@ def test_the_settings_before_start_per_platform(monkeypatch):
   assert choose("Linux", {})["MUJOCO_GL"] == "egl"
   assert "MUJOCO_GL" not in choose("Linux", {"DISPLAY": ":0"})
   assert "MUJOCO_GL" not in choose("Linux", {"MUJOCO_GL": "osmesa"})
-  assert choose("Linux", {})["XLA_FLAGS"] == "--xla_gpu_enable_triton_gemm=false"
-  assert "XLA_FLAGS" not in choose("Linux", {"XLA_FLAGS": "--xla_gpu_enable_triton_gemm=true"})
-  assert choose("Darwin", {}) == {}
+  no_ynn = "--xla_cpu_experimental_ynn_fusion_type="
+  assert choose("Linux", {})["XLA_FLAGS"] == f"--xla_gpu_enable_triton_gemm=false {no_ynn}"
+  assert choose("Linux", {"XLA_FLAGS": "--xla_gpu_enable_triton_gemm=true"})[
+      "XLA_FLAGS"] == f"--xla_gpu_enable_triton_gemm=true {no_ynn}"
+  assert choose("Darwin", {}) == {"XLA_FLAGS": no_ynn}
+  assert choose("Darwin", {"XLA_FLAGS": f"{no_ynn}dot"}) == {}  # a user's choice stays
   assert choose("Darwin", {"XLA_FLAGS": "--a --xla_force_host_platform_device_count=8"}, 3)[
-      "XLA_FLAGS"] == "--a --xla_force_host_platform_device_count=3"
+      "XLA_FLAGS"] == f"--a --xla_force_host_platform_device_count=3 {no_ynn}"
   monkeypatch.setattr(runtime, "_shardy_crashes", lambda: True)  # GSPMD's warnings go
-  assert choose("Darwin", {}) == {"TF_CPP_MIN_LOG_LEVEL": "2"}
-  assert choose("Darwin", {"TF_CPP_MIN_LOG_LEVEL": "0"}) == {}
+  assert choose("Darwin", {"XLA_FLAGS": no_ynn}) == {"TF_CPP_MIN_LOG_LEVEL": "2"}
+  assert choose("Darwin", {"XLA_FLAGS": no_ynn, "TF_CPP_MIN_LOG_LEVEL": "0"}) == {}
 
 
 SETUP = """
@@ -91,6 +94,7 @@ def test_setup_sets_the_process_once(tmp_path):
   assert "--xla_force_host_platform_device_count=3" in out["flags"]
   if sys.platform == "linux":
     assert out["gl"] == "egl" and "--xla_gpu_enable_triton_gemm=false" in out["flags"]
+  assert "--xla_cpu_experimental_ynn_fusion_type=" in out["flags"]
 
 
 def test_setup_after_jax_started_leaves_xla_flags_and_refuses_another_cpu_split():
