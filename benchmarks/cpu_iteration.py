@@ -11,6 +11,8 @@ stepped with random actions (physics and the episode starts' refill); the refill
 replay's samples. Their differences give the physics, the acting and insert, and the learner.
 
     python benchmarks/cpu_iteration.py --minutes 4               # on the 2-core CPU
+    XLA_FLAGS=--xla_cpu_experimental_ynn_fusion_type=+dot \
+      python benchmarks/cpu_iteration.py --minutes 4 --label cpu_ynn  # YNNPACK's matrix kernels
 """
 
 from __future__ import annotations
@@ -110,12 +112,13 @@ def main() -> None:
   p.add_argument("--repeats", type=int, default=5, help="timed calls of each part")
   p.add_argument("--label", default="cpu")
   args = p.parse_args()
+  flags = os.environ.get("XLA_FLAGS")  # as given: mjx_hopper.setup adds its own
   parts = part_split(args.env, args.kind, args.repeats)
   print("parts:", {k: round(v, 3) for k, v in parts.items()}, flush=True)
   split = run_split(args.minutes, args.env, args.kind)
   print("run:", {k: round(v, 3) for k, v in split.items()}, flush=True)
   common.write_results(f"cpu_iteration_{args.label}", {
-      "preset": f"{args.env} {args.kind}", "run": split, "parts": parts})
+      "preset": f"{args.env} {args.kind}", "xla_flags": flags, "run": split, "parts": parts})
 
 
 if __name__ == "__main__":

@@ -46,7 +46,10 @@ LEARNER = ("learner_robots_h100.json", "learner_robots_bf16_h100.json")
 SWEEPS = ("sweep_throughput_h100.json", "sweep_throughput_2gpu_h200.json",
           "sweep_throughput_cpu.json")
 PBT = "pbt_quality_halfcheetah_h100x2.json"
-START = {"one H100": "start_time_h100_episode_starts.json", "2 CPU cores": "start_time_cpu.json"}
+START = {"one H200": "start_time_h200.json", "2 CPU cores": "start_time_cpu.json"}
+# The same seeds of a gpu preset with two commits' code, in turn on one machine: newer first.
+BESIDE = {"Humanoid on one H200": [TTS.format("Humanoid_gpu_seeds23-24"),
+                                   TTS.format("Humanoid_gpu_d8161c9_seeds23-24")]}
 DISTRIBUTED = ("distributed_gpu2.json", "distributed_cpu2.json")
 # The training chunk as a program, before and after a change (chunk_program.py).
 CHUNK = {"one H100": "chunk_program_h100.json"}
@@ -58,7 +61,7 @@ START_ROWS = {"imports": "imports", "build": "build", "chunk: tracing": "chunk t
 GYMNASIUM = "gymnasium_throughput_cpu.json"
 NOTEBOOK = "notebook_time_cpu_2026-11-26.json"
 FIRST_VIDEO = "notebook_first_video_cpu.json"
-ITERATION = "cpu_iteration_cpu.json"
+ITERATION = {"XLA's": "cpu_iteration_cpu.json", "YNNPACK's": "cpu_iteration_cpu_ynn.json"}
 SUITE = {"scripts/test.sh": "suite_time_py312.json",
          ".ci/floor": "suite_time_floor_py311.json"}
 TRAINERS = {"ours": "our D4PG", "sac": "Brax SAC", "ppo": "Brax PPO", "sb3": "SB3 SAC on PyBullet"}
@@ -230,6 +233,7 @@ def sections() -> list[tuple[str, str, str, list[str]]]:
               "peak.",
               table(["robot", "batch", "precision", "updates/s", "GFLOP/update", "% of peak",
                      "bfloat16 updates/s"], rows), list(LEARNER)))
+  out.append(beside_section())
   out.append(gymnasium_section())
   out.append(start_section())
   out.append(chunk_section())
@@ -283,6 +287,22 @@ def sections() -> list[tuple[str, str, str, list[str]]]:
   return out
 
 
+def beside_section() -> tuple[str, str, str, list[str]]:
+  """Time to score with two commits' code on the same seeds and machine."""
+  rows = []
+  for label, names in BESIDE.items():
+    for name in names:
+      t = time_to_score([name])
+      rows.append([label, code(load(name)["commit"]), t["seeds"], t["reached"],
+                   *(num(t[k]) for k in ("median", "fastest", "slowest")),
+                   num(t["env_steps"], 2)])
+  return ("Before and after", "A gpu preset's seeds, timed as above, with the code of two "
+          "commits in turn on one machine.",
+          table(["task", "code", "seeds", "reached", "median (s)", "fastest (s)",
+                 "slowest (s)", "env steps to it (M, median)"], rows),
+          [n for names in BESIDE.values() for n in names])
+
+
 def start_section() -> tuple[str, str, str, list[str]]:
   """A run's start, phase by phase (s from process start), before and after, cold and warm."""
   tables = []
@@ -302,23 +322,26 @@ def start_section() -> tuple[str, str, str, list[str]]:
 
 
 def iteration_section() -> tuple[str, str, str, list[str]]:
-  """Where the main job's time goes on 2 CPU cores: its run, and a chunk's parts."""
-  data = load(ITERATION)
-  run, parts = data["figures"]["run"], data["figures"]["parts"]
-  chunk = parts["chunk_s"]
-  rows = [[name, num(parts[key], 2), f"{num(100 * parts[key] / chunk, 1)}%"]
+  """Where the main job's time goes on 2 CPU cores, with each choice of matrix kernels: its run,
+  and a chunk's parts."""
+  data = {label: load(name)["figures"] for label, name in ITERATION.items()}
+  parts = {label: d["parts"] for label, d in data.items()}
+  rows = [[name, *(f"{num(p[key], 2)} ({num(100 * p[key] / p['chunk_s'])}%)"
+                   for p in parts.values())]
           for name, key in (("physics", "physics_s"), ("episode starts' refill", "refill_s"),
                             ("acting and replay insert", "acting_and_insert_s"),
                             ("learner (replay samples in it)", "learner_s"),
                             ("whole chunk", "chunk_s"))]
-  text = (f"A chunk: {num(parts['env_steps_per_chunk'])} env steps, "
-          f"{num(parts['updates_per_chunk'])} updates.\n\n"
-          + table(["part of a chunk", "s", "share"], rows)
-          + f"\n\nThe run: first row at {num(run['first_row_run_s'], 1)} s; chunks at "
-          f"{num(run['chunk_env_steps_per_s'])} env steps/s; pauses (evaluations, logs, saves) "
-          f"{num(100 * run['pause_share'], 1)}% of the time after it.")
+  rows += [[name, *(num(d["run"][key], digits) for d in data.values())]
+           for name, key, digits in (("run: first row (s)", "first_row_run_s", 1),
+                                     ("run: chunks' env steps/s", "chunk_env_steps_per_s", 0))]
+  first = next(iter(parts.values()))
+  text = (f"A chunk: {num(first['env_steps_per_chunk'])} env steps, "
+          f"{num(first['updates_per_chunk'])} updates.\n\n"
+          + table(["part of a chunk, s (share)", *data], rows))
   return ("The CPU iteration", "The main job (Hopper, cold cache) and each part of a chunk, "
-          "timed alone.", text, [ITERATION])
+          "timed alone, with XLA's matrix kernels (`mjx_hopper.setup`'s) and YNNPACK's.",
+          text, list(ITERATION.values()))
 
 
 def chunk_section() -> tuple[str, str, str, list[str]]:
