@@ -388,10 +388,12 @@ def gymnasium_section() -> tuple[str, str, str, list[str]]:
 
 
 def code(commit: str) -> str:
-  """A results file's code commit; an older file that does not know it says where its figures
-  were filed ("unknown; results committed in C": "filed in C")."""
+  """A results file's code commit, its hash cut to 7 digits; an older file that does not know it
+  says where its figures were filed ("unknown; results committed in C": "filed in C")."""
   text = commit.removeprefix("unknown; ")
-  return text.replace("results committed in", "filed in") if text != commit else commit
+  if text != commit:
+    return text.replace("results committed in", "filed in")
+  return re.sub(r"\b([0-9a-f]{7})[0-9a-f]+", r"\1", commit)
 
 
 def benchmarks_page() -> str:

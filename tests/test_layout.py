@@ -15,6 +15,18 @@ LEAVES = ("agents", "envs")  # installed as mjx_hopper.agents, mjx_hopper.envs
 # (loop, config, evaluator, members, pbt, runs, sweep, store, logger, cli, notebook,
 # presets, export, ...), which uses the leaves and never the reverse.
 SHARED = {"agents", "envs", "fields", "parallel"}
+# The host layer's floors, lowest first, each named for what it owns (docs/design.md): a module
+# imports only from its own floor and those below, and from agents/ and envs/.
+FLOORS = {
+    "process": ("jax_private", "distributed", "stop", "runlock"),
+    "core": ("fields", "parallel", "replay", "rollout", "members", "train", "pbt", "evaluator",
+             "start"),
+    "settings": ("config", "presets", "flags"),
+    "store": ("store", "store.failures", "store.manifests", "store.items", "store.saver",
+              "store.run_folder"),
+    "run": ("runtime", "runs", "logger", "curves", "sweep", "loop"),
+    "faces": ("cli", "notebook", "export", "export_onnx"),
+}
 
 HISTORY = re.compile(r"\b\d{4}-\d{2}-\d{2}\b|H100|H200|\b2 cores\b|\b2-core\b|BENCHMARKS\.md"
                      r"|history\.md", re.IGNORECASE)
@@ -228,3 +240,31 @@ def test_the_package_has_no_import_cycle():
   assert not found, ("modules that import each other, at any depth of their code (a cycle "
                      "works only while the order of imports allows it):\n"
                      + "\n".join(" -> ".join(cycle) for cycle in found))
+
+
+def floor_breaches(graph: dict[str, set[str]], floors: dict[str, tuple[str, ...]],
+                   package: str = "mjx_hopper") -> list[str]:
+  """Each import in `graph` of a module of `package` on a higher floor than the importer's, as
+  "importer (floor) -> imported (floor)"; modules outside `floors` are not checked."""
+  level = {f"{package}.{m}": (i, name) for i, (name, modules) in enumerate(floors.items())
+           for m in modules}
+  return [f"{a} ({level[a][1]}) -> {b} ({level[b][1]})" for a in sorted(graph) if a in level
+          for b in sorted(graph[a]) if b in level and level[b][0] > level[a][0]]
+
+
+def test_an_import_from_a_higher_floor_is_found():
+  graph = {"p.a": {"p.b", "p.c"}, "p.b": {"p.a"}, "p.c": set(), "p.x": {"p.c"}}
+  floors = {"low": ("a", "c"), "high": ("b",)}
+  assert floor_breaches(graph, floors, "p") == ["p.a (low) -> p.b (high)"]
+
+
+def test_each_floor_imports_only_the_floors_below_it():
+  files = _python_files("mjx_hopper", *LEAVES)
+  sources = {_module_name(path): path.read_text() for path in files}
+  packages = {_module_name(path) for path in files if path.name == "__init__.py"}
+  host = sorted(m.removeprefix("mjx_hopper.") for m in sources
+                if m != "mjx_hopper" and m.split(".")[1] not in LEAVES)
+  placed = [m for modules in FLOORS.values() for m in modules]
+  assert sorted(placed) == host, "every module of the host layer is on one floor (FLOORS)"
+  breaches = floor_breaches(import_graph(sources, packages), FLOORS)
+  assert not breaches, "imports from a higher floor:\n" + "\n".join(breaches)
