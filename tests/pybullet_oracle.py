@@ -108,24 +108,35 @@ def set_state(env, ours, qpos, qvel) -> np.ndarray:
   return env.robot.calc_state()
 
 
-def run_episodes(env, n_episodes: int, policy: str, seed: int) -> dict[str, np.ndarray]:
-  """Per-episode length, return and mean reward terms of 'random' or 'zero' actions."""
+TERMS = ("alive", "progress", "electricity_cost", "joints_at_limit_cost", "feet_collision_cost")
+
+
+def run_episodes(env, n_episodes: int, policy: str, seed: int,
+                 first: dict[str, list] | None = None) -> dict[str, np.ndarray]:
+  """Per-episode length, return and mean reward terms (TERMS) of 'random' or 'zero' actions.
+  With `first` ({"actions", "obs", "terms", "done"} of empty lists), episode 0 is also recorded
+  there: its first observation, then each step's action, observation, terms and done."""
   rng = np.random.default_rng(seed)
-  names = ("alive", "progress", "electricity_cost", "joints_at_limit_cost", "feet_collision_cost")
-  out = {"length": [], "return": [], **{n: [] for n in names}}
+  out = {"length": [], "return": [], **{n: [] for n in TERMS}}
   act_size = env.action_space.shape[0]
-  for _ in range(n_episodes):
+  for episode in range(n_episodes):
     with quiet():
-      env.reset()
+      obs = env.reset()
+    record = first if episode == 0 else None
+    if record is not None:
+      record["obs"].append(obs)
     terms, total, done, t = [], 0.0, False, 0
     while not done and t < 1000:
       a = rng.uniform(-1, 1, act_size) if policy == "random" else np.zeros(act_size)
-      _, r, done, _ = env.step(a)
+      obs, r, done, _ = env.step(a)
       terms.append(env.rewards)
       total += r
       t += 1
+      if record is not None:
+        for k, v in zip(("actions", "obs", "terms", "done"), (a, obs, env.rewards, done)):
+          record[k].append(v)
     out["length"].append(t)
     out["return"].append(total)
-    for name, column in zip(names, np.array(terms).T):
+    for name, column in zip(TERMS, np.array(terms).T):
       out[name].append(column.mean())
   return {k: np.array(v) for k, v in out.items()}

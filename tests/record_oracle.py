@@ -34,7 +34,6 @@ EPISODES = {"random": 30, "zero": 10}
 FEWER_EPISODES = {("HalfCheetah", "random"): 10, ("Ant", "random"): 10}
 EPISODE_SEED = 0  # of the actions, and of PyBullet's resets
 QUATERNIONS = dict(seed=0, count=200)
-TERMS = ("alive", "progress", "electricity_cost", "joints_at_limit_cost", "feet_collision_cost")
 
 
 def random_state(env, rng, airborne=False):
@@ -146,32 +145,11 @@ def episodes(robot, policy) -> dict:
   """Per-episode length, return and mean reward terms of 'random' or 'zero' actions, from a
   fresh env seeded EPISODE_SEED; and episode 0's actions, observations, terms and dones."""
   env = pybullet_oracle.make(robot, seed=EPISODE_SEED)
-  rng = np.random.default_rng(EPISODE_SEED)
-  act_size = env.action_space.shape[0]
-  stats = {"length": [], "return": [], **{n: [] for n in TERMS}}
   trajectory = {"actions": [], "obs": [], "terms": [], "done": []}
-  for episode in range(FEWER_EPISODES.get((robot, policy), EPISODES[policy])):
-    with pybullet_oracle.quiet():
-      obs = env.reset()
-    terms, total, done, t = [], 0.0, False, 0
-    first = episode == 0
-    if first:
-      trajectory["obs"].append(obs)
-    while not done and t < 1000:
-      a = rng.uniform(-1, 1, act_size) if policy == "random" else np.zeros(act_size)
-      obs, r, done, _ = env.step(a)
-      terms.append(env.rewards)
-      total += r
-      t += 1
-      if first:
-        for k, v in zip(trajectory, (a, obs, env.rewards, done)):
-          trajectory[k].append(v)
-    stats["length"].append(t)
-    stats["return"].append(total)
-    for name, column in zip(TERMS, np.array(terms).T):
-      stats[name].append(column.mean())
+  stats = pybullet_oracle.run_episodes(env, FEWER_EPISODES.get((robot, policy), EPISODES[policy]),
+                                       policy, EPISODE_SEED, first=trajectory)
   dtypes = {"actions": np.float32, "obs": np.float32, "terms": np.float32, "done": bool}
-  return ({f"{policy}_{k}": np.array(v) for k, v in stats.items()}
+  return ({f"{policy}_{k}": v for k, v in stats.items()}
           | {f"{policy}_episode0_{k}": np.array(v, dtypes[k]) for k, v in trajectory.items()})
 
 
