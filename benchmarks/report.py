@@ -175,9 +175,9 @@ def summary() -> str:
                  num(published.get("tqc"))])
   return "\n\n".join([
       "Each robot's score, median time to it from process start (compile included) and seeds "
-      "reaching it, of those run: gpu preset on one GPU, cpu preset on 2 CPU cores. "
-      "× PyBullet: MJX's env steps/s over PyBullet's there. rl-zoo: rl-baselines3-zoo's "
-      f"published SAC and TQC scores on PyBullet after 1M env steps (`{RL_ZOO}`).",
+      "reaching it: gpu preset on one GPU, cpu preset on 2 CPU cores. "
+      "× PyBullet: MJX's env steps/s over PyBullet's. rl-zoo: rl-baselines3-zoo's "
+      f"published SAC and TQC on PyBullet after 1M env steps (`{RL_ZOO}`).",
       table(["robot", "one GPU", "2 CPU cores", "× PyBullet", "rl-zoo SAC", "rl-zoo TQC"],
             rows)])
 
@@ -204,19 +204,18 @@ def sections() -> list[tuple[str, str, str, list[str]]]:
                       f"episodes) reaches the score. Budget: the preset's, {MARGIN:g} × the "
                       "slowest seed's env steps and minutes.", GPU, "s", 1, 0),
          time_section("Time to score on 2 CPU cores", "Each robot's cpu preset (another agent: "
-                      "its own with the robot's settings), timed as above, as on Colab's CPU.", CPU, "min", 60, 1),
+                      "its own with the robot's settings), timed as above.", CPU, "min", 60, 1),
          ("Peers", "Hopper: our D4PG beside Brax's SAC and PPO on our env (one GPU shared, 7.5 "
-          "minutes each) and SB3's SAC on PyBullet (2 cores, 4 minutes each). Times from "
-          "process start; evaluations of 16 episodes.",
+          "minutes each) and SB3's SAC on PyBullet (2 cores, 4 minutes each), from process "
+          "start; 16-episode evaluations.",
           table(PEER_HEAD, peer_rows()), list(PEERS))]
   rates = {robot: env_rates(robot) for robot in ROBOTS}
   out.append(("Env throughput on 2 CPU cores", "Auto-resetting envs, random actions: MJX's "
               "best of 64, 256 and 4,096 envs on 2 XLA devices; MuJoCo C, the same model on 2 "
               "threads (physics only); PyBullet's env on one core.",
-              table(["robot", "PyBullet", "MuJoCo C", "MJX", "MJX × PyBullet",
-                     "MJX ÷ MuJoCo C"],
+              table(["robot", "PyBullet", "MuJoCo C", "MJX", "MJX ÷ MuJoCo C"],
                     [[robot, num(e["pybullet"]), num(e["mujoco"]), num(e["mjx"]),
-                      num(e["mjx"] / e["pybullet"], 1), num(e["mjx"] / e["mujoco"], 2)]
+                      num(e["mjx"] / e["mujoco"], 2)]
                      for robot, e in rates.items()]),
               sorted({ENV.get(robot, ENV_OTHERS) for robot in ROBOTS})))
   f32, bf16 = (load(n)["figures"] for n in LEARNER)
@@ -279,9 +278,8 @@ def sections() -> list[tuple[str, str, str, list[str]]]:
     rows.append([f"`{job}`", f"{s['python']}, jax {s['jax']}", s["tests"] - s["skipped"],
                  s["failed"], num(s["pytest_s"] / 60, 1), num(s["with_setup_s"] / 60, 1),
                  slowest])
-  out.append(("Test suite", "CI's two jobs on 2 CPU cores, each from an empty compile cache "
-              "(`benchmarks/suite_time.py`); the slowest files in test minutes, which two "
-              "workers share.",
+  out.append(("Test suite", "CI's two jobs on 2 CPU cores from an empty compile cache "
+              "(`benchmarks/suite_time.py`); slowest files in test minutes (two workers).",
               table(["job", "Python", "tests run", "failed", "pytest (min)",
                      "with set-up (min)", "slowest files (min)"], rows), list(SUITE.values())))
   return out
@@ -296,8 +294,8 @@ def beside_section() -> tuple[str, str, str, list[str]]:
       rows.append([label, code(load(name)["commit"]), t["seeds"], t["reached"],
                    *(num(t[k]) for k in ("median", "fastest", "slowest")),
                    num(t["env_steps"], 2)])
-  return ("Before and after", "A gpu preset's seeds, timed as above, with the code of two "
-          "commits in turn on one machine.",
+  return ("Before and after", "A gpu preset's seeds, timed as above, with two commits' code "
+          "in turn.",
           table(["task", "code", "seeds", "reached", "median (s)", "fastest (s)",
                  "slowest (s)", "env steps to it (M, median)"], rows),
           [n for names in BESIDE.values() for n in names])
@@ -316,8 +314,8 @@ def start_section() -> tuple[str, str, str, list[str]]:
     rows = [[label, *("–" if c.get(key) is None else num(c[key], 0 if key == "steps_per_s" else 1)
                       for c in columns.values())] for label, key in START_ROWS.items()]
     tables.append(f"On {where}:\n\n" + table(["phase (s)", *columns], rows))
-  return ("The start, phase by phase", "The main job (Hopper), seconds from process start, "
-          "cold (empty compile cache) and warm, beside an earlier commit; compiles overlap.",
+  return ("The start, phase by phase", "The main job (Hopper), s from process start, empty "
+          "(cold) or warm compile cache, beside an earlier commit; compiles overlap.",
           "\n\n".join(tables), list(START.values()))
 
 
@@ -326,8 +324,7 @@ def iteration_section() -> tuple[str, str, str, list[str]]:
   and a chunk's parts."""
   data = {label: load(name)["figures"] for label, name in ITERATION.items()}
   parts = {label: d["parts"] for label, d in data.items()}
-  rows = [[name, *(f"{num(p[key], 2)} ({num(100 * p[key] / p['chunk_s'])}%)"
-                   for p in parts.values())]
+  rows = [[name, *(num(p[key], 2) for p in parts.values())]
           for name, key in (("physics", "physics_s"), ("episode starts' refill", "refill_s"),
                             ("acting and replay insert", "acting_and_insert_s"),
                             ("learner (replay samples in it)", "learner_s"),
@@ -338,9 +335,9 @@ def iteration_section() -> tuple[str, str, str, list[str]]:
   first = next(iter(parts.values()))
   text = (f"A chunk: {num(first['env_steps_per_chunk'])} env steps, "
           f"{num(first['updates_per_chunk'])} updates.\n\n"
-          + table(["part of a chunk, s (share)", *data], rows))
-  return ("The CPU iteration", "The main job (Hopper, cold cache) and each part of a chunk, "
-          "timed alone, with XLA's matrix kernels (`mjx_hopper.setup`'s) and YNNPACK's.",
+          + table(["part of a chunk (s)", *data], rows))
+  return ("The CPU iteration", "The main job (Hopper, cold cache) and a chunk's parts timed "
+          "alone, with XLA's matrix kernels (setup's) and YNNPACK's.",
           text, list(ITERATION.values()))
 
 
@@ -355,8 +352,7 @@ def chunk_section() -> tuple[str, str, str, list[str]]:
                    num(f.get("refill_instructions")) if "refill_instructions" in f else "–",
                    num(f["env_steps_per_s"])])
   return ("The training chunk", "Hopper's preset: the chunk's HLO instructions, "
-          "cold compile and env steps/s over 10 chunks, each code in a fresh process; the "
-          "refill is a program of its own.",
+          "cold compile and env steps/s over 10 chunks, each code in a fresh process.",
           table(["machine", "code", "instructions", "compile (s)", "refill's instructions",
                  "env steps/s"], rows), list(CHUNK.values()))
 
@@ -370,7 +366,7 @@ def pretrained_section(names: list[str]) -> tuple[str, str, str, list[str]]:
                  num(r["wall_s"]), num(r["best_eval_return"]),
                  f"{num(r['return'])} ± {num(r['return_std'])}", num(r["file_bytes"] / 1024)])
   return ("Pretrained policies", "`mjx_hopper/pretrained/`: each robot's gpu preset "
-          "trained past its score by a margin, the best policy exported, the file evaluated.",
+          "trained past its score, the best policy exported, the file evaluated.",
           table(["robot", "score", "seed", "env steps", "training (s)", "best evaluation",
                  "the file's return", "file (KiB)"], rows), names)
 
@@ -398,8 +394,8 @@ def code(commit: str) -> str:
 
 def benchmarks_page() -> str:
   parts = ["# Benchmarks", "Made by `python benchmarks/report.py` from the "
-           "`benchmarks/results/` files under each table; do not edit. Machines are shared and "
-           "noisy: compare rows of one run.",
+           "`benchmarks/results/` files under each table; do not edit. Machines are noisy: "
+           "compare rows of one run.",
            "## Summary", summary()]
   for title, method, text, names in sections():
     made = {}  # files made by one command on one machine, day and commit share a line
