@@ -230,11 +230,16 @@ def test_the_import_graph_finds_cycles_through_function_imports():
   assert cycles({**graph, "p.c": set()}) == []
 
 
-def test_the_package_has_no_import_cycle():
+def package_graph() -> dict[str, set[str]]:
+  """import_graph of the installed package: mjx_hopper/, agents/ and envs/."""
   files = _python_files("mjx_hopper", *LEAVES)
   sources = {_module_name(path): path.read_text() for path in files}
   packages = {_module_name(path) for path in files if path.name == "__init__.py"}
-  graph = import_graph(sources, packages)
+  return import_graph(sources, packages)
+
+
+def test_the_package_has_no_import_cycle():
+  graph = package_graph()
   assert graph["mjx_hopper.loop"] >= {"mjx_hopper.runs", "mjx_hopper.evaluator"}
   found = cycles(graph)
   assert not found, ("modules that import each other, at any depth of their code (a cycle "
@@ -259,12 +264,10 @@ def test_an_import_from_a_higher_floor_is_found():
 
 
 def test_each_floor_imports_only_the_floors_below_it():
-  files = _python_files("mjx_hopper", *LEAVES)
-  sources = {_module_name(path): path.read_text() for path in files}
-  packages = {_module_name(path) for path in files if path.name == "__init__.py"}
-  host = sorted(m.removeprefix("mjx_hopper.") for m in sources
+  graph = package_graph()
+  host = sorted(m.removeprefix("mjx_hopper.") for m in graph
                 if m != "mjx_hopper" and m.split(".")[1] not in LEAVES)
   placed = [m for modules in FLOORS.values() for m in modules]
   assert sorted(placed) == host, "every module of the host layer is on one floor (FLOORS)"
-  breaches = floor_breaches(import_graph(sources, packages), FLOORS)
+  breaches = floor_breaches(graph, FLOORS)
   assert not breaches, "imports from a higher floor:\n" + "\n".join(breaches)
