@@ -39,7 +39,7 @@ def register(name: str, make: Callable[[int, int, Any], Agent], presets: dict[st
   "gpu"; `learner_fields` name the metrics of its `update` shown on the terminal; `tiny`
   overrides the config for the short runs of tests and the notebook's quick mode.
 
-  `exported_policy(policy_params, config) -> (layers, output)` lets `mjx_hopper.export` write
+  `exported_policy(policy_params, config) -> (layers, output)` lets `mjx_hopper.faces.export` write
   its deterministic policy, from its state's `policy`, as NumPy layers: each an (arrays,
   structure) pair of `networks.exported_dense`, and the output "tanh" or "clip". Without it,
   the agent trains but cannot be exported."""

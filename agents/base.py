@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from mjx_hopper.fields import check_types
+from mjx_hopper.core.fields import check_types
 
 AgentState = Any
 

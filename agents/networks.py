@@ -1,5 +1,5 @@
 """The NMA notebook's networks (acme's), in flax linen: LayerNormMLP, a tanh policy, and critics;
-and their layers as NumPy arrays, for `mjx_hopper.export`.
+and their layers as NumPy arrays, for `mjx_hopper.faces.export`.
 
 Every module works on any leading batch shape: observations (..., O), actions (..., A).
 
@@ -98,7 +98,7 @@ class GaussianPolicy(nn.Module):
     return mean, std
 
 
-# ---- The networks as `export` writes them: NumPy layers that mjx_hopper.export.forward runs --
+# ---- The networks as `export` writes them: NumPy layers that mjx_hopper.faces.export.forward runs
 
 def exported_dense(params: dict, dtype: str, norm: bool, activation: str) -> tuple[dict, dict]:
   """One exported layer: its arrays ("w", "b"), and its structure (the compute dtype, whether

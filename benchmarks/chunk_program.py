@@ -29,7 +29,8 @@ def measure(args) -> dict:
       mjx_hopper.use_compile_cache(cache)
     import jax
 
-    from mjx_hopper import presets, runs
+    from mjx_hopper.run import runs
+    from mjx_hopper.settings import presets
     cfg = presets.run_config(args.env, args.kind)
     trainer = runs.build(cfg)
     state = runs.init(cfg, trainer, cfg.members())

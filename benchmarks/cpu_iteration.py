@@ -32,9 +32,10 @@ import common
 def run_split(minutes: float, env: str, kind: str) -> dict:
   """The main job's start, chunk and pause seconds, from its log."""
   with tempfile.TemporaryDirectory() as out:
-    command = [sys.executable, "-c", "from mjx_hopper import cli; cli.main()", "train", "--env", env, "--agent", "d4pg",
-               "--preset", kind, "--max-minutes", str(minutes), "--total-env-steps",
-               "1000000000", "--log-every", "0", "--no-progress", "--out-dir", out]
+    command = [sys.executable, "-c", "from mjx_hopper.faces import cli; cli.main()", "train",
+               "--env", env, "--agent", "d4pg", "--preset", kind, "--max-minutes", str(minutes),
+               "--total-env-steps", "1000000000", "--log-every", "0", "--no-progress",
+               "--out-dir", out]
     start = time.time()
     cache = os.path.join(out, "cache")
     subprocess.run(command, check=True, env=dict(os.environ, MJX_HOPPER_JAX_CACHE=cache),
@@ -63,7 +64,9 @@ def part_split(env_name: str, kind: str, repeats: int) -> dict:
     import jax
     import jax.numpy as jnp
 
-    from mjx_hopper import presets, replay, rollout, runs
+    from mjx_hopper.core import replay, rollout
+    from mjx_hopper.run import runs
+    from mjx_hopper.settings import presets
     cfg = presets.run_config(env_name, kind)
     tc = cfg.train
     steps = tc.unroll_length * tc.iterations_per_chunk

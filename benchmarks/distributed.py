@@ -41,7 +41,7 @@ def launch(out_dir: str, processes: int, devices: int, gpus: bool, extra: list[s
              ["--distributed", "--coordinator", f"localhost:{port}", "--num-processes",
               str(processes), "--process-id", str(i)])
     procs.append(subprocess.Popen(
-        [sys.executable, "-m", "mjx_hopper.cli", "--cpu-devices", str(per_process), "sweep",
+        [sys.executable, "-m", "mjx_hopper.faces.cli", "--cpu-devices", str(per_process), "sweep",
          *SWEEP, *extra, "--out-dir", out_dir, *flags], env=env, stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT, text=True))
   first = None

@@ -20,7 +20,8 @@ def mjx_rows(args) -> list[dict]:
   steps a call: the median of 3 after a warm-up, on this process's devices."""
   import jax
 
-  from mjx_hopper import envs, rollout
+  from mjx_hopper import envs
+  from mjx_hopper.core import rollout
 
   devices = jax.devices()
   rows = []

@@ -10,7 +10,8 @@ import time
 import jax
 
 import common
-from mjx_hopper import envs, rollout
+from mjx_hopper import envs
+from mjx_hopper.core import rollout
 
 pybullet_oracle = common.pybullet_oracle()
 

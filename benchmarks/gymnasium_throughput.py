@@ -35,7 +35,8 @@ def main() -> None:
   import jax
   import numpy as np
 
-  from mjx_hopper import envs, rollout
+  from mjx_hopper import envs
+  from mjx_hopper.core import rollout
 
   env = envs.make(args.env)
   n, steps = args.num_envs, args.steps

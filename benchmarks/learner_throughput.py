@@ -41,7 +41,8 @@ def matmul_peak(dtype: str = "float32", repeats: int = 10) -> float:
 def cases(robots: str, kinds: str, overrides: dict) -> list[dict]:
   """What to time: each robot's preset of each kind (its agent, settings, batch size and
   sizes), `overrides` over its agent's settings."""
-  from mjx_hopper import envs, presets
+  from mjx_hopper import envs
+  from mjx_hopper.settings import presets
   out = []
   for robot in robots.split(","):
     env = envs.make(robot)
@@ -60,7 +61,8 @@ def learner_row(case: dict, updates: int) -> dict:
   import numpy as np
   from jax.sharding import NamedSharding, PartitionSpec as P
 
-  from mjx_hopper import agents, parallel, replay
+  from mjx_hopper import agents
+  from mjx_hopper.core import parallel, replay
   devices = jax.local_devices()
   mesh = parallel.mesh(devices, ("devices",))
   rng = np.random.default_rng(0)
@@ -118,7 +120,7 @@ def learner_row(case: dict, updates: int) -> dict:
 
 def work(args) -> dict:
   """A worker's figures: the matmul peaks and every case's row, on this process's devices."""
-  from mjx_hopper import flags
+  from mjx_hopper.settings import flags
   rows = [learner_row(case, args.updates)
           for case in cases(args.robots, args.presets, flags.overrides(args.set))]
   return {"peak": matmul_peak(), "peak_bf16": matmul_peak("bfloat16"), "rows": rows}

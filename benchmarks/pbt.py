@@ -40,7 +40,7 @@ def sweep(flags: list[str], out: str, env: dict | None = None,
     shutil.rmtree(out, ignore_errors=True)
   elif not os.path.isdir(os.path.join(out, "checkpoints")):
     raise SystemExit(f"--resume: {out} holds no checkpoint to continue (a fresh machine?)")
-  return subprocess.Popen([sys.executable, "-P", "-m", "mjx_hopper.cli", "sweep", *flags,
+  return subprocess.Popen([sys.executable, "-P", "-m", "mjx_hopper.faces.cli", "sweep", *flags,
                            "--out-dir", out, "--no-progress", "--log-every", "30",
                            "--checkpoint-minutes", "1e4"], env={**os.environ, **(env or {})})
 

@@ -133,7 +133,7 @@ def run_all(runs: list[dict], out: str, parallel: int) -> None:
 
 def evaluations(folder: str) -> list[dict]:
   """Every evaluation of a run so far, {EVAL_FIELDS}, wall_s counted from its process's start."""
-  if os.path.exists(os.path.join(folder, "log.csv")):  # ours: mjx_hopper.loop's log
+  if os.path.exists(os.path.join(folder, "log.csv")):  # ours: mjx_hopper.run.loop's log
     offset = read_json(os.path.join(folder, "started.json"))["loop_start_s"]
     rows = common.evaluations(os.path.join(folder, "log.csv")).get(0, [])
     return [dict(r, wall_s=r["wall_s"] + offset) for r in rows]
@@ -211,7 +211,8 @@ def device_put_replicated(tree, devices):
 def worker_ours(run: dict, folder: str) -> None:
   """Our agent through the project's CLI (`mjx-hopper train`); its log.csv's wall_s counts
   from the loop's start, `started.json` says how long after the process's start that was."""
-  from mjx_hopper import cli, loop  # noqa: F401  (loop: imported before the clock is read)
+  from mjx_hopper.faces import cli  # noqa: F401
+  from mjx_hopper.run import loop  # noqa: F401  (loop: imported before the clock is read)
   loop_start = time.time() - run["launch_time"]
   with open(os.path.join(folder, "started.json"), "w") as f:
     json.dump({"loop_start_s": loop_start}, f)

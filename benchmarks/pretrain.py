@@ -1,8 +1,8 @@
 """The shipped policies: each robot given trained with its preset until an evaluation reaches
 its score plus a margin, or its time cap; its best policy exported as ROBOT.npz, with the
-robot's fingerprint, and that file evaluated again. Writes the files into mjx_hopper/pretrained/
-(or where $MJX_HOPPER_RESULTS points: gpu.sh brings that folder back) and each robot's record
-to benchmarks/results/pretrained_ROBOT.json.
+robot's fingerprint, and that file evaluated again. Writes the files into
+mjx_hopper/faces/pretrained/ (or where $MJX_HOPPER_RESULTS points: gpu.sh brings that folder back)
+and each robot's record to benchmarks/results/pretrained_ROBOT.json.
 
     bash benchmarks/gpu.sh "python benchmarks/pretrain.py Hopper Walker2D HalfCheetah"
     python benchmarks/pretrain.py Hopper --kind cpu --steps 20000 --target 0   # a check on CPU
@@ -23,7 +23,8 @@ EPISODES, EVAL_SEED = 16, 1  # the exported file's check
 def train_until_score(robot: str, seed: int, goal: float, args) -> dict:
   """One seed of `robot` trained until an evaluation reaches `goal` or the time cap; its run's
   folder, best evaluation and last env steps."""
-  from mjx_hopper import loop, presets
+  from mjx_hopper.run import loop
+  from mjx_hopper.settings import presets
   out = os.path.join(args.out, robot, f"seed_{seed}")
   if os.path.exists(os.path.join(out, "checkpoints")):  # a run there would resume instead
     raise SystemExit(f"pretrain: {out} already holds a run; choose another --out or remove it")
@@ -43,7 +44,9 @@ def pretrain(robot: str, args, files: str) -> dict:
   """Trains `robot` (the seeds in turn, until one reaches the goal), exports its best policy to
   FILES/ROBOT.npz, evaluates that file, writes into it the robot's fingerprint and this record,
   and returns the record."""
-  from mjx_hopper import envs, export, presets
+  from mjx_hopper import envs
+  from mjx_hopper.faces import export
+  from mjx_hopper.settings import presets
   preset = presets.get(robot, args.kind)
   target = preset.target if args.target is None else args.target
   goal = target + args.margin * abs(target)
@@ -93,7 +96,9 @@ def main() -> None:
   args.seeds = [int(s) for s in args.seeds.split(",")]
   import mjx_hopper  # its own imports only: JAX starts later
   mjx_hopper.setup(cpu_devices=args.cpu_devices)
-  from mjx_hopper import envs, export, presets
+  from mjx_hopper import envs
+  from mjx_hopper.faces import export
+  from mjx_hopper.settings import presets
   if not set(args.robots) <= set(envs.tasks.BUILT_IN) or args.kind not in presets.KINDS:
     raise SystemExit(f"pretrain: the robots are {list(envs.tasks.BUILT_IN)} and the presets "
                      f"{list(presets.KINDS)}; got {args.robots} and {args.kind!r}")

@@ -100,7 +100,7 @@ def time_to_score(names: list[str], scale: float = 1.0) -> dict:
           "env_steps": statistics.median(steps) if steps else None}
 
 
-MARGIN = 1.5  # a preset's budget over its slowest seed's need (mjx_hopper/presets.py)
+MARGIN = 1.5  # a preset's budget over its slowest seed's need (mjx_hopper/settings/presets.py)
 
 
 def budget(names: list[str]) -> tuple[int, float]:
@@ -358,14 +358,15 @@ def chunk_section() -> tuple[str, str, str, list[str]]:
 
 
 def pretrained_section(names: list[str]) -> tuple[str, str, str, list[str]]:
-  """The shipped policies (mjx_hopper/pretrained/): how each was trained, and its file's return."""
+  """The shipped policies (mjx_hopper/faces/pretrained/): how each was trained, and its file's
+  return."""
   rows = []
   for name in names:
     r = load(name)["figures"]
     rows.append([r["robot"], num(r["target"]), r["seed"], num(r["env_steps"]),
                  num(r["wall_s"]), num(r["best_eval_return"]),
                  f"{num(r['return'])} ± {num(r['return_std'])}", num(r["file_bytes"] / 1024)])
-  return ("Pretrained policies", "`mjx_hopper/pretrained/`: each robot's gpu preset "
+  return ("Pretrained policies", "`mjx_hopper/faces/pretrained/`: each robot's gpu preset "
           "trained past its score, the best policy exported, the file evaluated.",
           table(["robot", "score", "seed", "env steps", "training (s)", "best evaluation",
                  "the file's return", "file (KiB)"], rows), names)

@@ -31,11 +31,11 @@ events = []
 def listen(event, duration, fun_name="?", **kwargs):
   events.append((time.time(), event.rsplit("/", 1)[-1], fun_name, duration))
 jax.monitoring.register_event_duration_secs_listener(listen)
-import mjx_hopper.loop
+import mjx_hopper.run.loop
 imported = time.time()
 record = sys.argv[1]
 atexit.register(lambda: json.dump({"imported": imported, "events": events}, open(record, "w")))
-from mjx_hopper import cli
+from mjx_hopper.faces import cli
 sys.argv = ["mjx-hopper"] + sys.argv[2:]
 cli.main()
 """

@@ -25,7 +25,9 @@ def measure(args) -> dict:
   mjx_hopper.setup()  # before the package loads (and anything compiles)
   import jax
 
-  from mjx_hopper import config, flags, runs, train
+  from mjx_hopper.core import train
+  from mjx_hopper.run import runs
+  from mjx_hopper.settings import config, flags
 
   cfg = config.RunConfig(
       env=args.env, agent=args.agent, agent_preset=args.preset,

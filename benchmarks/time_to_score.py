@@ -1,4 +1,4 @@
-"""Time to score: one robot trained with its preset (mjx_hopper.presets), seeds one after
+"""Time to score: one robot trained with its preset (mjx_hopper.settings.presets), seeds one after
 another, each until the robot's target or the time budget; a task of your own (module:Class, a
 subclass of a robot) with its robot's preset. Writes its figures to
 benchmarks/results/time_to_score_ROBOT_KIND[_LABEL].json, and to OUT the best seed's final
@@ -34,7 +34,8 @@ def record_episode(checkpoint_dir: str, member: int, path: str) -> dict:
   """Runs one deterministic episode of `member`'s final policy and saves its qpos."""
   import jax
 
-  from mjx_hopper import runs, train
+  from mjx_hopper.core import train
+  from mjx_hopper.run import runs
   cfg, agent_state, trainer = runs.load_policy(checkpoint_dir, member)
   result = jax.device_get(jax.jit(lambda s, k: train.evaluate(
       trainer.env, trainer.agent, s, k, 1, record_qpos=True))(agent_state, jax.random.PRNGKey(7)))
@@ -93,7 +94,8 @@ def main() -> None:
   mjx_hopper.setup(cpu_devices=args.cpu_devices)
   import jax
 
-  from mjx_hopper import flags, loop, presets
+  from mjx_hopper.run import loop
+  from mjx_hopper.settings import flags, presets
   if args.no_compile_cache:
     jax.config.update("jax_enable_compilation_cache", False)
   try:

@@ -25,8 +25,8 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
+from mjx_hopper.core.fields import convert
 from mjx_hopper.envs.base import LocomotionEnv
-from mjx_hopper.fields import convert
 
 _REGISTRY: dict[str, type[LocomotionEnv]] = {}
 # Classes given by object in this process, by id: a class defined in a notebook cell or inside

@@ -10,7 +10,8 @@ import time
 import jax
 import jax.numpy as jnp
 
-from mjx_hopper import store, train
+from mjx_hopper import store
+from mjx_hopper.core import train
 
 CONFIG = {"env": "Hopper", "agent": "d4pg", "seed": 0}
 

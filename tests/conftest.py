@@ -33,7 +33,8 @@ import mjx_hopper  # noqa: E402
 
 mjx_hopper.setup()  # before MuJoCo is imported, which reads MUJOCO_GL once
 
-from mjx_hopper import config, runs  # noqa: E402
+from mjx_hopper.run import runs  # noqa: E402
+from mjx_hopper.settings import config  # noqa: E402
 
 
 def _frozen(x):
@@ -133,7 +134,7 @@ _EPISODES = {}
 def mjx_episodes(env_id, num_episodes=128):
   """Random- and zero-action episode statistics of `env_id`, with the qpos of episode 0, from
   one compiled program per robot (`scale` 1 is random actions, 0 zero actions)."""
-  from mjx_hopper import rollout
+  from mjx_hopper.core import rollout
   if env_id not in _EPISODES:
     env = make_env(env_id)
 

@@ -19,7 +19,10 @@ import pytest
 from etils import epath
 
 import mjx_hopper
-from mjx_hopper import agents, cli, loop, runs, store, train
+from mjx_hopper import agents, store
+from mjx_hopper.core import train
+from mjx_hopper.faces import cli
+from mjx_hopper.run import loop, runs
 from checkpoint_worker import CONFIG, state
 from test_train import TINY_ARGS
 
@@ -294,8 +297,8 @@ TRAIN = [*TINY_ARGS, "--agent", "d4pg", "--set", "num_atoms=11"]
 
 
 def train_in_fresh_process(out, steps):
-  subprocess.run([sys.executable, "-m", "mjx_hopper.cli", *TRAIN, "--total-env-steps", str(steps),
-                  "--out-dir", str(out)], check=True, stdout=subprocess.DEVNULL)
+  subprocess.run([sys.executable, "-m", "mjx_hopper.faces.cli", *TRAIN, "--total-env-steps",
+                  str(steps), "--out-dir", str(out)], check=True, stdout=subprocess.DEVNULL)
 
 
 @pytest.mark.slow

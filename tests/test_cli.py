@@ -7,9 +7,11 @@ import json
 
 import pytest
 
-from mjx_hopper import cli, flags, loop, presets
-from mjx_hopper.config import RunConfig
-from mjx_hopper.train import TrainConfig
+from mjx_hopper.core.train import TrainConfig
+from mjx_hopper.faces import cli
+from mjx_hopper.run import loop
+from mjx_hopper.settings import flags, presets
+from mjx_hopper.settings.config import RunConfig
 
 
 def parse(*argv):

@@ -9,7 +9,7 @@ import sys
 import pytest
 
 import mjx_hopper
-from mjx_hopper import runtime
+from mjx_hopper.run import runtime
 
 # Compiles one small program with the cache in argv[1], as a CPU with features argv[2] when
 # given (standing in for another machine), and prints where the cache went and JAX's cache
@@ -19,7 +19,7 @@ import json, sys
 import jax, jax.numpy as jnp
 import mjx_hopper
 if len(sys.argv) > 2:
-  mjx_hopper.runtime._cpu_features = lambda: sys.argv[2]
+  mjx_hopper.run.runtime._cpu_features = lambda: sys.argv[2]
 directory = mjx_hopper.setup(sys.argv[1])
 events = []
 jax.monitoring.register_event_listener(lambda name, **kwargs: events.append(name))
@@ -74,7 +74,7 @@ atexit.register(lambda: json.dump({
     "loaded": events.count("/jax/compilation_cache/cache_hits"),
     "backend_compiles": events.count("/jax/core/compile/backend_compile_duration")},
     open(sys.argv[1], "w")))
-from mjx_hopper import cli
+from mjx_hopper.faces import cli
 cli.main(sys.argv[2:])
 """
 

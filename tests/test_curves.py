@@ -8,7 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from mjx_hopper import cli, curves
+from mjx_hopper.faces import cli
+from mjx_hopper.run import curves
 
 
 def _row(kind, env_steps, wall_s, **more):

@@ -11,9 +11,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from mjx_hopper import agents, replay
+from mjx_hopper import agents
 from mjx_hopper.agents import networks
 from mjx_hopper.agents import d4pg, ddpg
+from mjx_hopper.core import replay
 from test_distributional import reference_projection
 
 OBS, ACT, BATCH = 5, 2, 32

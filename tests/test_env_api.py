@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from conftest import make_env
-from mjx_hopper import envs, parallel, rollout
+from mjx_hopper import envs
+from mjx_hopper.core import parallel, rollout
 
 
 def test_list_and_make():

@@ -14,7 +14,10 @@ import numpy as np
 import pytest
 
 import mjx_hopper
-from mjx_hopper import agents, cli, export, loop, runlock, runs, store
+from mjx_hopper import agents, store
+from mjx_hopper.faces import cli, export
+from mjx_hopper.process import runlock
+from mjx_hopper.run import loop, runs
 from checkpoint_worker import CONFIG, state as fake_state
 from test_train import TINY
 
@@ -73,7 +76,7 @@ def test_actions_equal_the_jax_policy(tmp_path, name, overrides, dtype):
                                              ("dmpo", {})])
 def test_the_onnx_model_acts_as_the_file(tmp_path, name, overrides, dtype):
   onnxruntime = pytest.importorskip("onnxruntime")
-  from mjx_hopper import export_onnx
+  from mjx_hopper.faces import export_onnx
   path, _, _ = saved_policy(tmp_path, name, dtype, **overrides)
   onnx_path = export_onnx.write(path, str(tmp_path / "policy.onnx"))
   session = onnxruntime.InferenceSession(onnx_path, providers=["CPUExecutionProvider"])
@@ -91,7 +94,7 @@ def test_the_onnx_model_acts_as_the_file(tmp_path, name, overrides, dtype):
 def test_load_needs_no_jax(tmp_path):
   path, _, _ = saved_policy(tmp_path)
   code = ("import sys, numpy as np\n"
-          "from mjx_hopper import export\n"
+          "from mjx_hopper.faces import export\n"
           f"policy = export.load({path!r})\n"
           f"print(policy(np.zeros({O})).shape, policy(np.zeros((4, {O}))).shape)\n"
           "print(sorted(m for m in sys.modules if m.split('.')[0] in ('jax', 'jaxlib', 'flax')))")
@@ -236,7 +239,7 @@ def test_an_exported_file_evaluates_and_films_as_its_checkpoint(run_dir, tmp_pat
   result = export.evaluate_file(path, episodes=2, seed=3, video_path=video,
                                 print_fn=lines.append)
   cfg, agent_state, trainer = runs.load_policy(directory, print_fn=lambda _: None)
-  from mjx_hopper import train
+  from mjx_hopper.core import train
   want = jax.device_get(jax.jit(lambda s, k: train.evaluate(
       trainer.env, trainer.agent, s, k, 2))(agent_state, jax.random.PRNGKey(3)))
   np.testing.assert_array_equal(result["length"], want["length"])
@@ -286,7 +289,7 @@ def test_export_of_a_newer_checkpoint_format_writes_nothing(tmp_path, monkeypatc
 
 
 def test_the_cli_exports_and_evaluates_the_file(run_dir, tmp_path, capsys):
-  from mjx_hopper import cli
+  from mjx_hopper.faces import cli
   out, video = tmp_path / "policy.npz", tmp_path / "policy.mp4"
   cli.main(["--cpu-devices", "2", "export", "--checkpoint", str(run_dir / "checkpoints"),
             "--out", str(out)])

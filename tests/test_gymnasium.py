@@ -14,7 +14,8 @@ gymnasium = pytest.importorskip("gymnasium")
 from gymnasium.utils.env_checker import check_env  # noqa: E402
 from gymnasium.vector import AutoresetMode  # noqa: E402
 
-from mjx_hopper import envs, parallel  # noqa: E402
+from mjx_hopper import envs  # noqa: E402
+from mjx_hopper.core import parallel  # noqa: E402
 
 EPISODE_STEPS = 12
 
@@ -141,7 +142,7 @@ def test_the_robots_are_in_gymnasiums_registry(hopper12):
 
 
 def test_importing_the_package_imports_no_gymnasium():
-  program = ("import sys; import mjx_hopper, mjx_hopper.envs, mjx_hopper.loop; "
+  program = ("import sys; import mjx_hopper, mjx_hopper.envs, mjx_hopper.run.loop; "
              "print('gymnasium' in sys.modules)")
   out = subprocess.run([sys.executable, "-c", program], capture_output=True, text=True,
                        check=True).stdout

@@ -10,7 +10,7 @@ import jax
 import pytest
 
 import mjx_hopper
-from mjx_hopper import runtime
+from mjx_hopper.run import runtime
 
 CLEAN = {k: v for k, v in os.environ.items() if k not in (
     "MUJOCO_GL", "DISPLAY", "WAYLAND_DISPLAY", "XLA_FLAGS", "TF_CPP_MIN_LOG_LEVEL",
@@ -131,7 +131,8 @@ def test_setup_avoids_shardy_where_it_crashes(monkeypatch, crashes, chosen, shar
 def test_a_mac_imports_the_envs_and_trains_on_cpu(tmp_path):
   program = ("import platform; platform.system = lambda: 'Darwin'\n"
              "import dataclasses\n"
-             "from mjx_hopper import loop, notebook\n"
+             "from mjx_hopper.faces import notebook\n"
+             "from mjx_hopper.run import loop\n"
              "cfg = notebook.tiny(loop.RunConfig(env='Hopper', agent='d4pg'))\n"
              f"cfg = dataclasses.replace(cfg, out_dir={str(tmp_path)!r}, total_env_steps=40)\n"
              "r = loop.run(cfg, progress=False, print_fn=lambda line: None)\n"

@@ -1,10 +1,10 @@
-"""JAX's private API that mjx_hopper/jax_private.py uses is still there, as it was read."""
+"""JAX's private API that mjx_hopper/process/jax_private.py uses is still there, as it was read."""
 
 import inspect
 
 import jax
 
-from mjx_hopper import jax_private
+from mjx_hopper.process import jax_private
 
 
 def test_the_cache_loader_is_where_it_was_read():

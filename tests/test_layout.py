@@ -10,23 +10,25 @@ import tokenize
 import pytest
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
+PACKAGE = ROOT / "mjx_hopper"
 LEAVES = ("agents", "envs")  # installed as mjx_hopper.agents, mjx_hopper.envs
-# What agents/ and envs/ may import from mjx_hopper/; everything else there is the host layer
-# (loop, config, evaluator, members, pbt, runs, sweep, store, logger, cli, notebook,
-# presets, export, ...), which uses the leaves and never the reverse.
-SHARED = {"agents", "envs", "fields", "parallel"}
-# The host layer's floors, lowest first, each named for what it owns (docs/design.md): a module
-# imports only from its own floor and those below, and from agents/ and envs/.
-FLOORS = {
-    "process": ("jax_private", "distributed", "stop", "runlock"),
-    "core": ("fields", "parallel", "replay", "rollout", "members", "train", "pbt", "evaluator",
-             "start"),
-    "settings": ("config", "presets", "flags"),
-    "store": ("store", "store.failures", "store.manifests", "store.items", "store.saver",
-              "store.run_folder"),
-    "run": ("runtime", "runs", "logger", "curves", "sweep", "loop"),
-    "faces": ("cli", "notebook", "export", "export_onnx"),
-}
+# What agents/ and envs/ may import from mjx_hopper/ (or the floor's package holding one, whose
+# __init__ imports nothing); everything else there is the host layer (run.loop, settings.config,
+# core.evaluator, core.members, core.pbt, run.runs, run.sweep, store, run.logger, faces.cli,
+# faces.notebook, settings.presets, faces.export, ...), which uses the leaves and never the reverse.
+SHARED = {"agents", "envs", "core.fields", "core.parallel"}
+
+
+def _floor(name: str) -> tuple[str, ...]:
+  """The modules in mjx_hopper/NAME/, as dotted names under mjx_hopper (its __init__ as NAME)."""
+  return tuple(sorted(".".join(path.relative_to(PACKAGE).with_suffix("").parts)
+                      .removesuffix(".__init__") for path in (PACKAGE / name).rglob("*.py")))
+
+
+# The host layer's floors, lowest first: each a sub-package of mjx_hopper/ named for what it owns
+# (docs/design.md), its modules those of its folder. A module imports only from its own floor and
+# those below, and from agents/ and envs/.
+FLOORS = {name: _floor(name) for name in ("process", "core", "settings", "store", "run", "faces")}
 
 HISTORY = re.compile(r"\b\d{4}-\d{2}-\d{2}\b|H100|H200|\b2 cores\b|\b2-core\b|BENCHMARKS\.md"
                      r"|history\.md", re.IGNORECASE)
@@ -67,29 +69,38 @@ def imported_modules(source: str, package: list[str]) -> list[tuple[int, str, st
   return found
 
 
+def _shared(name: str) -> bool:
+  """Whether the module NAME of mjx_hopper is SHARED, or is a folder holding one of them."""
+  return any(s == name or s.startswith(f"{name}.") for s in SHARED)
+
+
 def host_imports(source: str, package: list[str]) -> list[tuple[int, str, str]]:
   """(line, host module, the import as written) for each import in `source` of a mjx_hopper
-  module outside SHARED."""
+  module outside SHARED; a host module is named under mjx_hopper, as a floor's module (core.pbt)
+  or a top-level one (checkpoint), and a floor's package is not named beside its module."""
   bad = {}
   for line, module, text in imported_modules(source, package):
     parts = module.split(".")
-    if parts[0] == "mjx_hopper" and len(parts) > 1 and parts[1] not in SHARED:
-      bad[line, parts[1]] = text
-  return [(line, name, text) for (line, name), text in sorted(bad.items())]
+    if parts[0] == "mjx_hopper" and len(parts) > 1:
+      name = ".".join(parts[1:3] if parts[1] in FLOORS else parts[1:2])
+      if not _shared(name):
+        bad[line, name] = text
+  return [(line, name, text) for (line, name), text in sorted(bad.items())
+          if not any(at == line and other.startswith(f"{name}.") for at, other in bad)]
 
 
 @pytest.mark.parametrize("source", [
-    "import mjx_hopper.loop",
-    "import mjx_hopper.sweep as sweep",
+    "import mjx_hopper.run.loop",
+    "import mjx_hopper.run.sweep as sweep",
     "from mjx_hopper import checkpoint",
-    "from mjx_hopper import fields, logger",
-    "from mjx_hopper.presets import ROBOT_PRESETS",
-    "from mjx_hopper.runs.sub import x",
-    "from .. import cli",
-    "from ..notebook import tiny",
-    "from .. import config",
-    "import importlib\nimportlib.import_module('mjx_hopper.evaluator')",
-    "def f():\n  from mjx_hopper import pbt",
+    "from mjx_hopper.core import fields, train",
+    "from mjx_hopper.settings.presets import ROBOT_PRESETS",
+    "from mjx_hopper.run.runs.sub import x",
+    "from ..faces import cli",
+    "from ..faces.notebook import tiny",
+    "from ..settings import config",
+    "import importlib\nimportlib.import_module('mjx_hopper.core.evaluator')",
+    "def f():\n  from mjx_hopper.core import pbt",
 ])
 def test_a_host_import_is_found_in_every_form(source):
   assert len(host_imports(source, ["mjx_hopper", "agents"])) == 1, source
@@ -97,8 +108,8 @@ def test_a_host_import_is_found_in_every_form(source):
 
 @pytest.mark.parametrize("source", [
     "import mjx_hopper",
-    "from mjx_hopper import parallel",
-    "from mjx_hopper.fields import check_types",
+    "from mjx_hopper.core import parallel",
+    "from mjx_hopper.core.fields import check_types",
     "from mjx_hopper.agents import distributional, networks",
     "from mjx_hopper.envs.base import LocomotionEnv",
     "from . import critics",
@@ -111,10 +122,10 @@ def test_a_shared_import_passes(source):
 
 
 def test_a_host_import_reports_its_line_and_text():
-  source = "import jax\nfrom mjx_hopper import checkpoint, fields, logger\n"
-  text = "from mjx_hopper import checkpoint, fields, logger"
-  assert host_imports(source, ["mjx_hopper", "envs"]) == [(2, "checkpoint", text),
-                                                          (2, "logger", text)]
+  source = "import jax\nfrom mjx_hopper.core import checkpoint, fields, train\n"
+  text = "from mjx_hopper.core import checkpoint, fields, train"
+  assert host_imports(source, ["mjx_hopper", "envs"]) == [(2, "core.checkpoint", text),
+                                                          (2, "core.train", text)]
 
 
 def test_agents_and_envs_import_nothing_of_the_host_layer():
@@ -240,7 +251,7 @@ def package_graph() -> dict[str, set[str]]:
 
 def test_the_package_has_no_import_cycle():
   graph = package_graph()
-  assert graph["mjx_hopper.loop"] >= {"mjx_hopper.runs", "mjx_hopper.evaluator"}
+  assert graph["mjx_hopper.run.loop"] >= {"mjx_hopper.run.runs", "mjx_hopper.core.evaluator"}
   found = cycles(graph)
   assert not found, ("modules that import each other, at any depth of their code (a cycle "
                      "works only while the order of imports allows it):\n"
@@ -267,6 +278,10 @@ def test_each_floor_imports_only_the_floors_below_it():
   graph = package_graph()
   host = sorted(m.removeprefix("mjx_hopper.") for m in graph
                 if m != "mjx_hopper" and m.split(".")[1] not in LEAVES)
+  folders = sorted(path.parent.name for path in PACKAGE.glob("*/__init__.py"))
+  assert folders == sorted(FLOORS), "every sub-package of mjx_hopper/ is a floor (FLOORS)"
+  outside = [m for m in host if m.split(".")[0] not in FLOORS]
+  assert not outside, f"host modules outside the floors' folders (mjx_hopper/FLOOR/): {outside}"
   placed = [m for modules in FLOORS.values() for m in modules]
   assert sorted(placed) == host, "every module of the host layer is on one floor (FLOORS)"
   breaches = floor_breaches(graph, FLOORS)

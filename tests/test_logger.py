@@ -16,8 +16,9 @@ from tensorboardX.proto.event_pb2 import Event, SessionLog
 from tensorboardX.record_writer import masked_crc32c
 from tqdm import tqdm
 
-from mjx_hopper import agents, loop
-from mjx_hopper.logger import Logger, Unavailable, check_services
+from mjx_hopper import agents
+from mjx_hopper.run import loop
+from mjx_hopper.run.logger import Logger, Unavailable, check_services
 from test_train import TINY
 
 NAN = float("nan")

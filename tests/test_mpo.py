@@ -7,8 +7,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from mjx_hopper import agents, replay
+from mjx_hopper import agents
 from mjx_hopper.agents import critics, mpo
+from mjx_hopper.core import replay
 from test_distributional import reference_projection
 
 OBS, ACT = 6, 3

@@ -13,9 +13,11 @@ import numpy as np
 import optax
 import pytest
 
-from mjx_hopper import agents, export, loop, notebook
+from mjx_hopper import agents
 from mjx_hopper.agents import networks
 from mjx_hopper.agents.base import Agent, CommonConfig, hparams
+from mjx_hopper.faces import export, notebook
+from mjx_hopper.run import loop
 
 
 @dataclasses.dataclass(frozen=True)

@@ -9,7 +9,8 @@ import matplotlib
 import numpy as np
 import pytest
 
-from mjx_hopper import loop, notebook
+from mjx_hopper.faces import notebook
+from mjx_hopper.run import loop
 from test_train import TINY, TINY_ARGS
 
 matplotlib.use("Agg")

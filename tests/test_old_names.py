@@ -8,7 +8,10 @@ import pathlib
 import pytest
 
 import mjx_hopper
-from mjx_hopper import agents, cli, config, runs, store
+from mjx_hopper import agents, store
+from mjx_hopper.faces import cli
+from mjx_hopper.run import runs
+from mjx_hopper.settings import config
 from checkpoint_worker import state
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent

@@ -39,14 +39,14 @@ def test_the_wheel_holds_the_package_and_its_data(wheel):
   assert "mjx_hopper/py.typed" in names
   inside = [os.path.relpath(folder, ROOT) for folder, _, files in
             os.walk(os.path.join(ROOT, "mjx_hopper")) if "__init__.py" in files]
-  assert {f"{p}/__init__.py" for p in inside} <= set(names)  # every sub-package (store/)
+  assert {f"{p}/__init__.py" for p in inside} <= set(names)  # every sub-package (the floors)
   assert {n for n in names if n.startswith("mjx_hopper/envs/assets/")} == {
       f"mjx_hopper/envs/assets/{m}.xml" for m in ("hopper", "walker2d", "half_cheetah", "ant",
                                                    "humanoid")}
-  shipped = sorted(f for f in os.listdir(os.path.join(ROOT, "mjx_hopper", "pretrained"))
+  shipped = sorted(f for f in os.listdir(os.path.join(ROOT, "mjx_hopper", "faces", "pretrained"))
                    if f.endswith(".npz"))
   assert sorted(n.rsplit("/", 1)[-1] for n in names
-                if n.startswith("mjx_hopper/pretrained/")) == shipped
+                if n.startswith("mjx_hopper/faces/pretrained/")) == shipped
 
 
 @pytest.mark.slow

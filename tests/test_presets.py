@@ -7,7 +7,11 @@ import sys
 
 import pytest
 
-from mjx_hopper import agents, cli, envs, flags, loop, presets, train
+from mjx_hopper import agents, envs
+from mjx_hopper.core import train
+from mjx_hopper.faces import cli
+from mjx_hopper.run import loop
+from mjx_hopper.settings import flags, presets
 from test_train import TINY  # a tiny Hopper run: 4 envs, eval every 40 env steps
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent.parent / "benchmarks"))

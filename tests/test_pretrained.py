@@ -1,6 +1,6 @@
-"""The shipped policies (mjx_hopper/pretrained/, made by benchmarks/pretrain.py): one per robot,
-each under a megabyte, loaded by name with NumPy alone, recorded in benchmarks/results, made for
-the robot as it is now, and scoring at or above the robot's score on the CPU."""
+"""The shipped policies (mjx_hopper/faces/pretrained/, made by benchmarks/pretrain.py): one per
+robot, each under a megabyte, loaded by name with NumPy alone, recorded in benchmarks/results,
+made for the robot as it is now, and scoring at or above the robot's score on the CPU."""
 
 import json
 import os
@@ -10,7 +10,9 @@ import sys
 import numpy as np
 import pytest
 
-from mjx_hopper import envs, export, presets
+from mjx_hopper import envs
+from mjx_hopper.faces import export
+from mjx_hopper.settings import presets
 
 ROBOTS = envs.tasks.BUILT_IN
 RESULTS = os.path.join(os.path.dirname(__file__), "..", "benchmarks", "results")
@@ -49,7 +51,7 @@ def test_a_shipped_policy_loads_with_numpy_alone(tmp_path):
   export.save(export.Policy({"w0": np.ones((3, 2), np.float32), "b0": np.zeros(2, np.float32)},
                             meta), str(tmp_path / "Walker.npz"))
   code = ("import sys\n"
-          "from mjx_hopper import export\n"
+          "from mjx_hopper.faces import export\n"
           f"export.PRETRAINED = {str(tmp_path)!r}\n"
           "print(export.pretrained('Walker')([0.1, 0.2, 0.3]).tolist())\n"
           "print(sorted(m for m in sys.modules if m.split('.')[0] in ('jax', 'jaxlib', 'flax')))")

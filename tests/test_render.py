@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from conftest import ROBOTS, make_env
-from mjx_hopper import cli
+from mjx_hopper.faces import cli
 
 
 @pytest.mark.parametrize("robot", ROBOTS)

@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from mjx_hopper import replay
+from mjx_hopper.core import replay
 
 GAMMA = 0.9
 

@@ -7,7 +7,10 @@ import jax
 import numpy as np
 import pytest
 
-from mjx_hopper import cli, config, export, runs, store
+from mjx_hopper import store
+from mjx_hopper.faces import cli, export
+from mjx_hopper.run import runs
+from mjx_hopper.settings import config
 from mjx_hopper.store.run_folder import RunFolder, Saved, check_processes, config_item
 from test_train import TINY
 

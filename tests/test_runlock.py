@@ -11,10 +11,12 @@ import time
 
 import pytest
 
-from mjx_hopper import cli, loop, runlock
+from mjx_hopper.faces import cli
+from mjx_hopper.process import runlock
+from mjx_hopper.run import loop
 from test_train import TINY, TINY_ARGS
 
-HOLD = ("import sys, time; from mjx_hopper import runlock\n"
+HOLD = ("import sys, time; from mjx_hopper.process import runlock\n"
         "with runlock.hold(sys.argv[1]):\n"
         "  print('held', flush=True); time.sleep(120)")
 

@@ -13,7 +13,8 @@ MOST_PROGRAMS_BEFORE_FIRST_CHUNK = 7
 PROGRAM = """
 import json, sys
 import jax
-from mjx_hopper import loop, notebook
+from mjx_hopper.faces import notebook
+from mjx_hopper.run import loop
 
 lowered = []
 def listen(event, duration, fun_name="?", **kwargs):

@@ -15,8 +15,11 @@ import jax
 import numpy as np
 import pytest
 
-from mjx_hopper import cli, loop, runs, store, sweep, train
-from mjx_hopper.pbt import PBT, exploit_explore
+from mjx_hopper import store
+from mjx_hopper.core import train
+from mjx_hopper.core.pbt import PBT, exploit_explore
+from mjx_hopper.faces import cli
+from mjx_hopper.run import loop, runs, sweep
 from test_train import TINY, TINY_ARGS, member
 
 
@@ -346,7 +349,7 @@ def free_port() -> int:
 
 def start_processes(out_dir, flags, env=None) -> list[subprocess.Popen]:
   """Two processes of one CPU device each, of one sweep over JAX's distributed runtime."""
-  return [subprocess.Popen([sys.executable, "-m", "mjx_hopper.cli", "--cpu-devices", "1",
+  return [subprocess.Popen([sys.executable, "-m", "mjx_hopper.faces.cli", "--cpu-devices", "1",
                             "sweep", *PBT_SWEEP, "--out-dir", str(out_dir), "--distributed",
                             *flags(i)], env={**os.environ, **(env(i) if env else {})},
                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)

@@ -12,8 +12,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from mjx_hopper import cli, envs, loop, notebook, presets, runs, train
+from mjx_hopper import envs
+from mjx_hopper.core import train
 from mjx_hopper.envs.events import AntLongJump, HighJump
+from mjx_hopper.faces import cli, notebook
+from mjx_hopper.run import loop, runs
+from mjx_hopper.settings import presets
 from test_train import TINY_ARGS
 
 # The notebook's tiny D4PG run on the high jump, its setting given: the same program as the

@@ -9,8 +9,11 @@ import jax
 import numpy as np
 import pytest
 
-from mjx_hopper import (agents, cli, distributed, evaluator, logger, loop, notebook, runs, start,
-                        store, train)
+from mjx_hopper import agents, store
+from mjx_hopper.core import evaluator, start, train
+from mjx_hopper.faces import cli, notebook
+from mjx_hopper.process import distributed
+from mjx_hopper.run import logger, loop, runs
 
 # The notebook's short mode (notebook.tiny): the run of the notebook's own cells and of
 # test_notebook_helpers, so that they share its compiled programs (and, in one test worker,

@@ -18,7 +18,7 @@ import numpy as np
 import orbax.checkpoint as ocp
 
 import mjx_hopper
-from mjx_hopper import parallel, train
+from mjx_hopper.core import parallel, train
 from mjx_hopper.store.failures import check_space, failed
 from mjx_hopper.store.manifests import finish
 

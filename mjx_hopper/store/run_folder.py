@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 import orbax.checkpoint as ocp
 
-from mjx_hopper.config import RunConfig
+from mjx_hopper.settings.config import RunConfig
 from mjx_hopper.store.items import (ConfigMismatch, has_best, manager, read_config,
                                     restore_agent)
 

@@ -9,7 +9,7 @@ from typing import Any, NamedTuple
 
 import orbax.checkpoint as ocp
 
-from mjx_hopper import train
+from mjx_hopper.core import train
 from mjx_hopper.store.failures import SaveFailed, first_line
 from mjx_hopper.store.items import ConfigMismatch, read_config, restore, restore_best, save
 from mjx_hopper.store.manifests import damage, finish

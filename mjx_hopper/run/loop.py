@@ -1,7 +1,7 @@
 """The host loop: compiled training chunks, and between them the checks, logs, evaluations, PBT
 steps, checkpoints and progress.
 
-    from mjx_hopper import loop
+    from mjx_hopper.run import loop
     result = loop.run(loop.RunConfig(env="Hopper", agent="d4pg", total_env_steps=200_000))
 """
 
@@ -21,12 +21,15 @@ import numpy as np
 from tqdm.auto import tqdm
 
 import mjx_hopper
-from mjx_hopper import agents, distributed, pbt, runlock, runs, start, store, sweep, train
-from mjx_hopper.config import RunConfig
-from mjx_hopper.evaluator import Evaluator
-from mjx_hopper.logger import Logger, check_services
-from mjx_hopper.members import Members
-from mjx_hopper.stop import StopRequest
+from mjx_hopper import agents, store
+from mjx_hopper.core import pbt, start, train
+from mjx_hopper.core.evaluator import Evaluator
+from mjx_hopper.core.members import Members
+from mjx_hopper.process import distributed, runlock
+from mjx_hopper.process.stop import StopRequest
+from mjx_hopper.run import runs, sweep
+from mjx_hopper.run.logger import Logger, check_services
+from mjx_hopper.settings.config import RunConfig
 from mjx_hopper.store.run_folder import RunFolder, check_processes, config_item
 
 ProgressFn = Callable[[int, dict], Any]

@@ -8,8 +8,8 @@ import dataclasses
 import jax
 import numpy as np
 
-from mjx_hopper import distributed
-from mjx_hopper.fields import check_types
+from mjx_hopper.core.fields import check_types
+from mjx_hopper.process import distributed
 
 
 @dataclasses.dataclass(frozen=True)

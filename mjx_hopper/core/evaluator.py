@@ -11,7 +11,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
 
-from mjx_hopper import distributed, train
+from mjx_hopper.core import train
+from mjx_hopper.process import distributed
 
 MAX_PENDING = 3  # evaluations running on the host beyond which training waits for the oldest
 

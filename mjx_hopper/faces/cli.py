@@ -39,7 +39,7 @@ def main(argv: list[str] | None = None) -> None:
   args = build_parser().parse_args(argv)
   try:
     if getattr(args, "help", False):  # train's or sweep's, once every flag is read
-      from mjx_hopper import flags
+      from mjx_hopper.settings import flags
       bases = {args.command: flags.base_config(args, args.command)}
       build_parser(bases).parse_args([args.command]).parser.print_help()
       return
@@ -153,13 +153,14 @@ def _member(text: str) -> int | str:
 
 
 def _run_flags(t: argparse.ArgumentParser, base, sweep: bool = False) -> None:
-  from mjx_hopper import flags
+  from mjx_hopper.settings import flags
   flags.add_run_flags(t, base, sweep)
 
 
 def train(args: argparse.Namespace) -> None:
   """Trains an agent: progress, log.csv, checkpoints, evaluations and curves.png."""
-  from mjx_hopper import flags, loop
+  from mjx_hopper.run import loop
+  from mjx_hopper.settings import flags
   loop.run(flags.run_config(args, "train"), checkpoint_dir=args.checkpoint_dir,
            progress=not args.no_progress)
 
@@ -167,7 +168,9 @@ def train(args: argparse.Namespace) -> None:
 def sweep(args: argparse.Namespace) -> None:
   """Trains a sweep's members at once: log.csv (a row per member per chunk and evaluation),
   curves.png, a ranking, checkpoints; with --distributed, over several processes as one."""
-  from mjx_hopper import distributed, flags, loop
+  from mjx_hopper.process import distributed
+  from mjx_hopper.run import loop
+  from mjx_hopper.settings import flags
   if args.seeds is not None and args.seeds < 1:
     raise ValueError(f"--seeds must be >= 1, got {args.seeds}")
   cluster = distributed.Cluster(args.coordinator, args.num_processes, args.process_id)
@@ -181,7 +184,8 @@ def sweep(args: argparse.Namespace) -> None:
 def settings(args: argparse.Namespace) -> None:
   """Prints every setting: its flag, type, default, the preset's value, and whether a sweep can
   vary it in one compiled program."""
-  from mjx_hopper import agents, config, flags
+  from mjx_hopper import agents
+  from mjx_hopper.settings import config, flags
   base = flags.base_config(args, "train")
   rows = config.settings_table(base, [f for _, f in flags.fields()],
                                f"{base.task_id} {args.preset or 'cpu'}")
@@ -193,24 +197,24 @@ def settings(args: argparse.Namespace) -> None:
 
 def extract(args: argparse.Namespace) -> None:
   """Writes one member of a sweep's checkpoint as a single run's checkpoint."""
-  from mjx_hopper import runs
+  from mjx_hopper.run import runs
   runs.extract(args.checkpoint, args.member, args.out)
 
 
 def export(args: argparse.Namespace) -> None:
   """Writes a checkpoint's policy as one file that runs with NumPy alone (and as ONNX)."""
-  from mjx_hopper import export as export_lib
+  from mjx_hopper.faces import export as export_lib
   path = export_lib.export_checkpoint(args.checkpoint, args.out, member=args.member,
                                       which="latest" if args.latest else "best", env=args.env)
   if args.onnx:
-    from mjx_hopper import export_onnx
+    from mjx_hopper.faces import export_onnx
     print(f"ONNX: {export_onnx.write(path, args.onnx)}")
 
 
 def evaluate(args: argparse.Namespace) -> None:
   """Evaluates the policy of a checkpoint, an exported file or a pretrained robot, and films
   episode 0."""
-  from mjx_hopper import export as export_lib
+  from mjx_hopper.faces import export as export_lib
   if args.pretrained is not None:
     export_lib.evaluate_file(export_lib.pretrained_path(args.pretrained), args.episodes,
                              args.seed, args.video, env=args.env)
@@ -218,7 +222,7 @@ def evaluate(args: argparse.Namespace) -> None:
     export_lib.evaluate_file(args.policy, args.episodes, args.seed, args.video or VIDEO,
                              env=args.env)
   else:
-    from mjx_hopper import runs
+    from mjx_hopper.run import runs
     runs.evaluate_checkpoint(args.checkpoint, args.member, args.episodes, args.seed,
                              args.video or VIDEO, which="latest" if args.latest else "best",
                              env=args.env)
@@ -226,7 +230,7 @@ def evaluate(args: argparse.Namespace) -> None:
 
 def plot(args: argparse.Namespace) -> None:
   """Draws the learning curves of runs, or of a sweep's members, on one figure."""
-  from mjx_hopper import curves
+  from mjx_hopper.run import curves
   out = args.out or (os.path.join(args.runs[0], "curves.png") if len(args.runs) == 1
                      else "curves.png")
   print(f"learning curves: {curves.plot_runs(args.runs, out, args.x)}")
@@ -234,7 +238,7 @@ def plot(args: argparse.Namespace) -> None:
 
 def demo(args: argparse.Namespace) -> None:
   """Batched random-action rollout: prints env steps/s, writes an mp4 of one episode."""
-  from mjx_hopper import rollout
+  from mjx_hopper.core import rollout
   if args.num_envs < 1 or args.steps < 1:
     raise ValueError("--num-envs and --steps must be >= 1")
   rollout.demo(args.env, args.num_envs, args.steps, args.seed, args.out)
@@ -266,7 +270,7 @@ def _cpu_devices(argv: list[str]) -> int | None:
   pre.add_argument("--cpu-devices", default=None)
   value = pre.parse_known_args(argv)[0].cpu_devices
   if value is None:
-    from mjx_hopper import jax_private
+    from mjx_hopper.process import jax_private
     return None if jax_private.backends_started() else os.cpu_count() or 1
   return int(value) if value.isdigit() and int(value) >= 1 else None
 

@@ -2,7 +2,7 @@
 over its seeds, with the 95% interval of that mean) against env steps or wall time. A run and a
 sweep draw their own at the end (curves.png); `mjx-hopper plot` draws several on one figure.
 
-    from mjx_hopper import curves
+    from mjx_hopper.run import curves
     curves.plot_runs(["runs/a", "runs/b"], "runs/ab.png", x="wall_s")
 """
 

@@ -2,7 +2,8 @@
 agent, its settings, the trainer's layout and how long to train. Each `why` names the commit
 holding its evidence.
 
-    from mjx_hopper import loop, presets
+    from mjx_hopper.run import loop
+    from mjx_hopper.settings import presets
     cfg = presets.run_config("Walker2D", "gpu")   # trains long enough to reach its target
     loop.run(cfg)
 
@@ -13,8 +14,9 @@ from __future__ import annotations
 
 import dataclasses
 
-from mjx_hopper import envs, train
-from mjx_hopper.config import RunConfig
+from mjx_hopper import envs
+from mjx_hopper.core import train
+from mjx_hopper.settings.config import RunConfig
 
 KINDS = ("gpu", "cpu")
 

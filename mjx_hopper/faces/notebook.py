@@ -2,7 +2,8 @@
 policy, inline videos (side by side, too), the NMA notebook's per-step reward plot, a run's learning
 curve, and the tiny settings the tests run the notebook with.
 
-    from mjx_hopper import loop, notebook
+    from mjx_hopper.faces import notebook
+    from mjx_hopper.run import loop
     result = loop.run(cfg)
     episodes = notebook.evaluate(result, num_episodes=5)  # its best evaluation's policy
     notebook.video(result.trainer.env, episodes, "policy.mp4")
@@ -20,8 +21,10 @@ import html
 import jax
 import numpy as np
 
-from mjx_hopper import agents, loop, rollout, train
+from mjx_hopper import agents
+from mjx_hopper.core import rollout, train
 from mjx_hopper.envs import render
+from mjx_hopper.run import loop
 
 TINY_TRAIN = train.TrainConfig(num_envs=4, unroll_length=2, batch_size=8, replay_ratio=2.0,
                                replay_size=64, min_replay=24, iterations_per_chunk=5)

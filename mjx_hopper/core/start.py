@@ -10,7 +10,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from mjx_hopper import train
+from mjx_hopper.core import train
 
 
 # The fewest cores on which the evaluation is traced while the chunk compiles: one for the

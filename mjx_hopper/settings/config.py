@@ -1,7 +1,7 @@
 """A run's settings in one frozen dataclass. Each field carries its default, type and help, and
-the command line is made from them (`mjx_hopper.cli`).
+the command line is made from them (`mjx_hopper.faces.cli`).
 
-    from mjx_hopper import config
+    from mjx_hopper.settings import config
     cfg = config.RunConfig(env="Hopper", agent="d4pg", total_env_steps=200_000)
 """
 
@@ -15,9 +15,9 @@ from typing import Any
 
 import mjx_hopper
 from mjx_hopper import agents, envs
-from mjx_hopper.fields import setting
-from mjx_hopper.pbt import PBT
-from mjx_hopper.train import TrainConfig
+from mjx_hopper.core.fields import setting
+from mjx_hopper.core.pbt import PBT
+from mjx_hopper.core.train import TrainConfig
 
 EVAL_ON = ("auto", "host", "train")
 # What a saved config holds besides RunConfig's fields (a checkpoint's config item, config.json).

@@ -17,8 +17,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
 
-from mjx_hopper import parallel, replay, rollout
-from mjx_hopper.fields import check_types, setting
+from mjx_hopper.core import parallel, replay, rollout
+from mjx_hopper.core.fields import check_types, setting
 from mjx_hopper.agents.base import Agent
 from mjx_hopper.envs import EpisodeStarts, LocomotionEnv
 

@@ -1,7 +1,7 @@
 """Batch sweeps: S members (seeds x values of dynamic settings) trained at once, as the leading
 axis of one TrainState in one compiled program.
 
-    from mjx_hopper import curves, loop, runs, sweep
+    from mjx_hopper.run import curves, loop, runs, sweep
     cfg = loop.RunConfig(env="Hopper", agent="d4pg", seeds=(0, 1, 2, 3),
                          grid={"learning_rate": (1e-4, 3e-4)}, out_dir="runs/sweep")
     result = loop.run(cfg)                       # 8 members; log.csv has one row per member
@@ -29,10 +29,10 @@ import time
 
 import numpy as np
 
-from mjx_hopper import curves
-from mjx_hopper.curves import group_label, mean_interval
-from mjx_hopper.logger import RETURNS
-from mjx_hopper.runs import check_which
+from mjx_hopper.run import curves
+from mjx_hopper.run.curves import group_label, mean_interval
+from mjx_hopper.run.logger import RETURNS
+from mjx_hopper.run.runs import check_which
 
 
 def member_evaluations(rows: list[dict], which: str = "best") -> dict[int, float]:

@@ -10,8 +10,9 @@ from typing import Any, NamedTuple
 import jax
 import numpy as np
 
-from mjx_hopper import agents, envs, store, train
-from mjx_hopper.config import TRAINER_DYNAMIC, RunConfig
+from mjx_hopper import agents, envs, store
+from mjx_hopper.core import train
+from mjx_hopper.settings.config import TRAINER_DYNAMIC, RunConfig
 from mjx_hopper.store.run_folder import RunFolder, Saved, config_item, open_checkpoints
 
 

@@ -32,7 +32,7 @@ def setup(compile_cache: str | None = None, cpu_devices: int | None = None) -> s
   """
   if cpu_devices is not None and cpu_devices < 1:
     raise ValueError(f"cpu_devices must be >= 1, got {cpu_devices}")
-  from mjx_hopper import jax_private  # imports no JAX
+  from mjx_hopper.process import jax_private  # imports no JAX
   started = jax_private.backends_started()
   if not started:
     os.environ.update(settings_before_start(platform.system(), os.environ, cpu_devices))

@@ -1,6 +1,6 @@
 """A trained policy as one .npz file that runs with NumPy alone.
 
-    from mjx_hopper import export
+    from mjx_hopper.faces import export
     export.export_checkpoint("runs/train/checkpoints", "policy.npz")   # needs JAX
     policy = export.load("policy.npz")                                # NumPy only
     action = policy(obs)                  # (O,) -> (A,), or a batch (N, O) -> (N, A)
@@ -209,7 +209,7 @@ def export_checkpoint(directory: str, out: str, member: int | str | None = None,
   single run. `env` is the run's task, for a class that cannot be imported (see
   `loop.resume`). Errors are one-line ValueErrors or FileNotFoundErrors, and nothing is
   written."""
-  from mjx_hopper import runs
+  from mjx_hopper.run import runs
 
   cfg, state, trainer, saved, position, best = runs.load_member(directory, member, env, which,
                                                                 print_fn)
@@ -276,7 +276,7 @@ def evaluate_file(path: str, episodes: int = 16, seed: int = 0, video_path: str 
   import jax
   import jax.numpy as jnp
 
-  from mjx_hopper import rollout
+  from mjx_hopper.core import rollout
   from mjx_hopper.envs import render
 
   if frame_every < 1:

@@ -1,7 +1,7 @@
-"""An exported policy (`mjx_hopper.export`) as an ONNX model, for ONNX Runtime and the runtimes
-that read ONNX.
+"""An exported policy (`mjx_hopper.faces.export`) as an ONNX model, for ONNX Runtime and the
+runtimes that read ONNX.
 
-    from mjx_hopper import export_onnx
+    from mjx_hopper.faces import export_onnx
     export_onnx.write("policy.npz", "policy.onnx")
 
 The model is built from the file's layers with `onnx.helper`, operator by operator, as
@@ -17,7 +17,7 @@ import os
 
 import numpy as np
 
-from mjx_hopper import export
+from mjx_hopper.faces import export
 
 OPSET = 17  # the first with LayerNormalization
 

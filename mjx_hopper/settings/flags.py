@@ -8,10 +8,10 @@ import argparse
 import ast
 import dataclasses
 
-from mjx_hopper import config, presets
-from mjx_hopper.config import RunConfig
-from mjx_hopper.pbt import PBT
-from mjx_hopper.train import TrainConfig
+from mjx_hopper.core.pbt import PBT
+from mjx_hopper.core.train import TrainConfig
+from mjx_hopper.settings import config, presets
+from mjx_hopper.settings.config import RunConfig
 
 
 def fields() -> list:
@@ -38,7 +38,7 @@ def add_run_flags(t: argparse.ArgumentParser, base, sweep: bool = False) -> None
     t.add_argument(flag_name(f), dest=f.name, type=kind, default=argparse.SUPPRESS,
                    help=f.metadata["help"] + ("" if base is None else f" (default: {now})"))
   t.add_argument("--preset", default=None,
-                 help="the robot's settings: cpu or gpu (mjx_hopper.presets); default cpu")
+                 help="the robot's settings: cpu or gpu (mjx_hopper.settings.presets); default cpu")
   t.add_argument("--config", default=None, metavar="FILE",
                  help="start from a run's saved config.json instead of a preset")
   t.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
