@@ -48,7 +48,7 @@ class Timed:
   """`jitted(state, *args) -> (state, out)` traced and compiled (trace_s, compile_s) and called
   once to warm up. Calling this object runs it `n` times more, each call from the state the last
   left, and returns their seconds (one wait, at the end); `out` is the last call's output. With
-  a `trainer`, `jitted` is its chunk, and each call refills the episode starts before it, as a
+  a `trainer`, `jitted` is its chunk, and each call refills the episode starts after it, as a
   run does."""
 
   def __init__(self, jitted, state, *args, trainer=None):
@@ -65,9 +65,9 @@ class Timed:
     import jax
     start = time.perf_counter()
     for _ in range(n):
+      self.state, self.out = self.compiled(self.state, *self.args)
       if self.refill is not None:
         self.state = self.state._replace(env=self.refill(self.state.env))
-      self.state, self.out = self.compiled(self.state, *self.args)
     jax.block_until_ready((self.state, self.out))
     return time.perf_counter() - start
 

@@ -58,10 +58,10 @@ class EpisodeStarts(Wrapper):
   computes no reset: for one env, vmapped over a batch.
 
   `state.info["starts"]` holds `starts` first states and `info["starts_used"]` counts those
-  taken. `refill` makes them anew from `env.reset` with fresh keys; call it before each run of
-  steps (`reset` leaves copies of the episode's own first state). An env that ends more than
-  `starts` episodes between two refills takes its starts again, in turn. After a step that ends
-  an episode, the state is as AutoReset's.
+  taken. `reset` and `refill` make them from `env.reset` with fresh keys: call `refill` after
+  each run of steps. An env that ends more than `starts` episodes between two refills
+  takes its starts again, in turn. After a step that ends an episode, the state is as
+  AutoReset's.
   """
 
   def __init__(self, env, starts: int):
@@ -86,11 +86,8 @@ class EpisodeStarts(Wrapper):
   def reset(self, rng: jax.Array) -> State:
     rng, key = jax.random.split(rng)
     state = self.env.reset(key)
-    starts = jax.tree.map(lambda x: jnp.broadcast_to(x, (self.starts,) + x.shape),
-                          self._first(state))
-    state.info.update(rng=rng, final_obs=state.obs, starts=starts,
-                      starts_used=jnp.zeros((), jnp.int32))
-    return state
+    state.info.update(rng=rng, final_obs=state.obs)
+    return self.refill(state)
 
   def refill(self, state: State) -> State:
     """`state` with `starts` new first states, none used."""

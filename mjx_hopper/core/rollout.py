@@ -90,9 +90,9 @@ def _where_rows(rows: jax.Array, new: jax.Array, old: jax.Array) -> jax.Array:
 
 
 def make_stepper(env: LocomotionEnv, num_envs: int, steps: int):
-  """Compiled `init(key) -> state` and `run(state, key) -> (state, summed reward)`, which makes
-  fresh episode starts, then steps `num_envs` auto-resetting envs `steps` times with random
-  actions over the local devices: as a training chunk does."""
+  """Compiled `init(key) -> state` and `run(state, key) -> (state, summed reward)`, which steps
+  `num_envs` auto-resetting envs `steps` times with random actions over the local devices, then
+  makes fresh episode starts: as a training chunk and its refill do."""
   env = EpisodeStarts.for_steps(env, steps)
   policy = random_policy(env.action_size)
 
@@ -100,14 +100,12 @@ def make_stepper(env: LocomotionEnv, num_envs: int, steps: int):
     return parallel.shard(jax.vmap(env.reset)(jax.random.split(key, num_envs)))
 
   def local_run(state, env_keys):
-    state = jax.vmap(env.refill)(state)
-
     def one_step(state, t):
       step_keys = jax.vmap(jax.random.fold_in, (0, None))(env_keys, t)
       state = jax.vmap(env.step)(state, jax.vmap(policy)(state.obs, step_keys))
       return state, state.reward
     state, rewards = jax.lax.scan(one_step, state, jnp.arange(steps))
-    return state, rewards.sum(0)
+    return jax.vmap(env.refill)(state), rewards.sum(0)
 
   def run(state, key):
     state, rewards = parallel.per_device(local_run, num_envs)(

@@ -104,8 +104,8 @@ class Trainer(NamedTuple):
   chunk(state) -> (state, metrics (S,)): `iterations_per_chunk` iterations; metrics: the agent's
     metrics averaged over the chunk, "episodes" ended, their mean "episode_return" (NaN if
     none) and "learning".
-  refill(env states) -> env states: fresh episode starts, made before each chunk
-    (EpisodeStarts).
+  refill(env states) -> env states: fresh episode starts for the next chunk, made after each
+    (EpisodeStarts; `init`'s states have theirs).
   evaluate(agent_states, keys) -> "return", "length" (S, episodes).
   shardings: each TrainState part's NamedSharding.
   """
@@ -121,8 +121,9 @@ class Trainer(NamedTuple):
   shardings: TrainState          # of NamedSharding
 
   def train_chunk(self, state: TrainState) -> tuple[TrainState, dict]:
-    """Fresh episode starts, then a chunk: (state, metrics)."""
-    return self.chunk(state._replace(env=self.refill(state.env)))
+    """A chunk, then fresh episode starts for the next: (state, metrics)."""
+    state, metrics = self.chunk(state)
+    return state._replace(env=self.refill(state.env)), metrics
 
 
 def mesh_shape(num_members: int, num_devices: int) -> tuple[int, int]:

@@ -175,6 +175,7 @@ def _train(p: _Parts, state: train.TrainState, progress: bool, stop, user: "_Use
     asked |= _log_train(p, user, state, env_steps, rate, metrics)
     if members.all_diverged():
       break  # this state is not evaluated, and never saved
+    state = p.chunk.refill(state)  # after the row: its program may still be compiling
     last, signalled, saving = distributed.agree(
         asked or p.until.reached(env_steps), stop.requested, p.saver.due())
     _signalled_elsewhere(stop, signalled)
@@ -272,8 +273,8 @@ def _open(cfg: RunConfig, checkpoint_dir: str | None, say, progress_fn):
 
 
 class _Chunk:
-  """Runs one compiled chunk, and freezes a sweep's members that diverged in it at their agents
-  before it."""
+  """Runs one compiled chunk and the refill of its episode starts, and freezes a sweep's members
+  that diverged in it at their agents before it."""
 
   def __init__(self, started: start.Started | None, evaluator: Evaluator, members: Members):
     self.program, self._refill, self._finite = (
@@ -285,9 +286,12 @@ class _Chunk:
     """(state after the chunk, its metrics on the host, a sweep's agents before it (None for a
     single run, which stops when it diverges))."""
     before = None if self.single else self._copy(state.agent)
-    state = state._replace(env=self._refill.result()(state.env))  # its episode starts
     state, metrics = self.program.result()(state)
     return state, distributed.gather(metrics), before
+
+  def refill(self, state: train.TrainState) -> train.TrainState:
+    """`state` with fresh episode starts for the next chunk."""
+    return state._replace(env=self._refill.result()(state.env))
 
   def finite(self, agent) -> np.ndarray:
     """(members,): whether every float of each member's `agent` is finite."""
