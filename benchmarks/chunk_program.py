@@ -1,7 +1,9 @@
 """The training chunk as a program: its size, its compile time and its steady env steps/s, for a
 robot's preset, here and (with --checkout DIR) in another checkout, in turns, each in a fresh
 process with an empty compile cache. The episode starts' refill, where the code has one, is
-compiled and timed with it.
+compiled and timed with it. With --split, it also times compiling the chunk as two programs in
+two threads, its collection (acting, env steps, replay insert) and its learning (replay samples,
+updates), against the one program: what splitting the chunk would bring to a run's start.
 
     python benchmarks/chunk_program.py --checkout /tmp/before --checkout-name d8161c9
     bash benchmarks/gpu.sh "python benchmarks/chunk_program.py --kind gpu --label h100 ..."
@@ -9,6 +11,7 @@ compiled and timed with it.
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import statistics
@@ -29,8 +32,7 @@ def measure(args) -> dict:
       mjx_hopper.use_compile_cache(cache)
     import jax
 
-    from mjx_hopper.run import runs
-    from mjx_hopper.settings import presets
+    runs, presets = common.project_module("run.runs"), common.project_module("settings.presets")
     cfg = presets.run_config(args.env, args.kind)
     trainer = runs.build(cfg)
     state = runs.init(cfg, trainer, cfg.members())
@@ -50,6 +52,68 @@ def measure(args) -> dict:
     steps = cfg.train.steps_per_iteration * cfg.train.iterations_per_chunk * args.chunks
     figures["env_steps_per_s"] = steps / seconds
     figures["platform"] = jax.devices()[0].platform
+    if args.split:
+      figures.update(split_compile(trainer, timed.state))
+  return figures
+
+
+def split_compile(trainer, state) -> dict:
+  """Seconds to compile the chunk's collection and learning as two programs at once, in two
+  threads (XLA's compile releases Python's lock): each, and both."""
+  import concurrent.futures
+  import time
+
+  import jax
+
+  from mjx_hopper.core import replay, train
+  from mjx_hopper.envs import EpisodeStarts
+
+  cfg, agent = trainer.config, trainer.agent
+  where = train.layout(trainer.num_members, jax.devices())
+  train_env = EpisodeStarts.for_steps(trainer.env, cfg.unroll_length * cfg.iterations_per_chunk)
+  members = where.members
+
+  def collection(state):
+    def iteration(state, _):
+      key, act_key = members(lambda k: tuple(jax.random.split(k)))(state.key)
+      env, ret, steps, _ = members(functools.partial(
+          train.collect, agent, train_env, cfg.unroll_length))(
+              state.agent, state.env, state.episode_return, act_key)
+      return state._replace(env=env, episode_return=ret, key=key,
+                            replay=members(replay.insert)(state.replay, steps)), None
+    return jax.lax.scan(iteration, state, None, length=cfg.iterations_per_chunk)[0]
+
+  def learning(state):
+    learn = functools.partial(train.learn, agent, cfg, where, False)
+
+    def iteration(state, _):
+      key, learn_key = members(lambda k: tuple(jax.random.split(k)))(state.key)
+      agent_state, metrics = members(lambda a, b, k: learn(a, b, k, cfg.updates_per_iteration))(
+          state.agent, state.replay, learn_key)
+      return state._replace(agent=agent_state, key=key), metrics
+    state, metrics = jax.lax.scan(iteration, state, None, length=cfg.iterations_per_chunk)
+    return state, jax.tree.map(lambda m: m.mean(0), metrics)
+
+  member_metrics = jax.sharding.PartitionSpec(train.MEMBERS)
+  programs = {
+      "collection": jax.shard_map(collection, mesh=where.mesh, in_specs=(where.specs,),
+                                  out_specs=where.specs, check_vma=False),
+      "learning": jax.shard_map(learning, mesh=where.mesh, in_specs=(where.specs,),
+                                out_specs=(where.specs, member_metrics), check_vma=False)}
+  shapes = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=x.sharding),
+                        state)
+  lowered = {name: jax.jit(fn, donate_argnums=0).lower(shapes) for name, fn in programs.items()}
+
+  def compile_s(low):
+    start = time.perf_counter()
+    low.compile()
+    return time.perf_counter() - start
+  # Both at once, each timed in its thread (a second compile would come from the cache).
+  start = time.perf_counter()
+  with concurrent.futures.ThreadPoolExecutor(2) as pool:
+    seconds = dict(zip(lowered, pool.map(compile_s, lowered.values())))
+  figures = {f"{name}_compile_s": s for name, s in seconds.items()}
+  figures["split_compile_s"] = time.perf_counter() - start
   return figures
 
 
@@ -72,8 +136,10 @@ def main() -> None:
   p.add_argument("--checkout", default=None, help="another checkout's folder to time beside")
   p.add_argument("--checkout-name", default=None, help="its name in the results")
   p.add_argument("--label", default="cpu")
+  p.add_argument("--split", action="store_true",
+                 help="also compile the chunk as two programs (this checkout only)")
   args = common.parse(p, measure)
-  work = {"env": args.env, "kind": args.kind, "chunks": args.chunks}
+  work = {"env": args.env, "kind": args.kind, "chunks": args.chunks, "split": args.split}
   codes = {"this checkout": None}
   with tempfile.TemporaryDirectory(prefix="chunk_program_") as installed:
     if args.checkout:

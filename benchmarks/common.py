@@ -82,6 +82,16 @@ def installed_layout(checkout: str, folder: str) -> str:
   return folder
 
 
+def project_module(dotted: str):
+  """The project's module `dotted` ("run.runs"), or in a checkout from before the floors'
+  sub-packages, its flat namesake ("runs"): for timing another checkout beside this one."""
+  import importlib
+
+  import mjx_hopper
+  floors = os.path.isdir(os.path.join(mjx_hopper.__path__[0], "run"))
+  return importlib.import_module("mjx_hopper." + (dotted if floors else dotted.split(".")[-1]))
+
+
 def worker(script: str, args: dict, devices: int, gpus: bool = True):
   """What `python SCRIPT --worker ARGS` (`args` as JSON) prints last, as JSON, run in a process of
   its own with XLA:CPU split into `devices` devices (XLA reads its flags at start-up) and, with

@@ -31,11 +31,13 @@ events = []
 def listen(event, duration, fun_name="?", **kwargs):
   events.append((time.time(), event.rsplit("/", 1)[-1], fun_name, duration))
 jax.monitoring.register_event_duration_secs_listener(listen)
-import mjx_hopper.run.loop
+import importlib, os, mjx_hopper
+floors = os.path.isdir(os.path.join(mjx_hopper.__path__[0], "run"))  # else a checkout before them
+importlib.import_module("mjx_hopper.run.loop" if floors else "mjx_hopper.loop")
+cli = importlib.import_module("mjx_hopper.faces.cli" if floors else "mjx_hopper.cli")
 imported = time.time()
 record = sys.argv[1]
 atexit.register(lambda: json.dump({"imported": imported, "events": events}, open(record, "w")))
-from mjx_hopper.faces import cli
 sys.argv = ["mjx-hopper"] + sys.argv[2:]
 cli.main()
 """

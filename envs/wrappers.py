@@ -85,9 +85,14 @@ class EpisodeStarts(Wrapper):
 
   def reset(self, rng: jax.Array) -> State:
     rng, key = jax.random.split(rng)
-    state = self.env.reset(key)
-    state.info.update(rng=rng, final_obs=state.obs)
-    return self.refill(state)
+    # The episode's first state and its starts from one batch of resets: one reset in the
+    # program, which compiles in half the time of two.
+    firsts = jax.vmap(self.env.reset)(jax.random.split(key, self.starts + 1))
+    state = jax.tree.map(lambda x: x[0], firsts)
+    state.info.update(rng=rng, final_obs=state.obs,
+                      starts=self._first(jax.tree.map(lambda x: x[1:], firsts)),
+                      starts_used=jnp.zeros((), jnp.int32))
+    return state
 
   def refill(self, state: State) -> State:
     """`state` with `starts` new first states, none used."""

@@ -30,7 +30,7 @@ def state(step: int, rows: int = 256) -> train.TrainState:
 if __name__ == "__main__":
   mngr = store.manager(sys.argv[1])
   store.save(mngr, state(1), CONFIG)
-  store.finish(mngr)
+  store.wait_and_record(mngr)
   # About 1 GB of random floats (zstd cannot shrink them): seconds of writing.
   big = state(2, rows=4_000_000)._replace(
       replay=jax.random.normal(jax.random.PRNGKey(0), (4_000_000, 64)))

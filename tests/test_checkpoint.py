@@ -33,7 +33,7 @@ def saved_steps(directory, *steps):
   mngr = store.manager(str(directory))
   for step in steps:
     store.save(mngr, state(step), CONFIG)
-  store.finish(mngr)
+  store.wait_and_record(mngr)
   return mngr
 
 
@@ -59,12 +59,12 @@ def test_killed_mid_save_keeps_the_previous_checkpoint(tmp_path):
   assert leftovers, "the kill came after step 2 was finished: make it bigger"
   mngr = store.manager(str(directory))
   assert mngr.all_steps() == [1]
-  assert_same(store.resume(mngr, state(0), CONFIG)[:2], (state(1), 1))
+  assert_same(store.read_latest(mngr, state(0), CONFIG)[:2], (state(1), 1))
   # The next run resumes from step 1 and saves over the half-written step.
   store.save(mngr, state(2), CONFIG)
-  store.finish(mngr)
+  store.wait_and_record(mngr)
   assert mngr.all_steps() == [1, 2]
-  assert_same(store.resume(store.manager(str(directory)), state(0), CONFIG)[:2],
+  assert_same(store.read_latest(store.manager(str(directory)), state(0), CONFIG)[:2],
               (state(2), 2))
 
 
@@ -84,17 +84,17 @@ def test_a_failed_save_keeps_the_earlier_checkpoint_and_no_partial_files(tmp_pat
     full_disk(patch)
     with pytest.raises(store.SaveFailed) as failed:
       store.save(mngr, state(2), CONFIG)
-      store.finish(mngr)
+      store.wait_and_record(mngr)
   assert str(failed.value) == (f"checkpoint step 2 was not saved in {directory}: No space left "
                                "on device (ENOSPC); step 1, saved before it, is intact")
   assert sorted(os.listdir(directory)) == ["1", "manifests"]  # no *.orbax-checkpoint-tmp
   err = capfd.readouterr().err  # orbax's tracebacks of it are left out
   assert "Traceback" not in err and "never retrieved" not in err, err
   # The earlier checkpoint resumes bit for bit, and the next save works.
-  assert_same(store.resume(store.manager(str(directory)), state(0), CONFIG)[:2],
+  assert_same(store.read_latest(store.manager(str(directory)), state(0), CONFIG)[:2],
               (state(1), 1))
   store.save(mngr, state(3), CONFIG)
-  store.finish(mngr)
+  store.wait_and_record(mngr)
   assert mngr.all_steps() == [1, 3]
 
 
@@ -130,7 +130,7 @@ def test_a_run_keeps_training_through_failed_saves_and_its_last_one_raises(tmp_p
   saver.save(state(5), None, Record())
   saver.finish(state(5))
   assert lines[2:] == [f"checkpoint step 5 is saved in {tmp_path}, after 2 failed save(s)"]
-  assert_same(store.resume(store.manager(str(tmp_path)), state(0), CONFIG)[:2],
+  assert_same(store.read_latest(store.manager(str(tmp_path)), state(0), CONFIG)[:2],
               (state(5), 5))
 
 
@@ -173,7 +173,7 @@ def test_unreadable_newest_step_falls_back_and_names_the_file(tmp_path, fault):
   else:
     os.remove(victim)
   lines = []
-  restored, step, best, record = store.resume(
+  restored, step, best, record = store.read_latest(
       store.manager(str(directory)), state(0), CONFIG, print_fn=lines.append)
   assert_same(restored, state(1))
   assert best is None and record == {}  # saved without either
@@ -190,7 +190,7 @@ def test_every_step_unreadable_is_an_error_that_overwrites_nothing(tmp_path):
   os.remove(newest_data_file(directory, 1))
   before = sorted(os.listdir(directory))
   with pytest.raises(ValueError, match="no readable checkpoint .* nothing was overwritten"):
-    store.resume(store.manager(str(directory)), state(0), CONFIG, print_fn=print)
+    store.read_latest(store.manager(str(directory)), state(0), CONFIG, print_fn=print)
   assert sorted(os.listdir(directory)) == before
 
 
@@ -204,7 +204,7 @@ def test_a_state_laid_out_otherwise_is_named_and_nothing_is_overwritten(tmp_path
   fresh = fresh._replace(agent={**fresh.agent, "new_setting": jax.numpy.zeros(())})
   lines = []
   with pytest.raises(ValueError, match="no readable checkpoint .* nothing was overwritten"):
-    store.resume(store.manager(str(directory)), fresh, CONFIG, print_fn=lines.append)
+    store.read_latest(store.manager(str(directory)), fresh, CONFIG, print_fn=lines.append)
   assert len(lines) == 1 and "laid out otherwise than this version of mjx_hopper's" in lines[0]
   assert store.manifests.files(str(directory)) == files
 
@@ -216,7 +216,7 @@ def test_missing_or_empty_directory_starts_fresh(tmp_path, make):
     directory.mkdir()
   lines = []
   fresh = state(0)
-  restored, step, _, _ = store.resume(store.manager(str(directory)), fresh, CONFIG,
+  restored, step, _, _ = store.read_latest(store.manager(str(directory)), fresh, CONFIG,
                                            print_fn=lines.append)
   assert restored is fresh and step is None
   assert lines == [f"no checkpoint in {directory}: starting a fresh run"]
@@ -231,7 +231,7 @@ def test_another_config_is_refused_naming_it_and_nothing_is_overwritten(tmp_path
   with pytest.raises(store.ConfigMismatch,
                      match=f"from another config \\({key}: saved {CONFIG[key]!r}, now "
                            f"{change[key]!r}\\)"):
-    store.resume(store.manager(str(directory)), state(0), {**CONFIG, **change})
+    store.read_latest(store.manager(str(directory)), state(0), {**CONFIG, **change})
   assert store.manifests.files(str(directory)) == files
 
 
@@ -243,16 +243,16 @@ def test_a_checkpoint_without_a_newer_setting_resumes_at_its_default(tmp_path):
   directory = tmp_path / "ckpt"
   mngr = store.manager(str(directory))
   store.save(mngr, state(1), {**CONFIG, "agent_config": older})
-  store.finish(mngr)
+  store.wait_and_record(mngr)
   defaults = {"agent_config": loop._field_defaults(agents.config("d4pg"))}
   assert defaults["agent_config"]["compute_dtype"] == "float32"
-  assert_same(store.resume(store.manager(str(directory)), state(0),
+  assert_same(store.read_latest(store.manager(str(directory)), state(0),
                                 {**CONFIG, "agent_config": now}, print_fn=lambda _: None,
                                 defaults=defaults)[0], state(1))
   other = {**CONFIG, "agent_config": {**now, "compute_dtype": "bfloat16"}}
   with pytest.raises(store.ConfigMismatch, match="agent_config: saved .*'float32'.*"
                                                       "now .*'bfloat16'"):
-    store.resume(store.manager(str(directory)), state(0), other, defaults=defaults)
+    store.read_latest(store.manager(str(directory)), state(0), other, defaults=defaults)
 
 
 def test_a_checkpoint_records_its_format(tmp_path):
@@ -273,7 +273,7 @@ def test_a_checkpoint_of_another_format_is_refused_in_one_line(tmp_path, monkeyp
   monkeypatch.setattr(store.items, "FORMAT", reads)
   files = store.manifests.files(str(directory))
   with pytest.raises(store.FormatMismatch) as error:
-    store.resume(store.manager(str(directory)), state(0), CONFIG,
+    store.read_latest(store.manager(str(directory)), state(0), CONFIG,
                  print_fn=lambda line: pytest.fail(f"printed {line!r}"))
   message = str(error.value)
   assert "\n" not in message

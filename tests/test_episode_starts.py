@@ -85,15 +85,16 @@ def test_starts_are_drawn_as_env_reset_draws_them(short_hopper, new_episodes):
     np.testing.assert_allclose(ours[:, varies].std(0), spread[varies], rtol=0.1)
 
 
-def test_reset_makes_fresh_starts_as_refill_does(short_hopper):
+def test_reset_makes_fresh_starts(short_hopper):
   wrapped = envs.EpisodeStarts(short_hopper, 2)
   state = jax.jit(wrapped.reset)(jax.random.PRNGKey(0))
-  starts = state.info["starts"]["obs"]
   assert int(state.info["starts_used"]) == 0
-  assert len({tuple(np.asarray(x).round(6)) for x in [state.obs, *starts]}) == 3  # all differ
-  # The same starts as a refill of the state with reset's key before it drew them.
-  before = state.replace(info=dict(state.info, rng=jax.random.split(jax.random.PRNGKey(0))[0]))
-  np.testing.assert_array_equal(jax.jit(wrapped.refill)(before).info["starts"]["obs"], starts)
+  # Drawn as env.reset draws: the episode's first state and its starts, each from its own key.
+  keys = jax.random.split(jax.random.split(jax.random.PRNGKey(0))[1], 3)
+  firsts = jax.jit(jax.vmap(short_hopper.reset))(keys)
+  np.testing.assert_allclose(state.obs, firsts.obs[0], atol=1e-6)
+  np.testing.assert_allclose(state.info["starts"]["obs"], firsts.obs[1:], atol=1e-6)
+  assert len({tuple(np.asarray(x).round(6)) for x in firsts.obs}) == 3  # all differ
 
 
 def test_an_env_that_ends_more_episodes_takes_its_starts_again_in_turn(short_hopper):

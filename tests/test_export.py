@@ -264,7 +264,7 @@ def test_export_of_a_sweep_needs_a_member_it_holds(tmp_path):
   directory = str(tmp_path / "ckpt")
   mngr = store.manager(directory)
   store.save(mngr, fake_state(1), {**TINY.to_json(), "member_indices": [0, 1]})
-  store.finish(mngr)
+  store.wait_and_record(mngr)
   out = tmp_path / "policy.npz"
   with pytest.raises(ValueError, match="holds a sweep of 2 members: give a member's index "
                                        r"\(--member INDEX, or --member best\)"):
@@ -281,7 +281,7 @@ def test_export_of_a_newer_checkpoint_format_writes_nothing(tmp_path, monkeypatc
   monkeypatch.setattr(store.items, "FORMAT", store.items.FORMAT + 1)
   mngr = store.manager(directory)
   store.save(mngr, fake_state(1), CONFIG)
-  store.finish(mngr)
+  store.wait_and_record(mngr)
   monkeypatch.undo()
   with pytest.raises(store.FormatMismatch, match=f"has format {store.items.FORMAT + 1}"):
     export.export_checkpoint(directory, str(tmp_path / "policy.npz"))

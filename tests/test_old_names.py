@@ -65,7 +65,7 @@ def test_a_checkpoint_with_old_names_is_refused_and_kept(tmp_path):
   directory = tmp_path / "ckpt"
   mngr = store.manager(str(directory))
   store.save(mngr, state(1), old_named(config.RunConfig()))
-  store.finish(mngr)
+  store.wait_and_record(mngr)
   files = store.manifests.files(str(directory))
   with pytest.raises(store.ConfigMismatch) as error:
     runs.saved_config(str(directory), print_fn=lambda line: pytest.fail(f"printed {line!r}"))

@@ -27,7 +27,7 @@ def partial(tmp_path_factory):
   record = {"best_return": [1.0, 5.0], "best_env_steps": [40, 40]}
   mngr = store.manager(folder.checkpoints)
   store.save(mngr, state, {**config_item(cfg, [2, 3]), "record": record})
-  store.finish(mngr)
+  store.wait_and_record(mngr)
   return folder.checkpoints, state
 
 
@@ -84,7 +84,7 @@ def test_a_run_over_processes_resumes_on_as_many(tmp_path):
   mngr = store.manager(RunFolder.of(cfg).checkpoints)
   check_processes(mngr, 2)  # nothing saved yet: any number
   store.save(mngr, runs.init(cfg, trainer, cfg.members()), config_item(cfg, [0, 1], 2))
-  store.finish(mngr)
+  store.wait_and_record(mngr)
   check_processes(mngr, 2)
   saved = Saved.read(mngr, mngr.latest_step())  # eval, export and extract read it as any
   assert saved.item["processes"] == 2 and saved.config.to_json() == cfg.to_json()

@@ -37,7 +37,7 @@ class Members:
             "best_return": [None if np.isinf(v) else float(v) for v in self.best_return],
             "best_env_steps": self.best_steps.tolist()}
 
-  def restore(self, record: dict) -> None:
+  def load_record(self, record: dict) -> None:
     """Takes back a saved record (an older checkpoint's may lack parts). A single run's
     divergence is not kept: it stops unsaved, so its checkpoint holds a finite agent."""
     self.values = record.get("values", self.values)

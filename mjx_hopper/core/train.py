@@ -252,8 +252,8 @@ def _make_refill(train_env: EpisodeStarts, where: Layout):
                  donate_argnums=0)
 
 
-def _collect(agent: Agent, train_env: EpisodeStarts, unroll_length: int, agent_state, env_state,
-             episode_return, key):
+def collect(agent: Agent, train_env: EpisodeStarts, unroll_length: int, agent_state, env_state,
+            episode_return, key):
   """One member's envs' steps: (env, return, steps (T, n, ...), ended (count, return sum))."""
   def one(carry, step_key):
     env_state, ep_return = carry
@@ -271,8 +271,8 @@ def _collect(agent: Agent, train_env: EpisodeStarts, unroll_length: int, agent_s
   return env_state, episode_return, steps, jax.tree.map(jnp.sum, ended)
 
 
-def _learn(agent: Agent, cfg: TrainConfig, where: Layout, dynamic_updates: bool, agent_state,
-           buffer, key, n_updates):
+def learn(agent: Agent, cfg: TrainConfig, where: Layout, dynamic_updates: bool, agent_state,
+          buffer, key, n_updates):
   """One member's updates of an iteration, of which the first `n_updates` count: (agent state,
   their mean metrics)."""
   hp = agent_state.hparams
@@ -309,8 +309,8 @@ def _make_chunk(train_env: EpisodeStarts, agent: Agent, cfg: TrainConfig, where:
                 dynamic_updates: bool):
   """Trainer.chunk: `iterations_per_chunk` iterations, under shard_map over the mesh."""
   members, env = where.members, train_env.env
-  collect = functools.partial(_collect, agent, train_env, cfg.unroll_length)
-  learn = functools.partial(_learn, agent, cfg, where, dynamic_updates)
+  member_collect = functools.partial(collect, agent, train_env, cfg.unroll_length)
+  member_learn = functools.partial(learn, agent, cfg, where, dynamic_updates)
   min_rows = max(-(-cfg.min_replay // cfg.num_envs), agent.n_step)
   max_updates = cfg.updates_per_iteration
   metric_shapes = _metric_shapes(env, agent)
@@ -319,7 +319,7 @@ def _make_chunk(train_env: EpisodeStarts, agent: Agent, cfg: TrainConfig, where:
     """The local members' collection and insert, then their updates."""
     key, act_key, learn_key = members(lambda k: tuple(jax.random.split(k, 3)))(state.key)
     act_key = members(lambda k: jax.random.fold_in(k, where.device_index()))(act_key)
-    env_state, ep_return, steps, (ended, ended_return) = members(collect)(
+    env_state, ep_return, steps, (ended, ended_return) = members(member_collect)(
         state.agent, state.env, state.episode_return, act_key)
     buffer = members(replay.insert)(state.replay, steps)
     # The members insert in lockstep, so they all start learning at the same iteration: one
@@ -331,10 +331,10 @@ def _make_chunk(train_env: EpisodeStarts, agent: Agent, cfg: TrainConfig, where:
     if dynamic_updates:
       n_updates = members(lambda ratio: jnp.round(
           ratio * cfg.steps_per_iteration / cfg.batch_size).astype(jnp.int32))(state.replay_ratio)
-      update, args = members(learn), (state.agent, buffer, learn_key, n_updates)
+      update, args = members(member_learn), (state.agent, buffer, learn_key, n_updates)
     else:
       n_updates = max_updates
-      update = members(lambda a, b, k: learn(a, b, k, max_updates))
+      update = members(lambda a, b, k: member_learn(a, b, k, max_updates))
       args = (state.agent, buffer, learn_key)
     agent_state, metrics = jax.lax.cond(learning, update, lambda a, *_: (a, zeros), *args)
     new = state._replace(agent=agent_state, replay=buffer, env=env_state,

@@ -245,10 +245,10 @@ def _open(cfg: RunConfig, checkpoint_dir: str | None, say, progress_fn):
   check_processes(saver.mngr, distributed.count())
   if started is None and (saver.mngr.latest_step() or 0) * per_iteration < cfg.total_env_steps:
     started = start.start(trainer, fresh, evaluator)  # a resumed run that trains on
-  resumed = store.resume(
+  resumed = store.read_latest(
       saver.mngr, started.state.result() if started else fresh(), saved_config, say,
       defaults={"agent_config": _field_defaults(cfg.agent_config()), "env_settings": {}})
-  members.restore(resumed.record)
+  members.load_record(resumed.record)
   evaluator.best = resumed.best
   if primary:
     folder.write_config(saved_config)  # once resuming is agreed
@@ -350,7 +350,7 @@ def _naming_the_checkpoint_at_an_error(parts: _Parts):
     if not isinstance(error, store.SaveFailed):
       mngr = parts.saver.mngr
       try:
-        store.finish(mngr)
+        store.wait_and_record(mngr)
         kept = mngr.latest_step()
         parts.say(f"the run stopped at an error: {mngr.directory} holds "
                   + (f"its checkpoint step {kept}, which resumes it" if kept is not None
@@ -412,7 +412,7 @@ def _finish(p: _Parts, state: train.TrainState, stop) -> Result:
     evaluation = jax.tree.map(lambda x: x[0], evaluation)  # a single run is one member
   folder = RunFolder.of(p.cfg)
   if distributed.primary():
-    p.display.finish(p.logger.rows, folder.path)
+    p.display.summarise(p.logger.rows, folder.path)
   directory = p.saver.mngr.directory
   if p.members.all_diverged():
     kept = p.saver.mngr.latest_step()

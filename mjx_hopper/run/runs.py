@@ -146,8 +146,8 @@ def _restore(directory: str, print_fn, env: Any, with_best: bool = False):
     saved = Saved.read(mngr, step, env)
     members = saved.members()
     trainer = build(saved.config, len(members))
-    state = store.restore(mngr, step, init(saved.config, trainer, members))
-    best = store.restore_best(mngr, step, state.agent) if with_best else None
+    state = store.read_state(mngr, step, init(saved.config, trainer, members))
+    best = store.read_best(mngr, step, state.agent) if with_best else None
     return saved.config, state, trainer, saved, best
 
   step, out = store.load_newest(mngr, load, print_fn)
@@ -176,6 +176,6 @@ def _write_member(saved: Saved, state, best, position: int, out_dir: str) -> tup
   config = config_item(single, [0])
   record = {**mine, "values": [{"seed": chosen["seed"]}], "parents": [0], "diverged": [False]}
   store.save(mngr, one[0], {**config, "record": record}, best=one[1])
-  store.finish(mngr)
+  store.wait_and_record(mngr)
   folder.write_config(config)
   return folder.checkpoints, chosen

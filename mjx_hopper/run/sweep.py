@@ -170,7 +170,7 @@ class Report:
                     if k == "seed" or k in self.grid)
     return f"best {values[best]:,.1f} ({name}), mean {np.nanmean(values):,.1f}{lost}"
 
-  def finish(self, rows: list[dict], out_dir: str) -> None:
+  def summarise(self, rows: list[dict], out_dir: str) -> None:
     """The learning curves (a PBT run's lineage instead), and a sweep's ranking."""
     if self.members.pbt:
       self.say("ranking by the best evaluation:\n" + population_ranking(rows, self.grid))

@@ -112,6 +112,7 @@ def _reason(error: BaseException) -> str:
 
 
 def first_line(error: Exception, limit: int = 300) -> str:
+  """The first line of `error`'s message, at most `limit` characters, for a one-line report."""
   text = str(error).strip().splitlines()[0] if str(error).strip() else ""
   return text[:limit]
 

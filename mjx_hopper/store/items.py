@@ -5,7 +5,7 @@ states), "trainer" (replay, env states, keys, counters), "best" (the agent's pyt
 member's best evaluation so far, once there is one) and "config" (JSON: the RunConfig, env,
 agent, package versions, the checkpoint's format version, and the run's `record` of its
 members: their best evaluations, divergence and, under PBT, lineage). Keeping the agent apart
-lets `restore_agent` load a policy without reading the replay.
+lets `read_agent` load a policy without reading the replay.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ import orbax.checkpoint as ocp
 import mjx_hopper
 from mjx_hopper.core import parallel, train
 from mjx_hopper.store.failures import check_space, failed
-from mjx_hopper.store.manifests import finish
+from mjx_hopper.store.manifests import wait_and_record
 
 # The layout of the saved items. Every change to it raises FORMAT (CHANGELOG.md says so), and
 # OLDEST_FORMAT is the oldest layout this version still reads. Checkpoints saved before formats
@@ -84,10 +84,11 @@ def _rebuild(like, saved: dict):
 def save(mngr: ocp.CheckpointManager, state: train.TrainState, config: dict,
          best=None) -> int:
   """Starts saving `state` (and `best`, the agent's pytree at its best evaluations, when given)
-  as step = its iteration count, after finishing the previous save (see `finish`); returns the
-  step. Call `finish(mngr)` before relying on it. A SaveFailed where the previous save failed,
-  or where this one cannot fit on the disk (checked before anything is written) or start."""
-  finish(mngr)
+  as step = its iteration count, after finishing the previous save (`wait_and_record`); returns
+  the step. Call `wait_and_record(mngr)` before relying on it. A SaveFailed where the previous
+  save failed, or where this one cannot fit on the disk (checked before anything is written) or
+  start."""
+  wait_and_record(mngr)
   step = train.iterations(state)
   check_space(mngr, step, (state, best))
   agent, trainer = _split(state)
@@ -99,7 +100,7 @@ def save(mngr: ocp.CheckpointManager, state: train.TrainState, config: dict,
     items["best"] = ocp.args.StandardSave(_nonempty(best))
   try:
     mngr.save(step, args=ocp.args.Composite(**items))
-  except Exception as error:  # noqa: BLE001 - as in `finish`
+  except Exception as error:  # noqa: BLE001 - as in `wait_and_record`
     raise failed(mngr, step, error) from None
   return step
 
@@ -115,7 +116,7 @@ def _abstract(tree):
   return jax.tree.map(one, tree)
 
 
-def restore(mngr: ocp.CheckpointManager, step: int, like: train.TrainState) -> train.TrainState:
+def read_state(mngr: ocp.CheckpointManager, step: int, like: train.TrainState) -> train.TrainState:
   """The TrainState saved at `step`, placed like `like` (a state or its abstract shapes)."""
   agent, trainer = _abstract(_split(like))
   out = mngr.restore(step, args=ocp.args.Composite(
@@ -154,7 +155,7 @@ def has_best(mngr: ocp.CheckpointManager, step: int) -> bool:
   return os.path.isdir(os.path.join(mngr.directory, str(step), "best"))
 
 
-def restore_agent(mngr: ocp.CheckpointManager, step: int, like_agent, item: str = "agent"):
+def read_agent(mngr: ocp.CheckpointManager, step: int, like_agent, item: str = "agent"):
   """Only the agent's pytree saved at `step` (no replay is read): the latest ("agent") or the
   one of the best evaluations ("best")."""
   like_agent = _abstract(like_agent)
@@ -163,6 +164,6 @@ def restore_agent(mngr: ocp.CheckpointManager, step: int, like_agent, item: str 
   return _rebuild(like_agent, saved)
 
 
-def restore_best(mngr: ocp.CheckpointManager, step: int, like_agent):
+def read_best(mngr: ocp.CheckpointManager, step: int, like_agent):
   """The agent at the best evaluations saved at `step`, or None where the step holds none."""
-  return restore_agent(mngr, step, like_agent, "best") if has_best(mngr, step) else None
+  return read_agent(mngr, step, like_agent, "best") if has_best(mngr, step) else None

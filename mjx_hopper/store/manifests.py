@@ -1,5 +1,6 @@
 """Beside the steps, a manifest of each finished step's files (sizes and CRC32s), so that a
-damaged step can be told apart file by file; `finish` writes them once a save has finished."""
+damaged step can be told apart file by file; `wait_and_record` writes them once a save has
+finished."""
 
 from __future__ import annotations
 
@@ -27,7 +28,7 @@ def files(step_dir: str) -> dict[str, tuple[int, int]]:
   return out
 
 
-def finish(mngr: ocp.CheckpointManager) -> None:
+def wait_and_record(mngr: ocp.CheckpointManager) -> None:
   """Waits for the save in flight, then records the files of every finished step that has no
   manifest yet (and drops the manifests of steps that are gone), so that a damaged step can be
   told apart file by file later. A save that failed is a SaveFailed (see `failed`)."""
@@ -40,6 +41,8 @@ def finish(mngr: ocp.CheckpointManager) -> None:
 
 
 def write_manifests(mngr: ocp.CheckpointManager) -> None:
+  """A manifest for each step that has none, written whole or not at all, and none for a step
+  that is gone."""
   folder = os.path.join(mngr.directory, MANIFESTS)
   steps = {str(step) for step in mngr.all_steps()}
   if not steps and not os.path.isdir(folder):

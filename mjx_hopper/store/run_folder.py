@@ -17,7 +17,7 @@ import orbax.checkpoint as ocp
 
 from mjx_hopper.settings.config import RunConfig
 from mjx_hopper.store.items import (ConfigMismatch, has_best, manager, read_config,
-                                    restore_agent)
+                                    read_agent)
 
 CONFIG, LOG, CHECKPOINTS = "config.json", "log.csv", "checkpoints"
 PROCESSES = "processes"  # the config item's number of processes, where more than one
@@ -36,10 +36,12 @@ class RunFolder:
 
   @property
   def log(self) -> str:
+    """The run's log.csv."""
     return os.path.join(self.path, LOG)
 
   @property
   def checkpoints(self) -> str:
+    """The run's checkpoints folder."""
     return os.path.join(self.path, CHECKPOINTS)
 
   def write_config(self, item: dict) -> None:
@@ -77,7 +79,7 @@ def check_processes(mngr: ocp.CheckpointManager, processes: int) -> None:
     saved = read_config(mngr, step).get(PROCESSES, 1)
   except ConfigMismatch:
     raise
-  except Exception:  # noqa: BLE001 - an unreadable step: `store.resume` says so
+  except Exception:  # noqa: BLE001 - an unreadable step: `store.read_latest` says so
     return
   if saved != processes:
     raise ConfigMismatch(
@@ -161,4 +163,4 @@ class Saved:
     """(the members' agents at their best evaluations, or with which="latest" or where none
     was saved, the latest; whether they are the best)."""
     best = which == "best" and has_best(mngr, self.step)
-    return restore_agent(mngr, self.step, like, "best" if best else "agent"), best
+    return read_agent(mngr, self.step, like, "best" if best else "agent"), best

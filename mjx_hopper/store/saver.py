@@ -1,5 +1,5 @@
-"""Saving a run as it trains (`Saver`), and resuming it (`resume`) from the newest step that
-reads, falling back to older ones."""
+"""Saving a run as it trains (`Saver`), and reading it back (`read_latest`) from the newest step
+that reads, falling back to older ones."""
 
 from __future__ import annotations
 
@@ -11,8 +11,8 @@ import orbax.checkpoint as ocp
 
 from mjx_hopper.core import train
 from mjx_hopper.store.failures import SaveFailed, first_line
-from mjx_hopper.store.items import ConfigMismatch, read_config, restore, restore_best, save
-from mjx_hopper.store.manifests import damage, finish
+from mjx_hopper.store.items import ConfigMismatch, read_best, read_config, read_state, save
+from mjx_hopper.store.manifests import damage, wait_and_record
 
 # The settings a checkpoint's state depends on; the others (run length, logging, evaluation)
 # may change between a run and its resumption.
@@ -46,7 +46,7 @@ def _why(error: Exception) -> str:
 
 
 class Resumed(NamedTuple):
-  """What `resume` read: the state, its step (None for a fresh run), the agent at the best
+  """What `read_latest` read: the state, its step (None for a fresh run), the agent at the best
   evaluations (None when the step has none) and the members' record ({} when none)."""
 
   state: train.TrainState
@@ -55,7 +55,7 @@ class Resumed(NamedTuple):
   record: dict
 
 
-def resume(mngr: ocp.CheckpointManager, fresh: train.TrainState, config: dict,
+def read_latest(mngr: ocp.CheckpointManager, fresh: train.TrainState, config: dict,
            print_fn=print, defaults: dict | None = None) -> Resumed:
   """The latest readable checkpoint's state, best agents and record (`Resumed`), or `fresh`
   when there is none.
@@ -83,7 +83,7 @@ def resume(mngr: ocp.CheckpointManager, fresh: train.TrainState, config: dict,
       raise ConfigMismatch(f"the checkpoint in {mngr.directory} is from another config "
                            f"({details}); use another checkpoint directory, or the saved "
                            "settings")
-    return (restore(mngr, step, fresh), restore_best(mngr, step, fresh.agent),
+    return (read_state(mngr, step, fresh), read_best(mngr, step, fresh.agent),
             saved.get("record", {}))
 
   step, (state, best, record) = load_newest(mngr, load, print_fn)
@@ -144,7 +144,7 @@ class Saver:
     so."""
     step, self.pending = self.pending, None
     try:
-      finish(self.mngr)
+      wait_and_record(self.mngr)
     except SaveFailed as error:
       return error
     if step is not None and self.failures:
