@@ -53,6 +53,8 @@ BESIDE = {"Humanoid on one H200": [TTS.format("Humanoid_gpu_seeds23-24"),
 DISTRIBUTED = ("distributed_gpu2.json", "distributed_cpu2.json")
 # The training chunk as a program, before and after a change (chunk_program.py).
 CHUNK = {"one H100": "chunk_program_h100.json"}
+# The chunk compiled as one program, and as its collection and its learning at once (--split).
+SPLIT = {"one H200": "chunk_program_h200_split.json", "2 CPU cores": "chunk_program_cpu_split.json"}
 # A start's phases as the table shows them: label, and its key in start_time.py's medians.
 START_ROWS = {"imports": "imports", "build": "build", "chunk: tracing": "chunk trace",
               "chunk: compile": "chunk compile", "init: compile": "init_member compile",
@@ -346,15 +348,26 @@ def chunk_section() -> tuple[str, str, str, list[str]]:
   rows = []
   for where, name in CHUNK.items():
     data = load(name)
-    for code, f in data["figures"]["medians"].items():
-      rows.append([where, data["commit"] if code == "this checkout" else code,
+    for which, f in data["figures"]["medians"].items():
+      rows.append([where, data["commit"] if which == "this checkout" else which,
                    num(f["compiled_instructions"]), num(f["compile_s"], 1),
                    num(f.get("refill_instructions")) if "refill_instructions" in f else "–",
                    num(f["env_steps_per_s"])])
+  split = []
+  for where, name in SPLIT.items():
+    data = load(name)
+    f = data["figures"]["medians"]["this checkout"]
+    split.append([where, code(data["commit"]), num(f["compile_s"], 1),
+                  num(f["collection_compile_s"], 1), num(f["learning_compile_s"], 1),
+                  num(f["split_compile_s"], 1)])
   return ("The training chunk", "Hopper's preset: the chunk's HLO instructions, "
-          "cold compile and env steps/s over 10 chunks, each code in a fresh process.",
+          "cold compile and env steps/s over 10 chunks, each code in a fresh process. Then its "
+          "cold compile as one program, and as two (its collection, its learning) compiled at "
+          "once in two threads.",
           table(["machine", "code", "instructions", "compile (s)", "refill's instructions",
-                 "env steps/s"], rows), list(CHUNK.values()))
+                 "env steps/s"], rows) + "\n\n" + table(
+              ["machine", "code", "one program (s)", "collection (s)", "learning (s)",
+               "both at once (s)"], split), list(CHUNK.values()) + list(SPLIT.values()))
 
 
 def pretrained_section(names: list[str]) -> tuple[str, str, str, list[str]]:
