@@ -361,9 +361,8 @@ def chunk_section() -> tuple[str, str, str, list[str]]:
                   num(f["collection_compile_s"], 1), num(f["learning_compile_s"], 1),
                   num(f["split_compile_s"], 1)])
   return ("The training chunk", "Hopper's preset: the chunk's HLO instructions, "
-          "cold compile and env steps/s over 10 chunks, each code in a fresh process. Then its "
-          "cold compile as one program, and as two (its collection, its learning) compiled at "
-          "once in two threads.",
+          "cold compile and env steps/s over 10 chunks, each code in a fresh process; then compiled as "
+          "one program, or as its collection and its learning at once.",
           table(["machine", "code", "instructions", "compile (s)", "refill's instructions",
                  "env steps/s"], rows) + "\n\n" + table(
               ["machine", "code", "one program (s)", "collection (s)", "learning (s)",
@@ -408,16 +407,17 @@ def code(commit: str) -> str:
 
 def benchmarks_page() -> str:
   parts = ["# Benchmarks", "Made by `python benchmarks/report.py` from the "
-           "`benchmarks/results/` files under each table; do not edit. Machines are noisy: "
-           "compare rows of one run.",
+           "`benchmarks/results/` files under each table (date, machine, code, `python "
+           "benchmarks/COMMAND`); do not edit. Machines are noisy: compare rows of one run.",
            "## Summary", summary()]
   for title, method, text, names in sections():
     made = {}  # files made by one command on one machine, day and commit share a line
     for n in dict.fromkeys(names):
       r = load(n)
       made.setdefault((r["date"], machine(n), code(r["commit"]), r["command"]), []).append(n)
-    sources = [f"- {', '.join(f'`{n}`' for n in files)} ({date}, {where}, {commit}): "
-               f"`{command}`" for (date, where, commit, command), files in made.items()]
+    sources = [f"- {', '.join(f'`{n.removesuffix('.json')}`' for n in files)} ({date}, {where}, "
+               f"{commit}): `{command.removeprefix('python benchmarks/')}`"
+               for (date, where, commit, command), files in made.items()]
     parts += [f"## {title}", method, text, "\n".join(sources)]
   return "\n\n".join(parts) + "\n"
 
