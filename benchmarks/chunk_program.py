@@ -71,24 +71,24 @@ def split_compile(trainer, state) -> dict:
   cfg, agent = trainer.config, trainer.agent
   where = train.layout(trainer.num_members, jax.devices())
   train_env = EpisodeStarts.for_steps(trainer.env, cfg.unroll_length * cfg.iterations_per_chunk)
-  members = where.members
+  each_member = where.each_member
 
   def collection(state):
     def iteration(state, _):
-      key, act_key = members(lambda k: tuple(jax.random.split(k)))(state.key)
-      env, ret, steps, _ = members(functools.partial(
+      key, act_key = each_member(lambda k: tuple(jax.random.split(k)))(state.key)
+      env, ret, steps, _ = each_member(functools.partial(
           train.collect, agent, train_env, cfg.unroll_length))(
               state.agent, state.env, state.episode_return, act_key)
       return state._replace(env=env, episode_return=ret, key=key,
-                            replay=members(replay.insert)(state.replay, steps)), None
+                            replay=each_member(replay.insert)(state.replay, steps)), None
     return jax.lax.scan(iteration, state, None, length=cfg.iterations_per_chunk)[0]
 
   def learning(state):
     learn = functools.partial(train.learn, agent, cfg, where, False)
 
     def iteration(state, _):
-      key, learn_key = members(lambda k: tuple(jax.random.split(k)))(state.key)
-      agent_state, metrics = members(lambda a, b, k: learn(a, b, k, cfg.updates_per_iteration))(
+      key, learn_key = each_member(lambda k: tuple(jax.random.split(k)))(state.key)
+      agent_state, metrics = each_member(lambda a, b, k: learn(a, b, k, cfg.updates_per_iteration))(
           state.agent, state.replay, learn_key)
       return state._replace(agent=agent_state, key=key), metrics
     state, metrics = jax.lax.scan(iteration, state, None, length=cfg.iterations_per_chunk)

@@ -155,7 +155,7 @@ class Layout(NamedTuple):
     """`x` summed over a member's devices."""
     return jax.lax.psum(x, AXIS) if self.axis else x
 
-  def members(self, fn):
+  def each_member(self, fn):
     """`fn` of one member, over this device's members."""
     return per_member(fn, self.local_members)
 
@@ -245,7 +245,7 @@ def _make_init(train_env: EpisodeStarts, agent: Agent, cfg: TrainConfig, where: 
 def _make_refill(train_env: EpisodeStarts, where: Layout):
   """Trainer.refill: each env's fresh episode starts, made where its env lives."""
   def refill(env_states):
-    return where.members(jax.vmap(train_env.refill))(env_states)
+    return where.each_member(jax.vmap(train_env.refill))(env_states)
   return jax.jit(jax.shard_map(refill, mesh=where.mesh, in_specs=(where.specs.env,),
                                out_specs=where.specs.env, check_vma=False),
                  in_shardings=(where.shardings.env,), out_shardings=where.shardings.env,
@@ -308,7 +308,7 @@ def _metric_shapes(env: LocomotionEnv, agent: Agent):
 def _make_chunk(train_env: EpisodeStarts, agent: Agent, cfg: TrainConfig, where: Layout,
                 dynamic_updates: bool):
   """Trainer.chunk: `iterations_per_chunk` iterations, under shard_map over the mesh."""
-  members, env = where.members, train_env.env
+  each_member, env = where.each_member, train_env.env
   member_collect = functools.partial(collect, agent, train_env, cfg.unroll_length)
   member_learn = functools.partial(learn, agent, cfg, where, dynamic_updates)
   min_rows = max(-(-cfg.min_replay // cfg.num_envs), agent.n_step)
@@ -317,11 +317,11 @@ def _make_chunk(train_env: EpisodeStarts, agent: Agent, cfg: TrainConfig, where:
 
   def iteration(state: TrainState, _):
     """The local members' collection and insert, then their updates."""
-    key, act_key, learn_key = members(lambda k: tuple(jax.random.split(k, 3)))(state.key)
-    act_key = members(lambda k: jax.random.fold_in(k, where.device_index()))(act_key)
-    env_state, ep_return, steps, (ended, ended_return) = members(member_collect)(
+    key, act_key, learn_key = each_member(lambda k: tuple(jax.random.split(k, 3)))(state.key)
+    act_key = each_member(lambda k: jax.random.fold_in(k, where.device_index()))(act_key)
+    env_state, ep_return, steps, (ended, ended_return) = each_member(member_collect)(
         state.agent, state.env, state.episode_return, act_key)
-    buffer = members(replay.insert)(state.replay, steps)
+    buffer = each_member(replay.insert)(state.replay, steps)
     # The members insert in lockstep, so they all start learning at the same iteration: one
     # branch for all of them. (A branch per member would be a select under the member vmap,
     # which runs the updates of members that are not learning yet.)
@@ -329,12 +329,12 @@ def _make_chunk(train_env: EpisodeStarts, agent: Agent, cfg: TrainConfig, where:
     zeros = jax.tree.map(lambda s: jnp.zeros((where.local_members,) + s.shape, s.dtype),
                          metric_shapes)
     if dynamic_updates:
-      n_updates = members(lambda ratio: jnp.round(
+      n_updates = each_member(lambda ratio: jnp.round(
           ratio * cfg.steps_per_iteration / cfg.batch_size).astype(jnp.int32))(state.replay_ratio)
-      update, args = members(member_learn), (state.agent, buffer, learn_key, n_updates)
+      update, args = each_member(member_learn), (state.agent, buffer, learn_key, n_updates)
     else:
       n_updates = max_updates
-      update = members(lambda a, b, k: member_learn(a, b, k, max_updates))
+      update = each_member(lambda a, b, k: member_learn(a, b, k, max_updates))
       args = (state.agent, buffer, learn_key)
     agent_state, metrics = jax.lax.cond(learning, update, lambda a, *_: (a, zeros), *args)
     new = state._replace(agent=agent_state, replay=buffer, env=env_state,
