@@ -12,7 +12,6 @@ import itertools
 import json
 from typing import Any
 
-
 import mjx_hopper
 from mjx_hopper import agents, envs
 from mjx_hopper.core.fields import setting
