@@ -88,8 +88,9 @@ def split_compile(trainer, state) -> dict:
 
     def iteration(state, _):
       key, learn_key = each_member(lambda k: tuple(jax.random.split(k)))(state.key)
-      agent_state, metrics = each_member(lambda a, b, k: learn(a, b, k, cfg.updates_per_iteration))(
-          state.agent, state.replay, learn_key)
+      agent_state, metrics = each_member(
+          lambda a, b, k: learn(a, b, k, cfg.updates_per_iteration))(
+              state.agent, state.replay, learn_key)
       return state._replace(agent=agent_state, key=key), metrics
     state, metrics = jax.lax.scan(iteration, state, None, length=cfg.iterations_per_chunk)
     return state, jax.tree.map(lambda m: m.mean(0), metrics)

@@ -361,8 +361,8 @@ def chunk_section() -> tuple[str, str, str, list[str]]:
                   num(f["collection_compile_s"], 1), num(f["learning_compile_s"], 1),
                   num(f["split_compile_s"], 1)])
   return ("The training chunk", "Hopper's preset: the chunk's HLO instructions, "
-          "cold compile and env steps/s over 10 chunks, each code in a fresh process; then compiled as "
-          "one program, or as its collection and its learning at once.",
+          "cold compile and env steps/s over 10 chunks, each code in a fresh process; then "
+          "compiled as one program, or as its collection and its learning at once.",
           table(["machine", "code", "instructions", "compile (s)", "refill's instructions",
                  "env steps/s"], rows) + "\n\n" + table(
               ["machine", "code", "one program (s)", "collection (s)", "learning (s)",
