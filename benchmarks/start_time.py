@@ -31,14 +31,14 @@ events = []
 def listen(event, duration, fun_name="?", **kwargs):
   events.append((time.time(), event.rsplit("/", 1)[-1], fun_name, duration))
 jax.monitoring.register_event_duration_secs_listener(listen)
-import importlib, os, mjx_hopper
-floors = os.path.isdir(os.path.join(mjx_hopper.__path__[0], "run"))  # else a checkout before them
-importlib.import_module("mjx_hopper.run.loop" if floors else "mjx_hopper.loop")
-cli = importlib.import_module("mjx_hopper.faces.cli" if floors else "mjx_hopper.cli")
+sys.path.insert(0, sys.argv[1])  # benchmarks/, for common.project_module
+import common
+common.project_module("run.loop")
+cli = common.project_module("faces.cli")
 imported = time.time()
-record = sys.argv[1]
+record = sys.argv[2]
 atexit.register(lambda: json.dump({"imported": imported, "events": events}, open(record, "w")))
-sys.argv = ["mjx-hopper"] + sys.argv[2:]
+sys.argv = ["mjx-hopper"] + sys.argv[3:]
 cli.main()
 """
 PHASES = {"jaxpr_trace_duration": "trace", "jaxpr_to_mlir_module_duration": "lower",
@@ -55,9 +55,10 @@ def one_run(command: list[str], cache: str, code: str | None, seconds: float) ->
   with tempfile.TemporaryDirectory() as out:
     record = os.path.join(out, "events.json")
     start = time.time()
-    proc = subprocess.Popen([sys.executable, "-P", "-c", PROBE, record, *command, "--out-dir", out,
-                             "--max-minutes", str(seconds / 60)], env=env, text=True,
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    proc = subprocess.Popen([sys.executable, "-P", "-c", PROBE,
+                             os.path.dirname(os.path.abspath(__file__)), record, *command,
+                             "--out-dir", out, "--max-minutes", str(seconds / 60)], env=env,
+                            text=True, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
     lines = [(time.time() - start, line) for line in proc.stdout]
     if proc.wait():
       raise SystemExit("the run failed:\n" + "".join(line for _, line in lines[-20:]))
