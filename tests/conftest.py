@@ -31,6 +31,8 @@ import pytest  # noqa: E402
 
 import mjx_hopper  # noqa: E402
 
+pytest_plugins = ["crashes"]
+
 mjx_hopper.setup()  # before MuJoCo is imported, which reads MUJOCO_GL once
 
 from mjx_hopper.run import runs  # noqa: E402

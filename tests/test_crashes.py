@@ -1,0 +1,57 @@
+"""tests/crashes.py: a test worker's crash fails the run, unless the test passes when run
+again and nothing else failed."""
+
+import os
+import resource
+import subprocess
+import sys
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+CRASHING = """
+import ctypes, os
+
+def test_before():
+  pass
+
+def test_crashes():
+  if os.environ["CRASH"] == "always" or not os.path.exists("crashed"):
+    open("crashed", "w").close()
+    ctypes.string_at(0)  # a segfault
+
+def test_after():
+  pass
+
+def test_fails():
+  assert os.environ["FAIL"] != "1"
+"""
+
+
+def run(tmp_path, crash: str, fail: str = "0") -> subprocess.CompletedProcess:
+  (tmp_path / "pytest.ini").write_text("[pytest]\n")
+  (tmp_path / "test_crashing.py").write_text(CRASHING)
+  return subprocess.run(
+      [sys.executable, "-m", "pytest", "-n", "2", "--dist", "loadfile", "-p", "crashes",
+       "-p", "no:cacheprovider", "--max-worker-restart", "2", "-q", "-o", "addopts=",
+       "test_crashing.py"], cwd=tmp_path, capture_output=True, text=True, timeout=300,
+      env={**os.environ, "PYTHONPATH": HERE, "CRASH": crash, "FAIL": fail},
+      preexec_fn=lambda: resource.setrlimit(resource.RLIMIT_CORE, (0, 0)))  # no core files
+
+
+def test_a_crash_that_passes_again_passes_the_run(tmp_path):
+  done = run(tmp_path, "once")
+  assert done.returncode == 0, done.stdout
+  assert "a worker died in test_crashing.py::test_crashes (1x): it passed when run again" \
+      in done.stdout
+  assert "no test failed otherwise: the run passes" in done.stdout
+
+
+def test_a_crash_beside_a_failure_fails_the_run(tmp_path):
+  done = run(tmp_path, "once", fail="1")
+  assert done.returncode == 1, done.stdout
+  assert "the run passes" not in done.stdout
+
+
+def test_a_crash_every_time_fails_the_run(tmp_path):
+  done = run(tmp_path, "always")
+  assert done.returncode != 0, done.stdout
+  assert "did not pass when run again" in done.stdout
