@@ -44,6 +44,9 @@ def parse(p: argparse.ArgumentParser, work=None) -> argparse.Namespace:
   sys.exit()
 
 
+NOT_BEGIN = False  # a trainer's refill after a chunk (its `begin`)
+
+
 class Timed:
   """`jitted(state, *args) -> (state, out)` traced and compiled (trace_s, compile_s) and called
   once to warm up. Calling this object runs it `n` times more, each call from the state the last
@@ -57,7 +60,7 @@ class Timed:
     traced = time.perf_counter()
     self.compiled = lowered.compile()
     self.trace_s, self.compile_s = traced - start, time.perf_counter() - traced
-    self.refill = trainer.refill.lower(state.env).compile() if trainer else None
+    self.refill = trainer.refill.lower(state.env, NOT_BEGIN).compile() if trainer else None
     self.state, self.args = state, args
     self()
 
@@ -67,7 +70,7 @@ class Timed:
     for _ in range(n):
       self.state, self.out = self.compiled(self.state, *self.args)
       if self.refill is not None:
-        self.state = self.state._replace(env=self.refill(self.state.env))
+        self.state = self.state._replace(env=self.refill(self.state.env, NOT_BEGIN))
     jax.block_until_ready((self.state, self.out))
     return time.perf_counter() - start
 

@@ -85,7 +85,7 @@ def part_split(env_name: str, kind: str, repeats: int) -> dict:
     waiting = dataclasses.replace(cfg, train=dataclasses.replace(tc, min_replay=tc.replay_size))
     idle = runs.build(waiting)
     collecting = per_chunk(idle.chunk, runs.init(waiting, idle, waiting.members()), trainer=idle)
-    refill = per_chunk(jax.jit(lambda e, _: (trainer.refill(e), None),
+    refill = per_chunk(jax.jit(lambda e, _: (trainer.refill(e, False), None),
                                out_shardings=(trainer.shardings.env, None)), fresh().env, None)
     init, run = rollout.make_stepper(trainer.env, tc.num_envs, steps)
     key = jax.random.PRNGKey(0)

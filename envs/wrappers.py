@@ -58,24 +58,27 @@ class EpisodeStarts(Wrapper):
   computes no reset: for one env, vmapped over a batch.
 
   `state.info["starts"]` holds `starts` first states and `info["starts_used"]` counts those
-  taken. `reset` and `refill` make them from `env.reset` with fresh keys: call `refill` after
-  each run of steps. An env that ends more than `starts` episodes between two refills
-  takes its starts again, in turn. After a step that ends an episode, the state is as
-  AutoReset's.
+  taken. `refill` makes them from `env.reset` with fresh keys: call it after each run of
+  steps. An env that ends more than its unused starts' episodes between two refills takes its
+  starts again, in turn. A first state is the first of the starts of a refill that `begin`s:
+  `reset` refills a `blank` state so, and a trainer can, so that only its refill holds a reset.
+  After a step that ends an episode, the state is as AutoReset's.
   """
 
   def __init__(self, env, starts: int):
     super().__init__(env)
-    if not isinstance(starts, int) or starts < 1:
-      raise ValueError(f"starts must be an integer >= 1, got {starts!r}")
+    if not isinstance(starts, int) or starts < 2:
+      raise ValueError(f"starts must be an integer >= 2 (a first state and one more), got "
+                       f"{starts!r}")
     self.starts = starts
 
   @classmethod
   def for_steps(cls, env, steps: int) -> "EpisodeStarts":
     """`env` with enough starts for `steps` steps between refills in episodes of
-    SHORTEST_EPISODE steps (or of the env's `episode_steps`, if shorter)."""
+    SHORTEST_EPISODE steps (or of the env's `episode_steps`, if shorter), and one for the first
+    state."""
     shortest = min(SHORTEST_EPISODE, getattr(env, "episode_steps", SHORTEST_EPISODE))
-    return cls(env, -(-steps // shortest))
+    return cls(env, -(-steps // shortest) + 1)
 
   @staticmethod
   def _first(state: State) -> dict:
@@ -83,23 +86,36 @@ class EpisodeStarts(Wrapper):
     return {"obs": state.obs, "pipeline_state": state.pipeline_state,
             **{k: state.info[k] for k in _STARTED_INFO}}
 
-  def reset(self, rng: jax.Array) -> State:
-    rng, key = jax.random.split(rng)
-    # The episode's first state and its starts from one batch of resets: one reset in the
-    # program, which compiles in half the time of two.
-    firsts = jax.vmap(self.env.reset)(jax.random.split(key, self.starts + 1))
-    state = jax.tree.map(lambda x: x[0], firsts)
-    state.info.update(rng=rng, final_obs=state.obs,
-                      starts=self._first(jax.tree.map(lambda x: x[1:], firsts)),
-                      starts_used=jnp.zeros((), jnp.int32))
+  def blank(self, rng: jax.Array) -> State:
+    """A state of zeros with the key `rng`, whose starts are all used: `refill` with `begin`
+    makes it a first state."""
+    shapes = jax.eval_shape(  # of a begun state: traced, not computed
+        lambda r: self._begun(jax.vmap(self.env.reset)(jax.random.split(r, self.starts)), r), rng)
+    state = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
+    state.info.update(rng=rng, starts_used=jnp.asarray(self.starts, jnp.int32))
     return state
 
-  def refill(self, state: State) -> State:
-    """`state` with `starts` new first states, none used."""
+  def _begun(self, firsts: State, rng: jax.Array) -> State:
+    """The first of `firsts` (a batch of `starts` resets), begun, with all of them as starts."""
+    state = jax.tree.map(lambda x: x[0], firsts)
+    state.info.update(rng=rng, final_obs=state.obs, starts=self._first(firsts),
+                      starts_used=jnp.ones((), jnp.int32))
+    return state
+
+  def reset(self, rng: jax.Array) -> State:
+    return self.refill(self.blank(rng), begin=True)
+
+  def refill(self, state: State, begin=False) -> State:
+    """`state` with `starts` new first states, none used. With `begin` (a bool, or a traced
+    one), a new episode from the first of them, which it counts as used, as `reset` makes."""
     keys = jax.random.split(state.info["rng"], self.starts + 1)
-    starts = self._first(jax.vmap(self.env.reset)(keys[1:]))
-    return state.replace(info=dict(state.info, rng=keys[0], starts=starts,
-                                   starts_used=jnp.zeros((), jnp.int32)))
+    firsts = jax.vmap(self.env.reset)(keys[1:])
+    refilled = state.replace(info=dict(state.info, rng=keys[0], starts=self._first(firsts),
+                                       starts_used=jnp.zeros((), jnp.int32)))
+    if begin is False:
+      return refilled
+    return jax.tree.map(lambda new, old: jnp.where(begin, new, old),
+                        self._begun(firsts, keys[0]), refilled)
 
   def step(self, state: State, action: jax.Array) -> State:
     stepped = self.env.step(state, action)

@@ -85,16 +85,36 @@ def test_starts_are_drawn_as_env_reset_draws_them(short_hopper, new_episodes):
     np.testing.assert_allclose(ours[:, varies].std(0), spread[varies], rtol=0.1)
 
 
-def test_reset_makes_fresh_starts(short_hopper):
-  wrapped = envs.EpisodeStarts(short_hopper, 2)
+def test_reset_begins_from_the_first_of_fresh_starts(short_hopper):
+  wrapped = envs.EpisodeStarts(short_hopper, 3)
   state = jax.jit(wrapped.reset)(jax.random.PRNGKey(0))
-  assert int(state.info["starts_used"]) == 0
-  # Drawn as env.reset draws: the episode's first state and its starts, each from its own key.
-  keys = jax.random.split(jax.random.split(jax.random.PRNGKey(0))[1], 3)
-  firsts = jax.jit(jax.vmap(short_hopper.reset))(keys)
+  assert int(state.info["starts_used"]) == 1  # the first state is start 0
+  # Drawn as env.reset draws, each from its own key.
+  firsts = jax.jit(jax.vmap(short_hopper.reset))(jax.random.split(jax.random.PRNGKey(0), 4)[1:])
+  np.testing.assert_allclose(state.info["starts"]["obs"], firsts.obs, atol=1e-6)
   np.testing.assert_allclose(state.obs, firsts.obs[0], atol=1e-6)
-  np.testing.assert_allclose(state.info["starts"]["obs"], firsts.obs[1:], atol=1e-6)
+  np.testing.assert_allclose(state.info["final_obs"], firsts.obs[0], atol=1e-6)
   assert len({tuple(np.asarray(x).round(6)) for x in firsts.obs}) == 3  # all differ
+
+
+def test_one_refill_program_refills_and_begins(short_hopper):
+  """A trainer's init begins its envs with the refill that follows each chunk: one program,
+  whose `begin` says which."""
+  wrapped = envs.EpisodeStarts(short_hopper, 2)
+  refill = jax.jit(wrapped.refill)
+  state = jax.jit(wrapped.reset)(jax.random.PRNGKey(0))
+  for _ in range(2):
+    state = wrapped.step(state, jnp.zeros(short_hopper.action_size))
+  kept, begun = refill(state, np.False_), refill(state, np.True_)
+  np.testing.assert_array_equal(kept.pipeline_state.qpos, state.pipeline_state.qpos)
+  assert int(kept.info["steps"]) == 2 and int(kept.info["starts_used"]) == 0
+  np.testing.assert_array_equal(begun.obs, begun.info["starts"]["obs"][0])
+  assert int(begun.info["steps"]) == 0 and int(begun.info["starts_used"]) == 1
+  np.testing.assert_array_equal(kept.info["starts"]["obs"], begun.info["starts"]["obs"])
+  blank = jax.jit(wrapped.blank)(jax.random.PRNGKey(5))
+  assert not np.asarray(blank.obs).any() and int(blank.info["starts_used"]) == 2
+  np.testing.assert_array_equal(refill(blank, np.True_).obs,
+                                jax.jit(wrapped.reset)(jax.random.PRNGKey(5)).obs)
 
 
 def test_an_env_that_ends_more_episodes_takes_its_starts_again_in_turn(short_hopper):
@@ -137,7 +157,8 @@ def test_the_step_computes_no_reset(hopper):
   assert "kinematics" not in _calls(ours.jaxpr) and "_physics" in _calls(ours.jaxpr)
 
 
-@pytest.mark.parametrize("bad", [0, 2.0, "3"])
+@pytest.mark.parametrize("bad", [1, 2.0, "3"])
 def test_bad_number_of_starts(hopper, bad):
-  with pytest.raises(ValueError, match=f"starts must be an integer >= 1, got {bad!r}"):
+  with pytest.raises(ValueError, match=rf"starts must be an integer >= 2 \(a first state and "
+                     rf"one more\), got {bad!r}"):
     envs.EpisodeStarts(hopper, bad)

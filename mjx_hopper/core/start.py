@@ -13,47 +13,45 @@ import jax.numpy as jnp
 from mjx_hopper.core import train
 
 
-# The fewest cores on which the refill and the evaluation are traced while the chunk compiles:
-# one for the chunk's compile, one for the fresh state's, one for the tracing, and one to spare.
+# The fewest cores on which the evaluation is traced while the chunk compiles: one for the
+# chunk's compile, one for the fresh state's, one for the tracing, and one to spare.
 TRACE_BESIDE_FROM_CORES = 4
+BEGIN = jax.ShapeDtypeStruct((), bool)  # the refill's `begin`
 
 
 class Started(NamedTuple):
   """Futures of what a run waits for before it trains."""
   state: concurrent.futures.Future    # the members' fresh TrainState
   chunk: concurrent.futures.Future    # the compiled training chunk
-  refill: concurrent.futures.Future   # the compiled refill of the episode starts
+  refill: concurrent.futures.Future   # the compiled refill of the episode starts (`init`'s)
   finite: concurrent.futures.Future   # compiled `finite_members` of the members' agents
   evaluation: concurrent.futures.Future  # the compiled evaluation (`Evaluator.lower`)
 
 
 def start(trainer: train.Trainer, init, evaluator) -> Started:
-  """Starts making the fresh state (`init()`) and compiling the chunk, the finiteness check, the
-  refill of the episode starts and `evaluator`'s evaluation. The first training row needs the
-  chunk, the state and the check, which come first, side by side: the chunk in one thread, the
-  state and the check in the other. The refill (needed after that row) and the evaluation
-  follow, on a small CPU after the chunk in its thread, so as not to slow its compile. The
-  programs are traced here, in turn, since tracing holds Python's lock; the state's program is
-  traced in its thread, and on a small CPU the refill and the evaluation in the chunk's."""
+  """Starts making the fresh state (`init()`, whose envs begin in the trainer's refill) and
+  compiling the chunk, the finiteness check and `evaluator`'s evaluation. The first training
+  row needs the chunk, the state and the check, which come first, side by side: the chunk in
+  one thread, the state and the check in the other. The evaluation follows, on a small CPU
+  after the chunk in its thread, so as not to slow its compile. The programs are traced here,
+  in turn, since tracing holds Python's lock; the state's programs are traced in its thread,
+  and on a small CPU the evaluation in the chunk's."""
   shapes = jax.tree.map(
       lambda sharding, part: jax.tree.map(
           lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sharding), part),
       trainer.shardings, jax.eval_shape(init))
-  # Two lines: the chunk, then (on a small CPU) the refill, then the evaluation (compiled beside
-  # the chunk, it slowed the chunk's compile more than it brought the first evaluation
-  # forward); the state, then the finiteness check (and, where cores are to spare, the refill).
-  # Tracing here, during the chunk's compile, brings the refill and the evaluation forward
-  # where cores are to spare; on a small CPU it slowed the compiles that the first row waits for.
+  # Two lines: the chunk, then the evaluation (compiled beside the chunk, it slowed the chunk's
+  # compile more than it brought the first evaluation forward); the state (its program and the
+  # refill), then the finiteness check. Tracing here, during the chunk's compile, brings the
+  # evaluation forward where cores are to spare; on a small CPU it slowed the compiles that the
+  # first row waits for.
   lines = [concurrent.futures.ThreadPoolExecutor(1), concurrent.futures.ThreadPoolExecutor(1)]
   chunk = lines[0].submit(trainer.chunk.lower(shapes).compile)
   state = lines[1].submit(init)
   finite = lines[1].submit(finite_members.lower(shapes.agent).compile)
-  if _cores() >= TRACE_BESIDE_FROM_CORES:
-    refill = lines[1].submit(trainer.refill.lower(shapes.env).compile)
-    lowered = evaluator.lower(shapes.agent)
-  else:
-    refill = lines[0].submit(lambda: trainer.refill.lower(shapes.env).compile())
-    lowered = None
+  # init compiled the refill: this finds it in JAX's caches.
+  refill = lines[1].submit(trainer.refill.lower(shapes.env, BEGIN).compile)
+  lowered = evaluator.lower(shapes.agent) if _cores() >= TRACE_BESIDE_FROM_CORES else None
 
   def evaluation_after_the_first_row():
     # The evaluation's compile waits for the programs of the first training row, which it

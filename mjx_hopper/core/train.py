@@ -104,8 +104,9 @@ class Trainer(NamedTuple):
   chunk(state) -> (state, metrics (S,)): `iterations_per_chunk` iterations; metrics: the agent's
     metrics averaged over the chunk, "episodes" ended, their mean "episode_return" (NaN if
     none) and "learning".
-  refill(env states) -> env states: fresh episode starts for the next chunk, made after each
-    (EpisodeStarts; `init`'s states have theirs).
+  refill(env states, begin) -> env states: fresh episode starts (EpisodeStarts), made after each
+    chunk for the next; with `begin` (a bool array), new episodes from them, as `init` makes its
+    states, so that the reset is in this program alone.
   evaluate(agent_states, keys) -> "return", "length" (S, episodes).
   shardings: each TrainState part's NamedSharding.
   """
@@ -123,7 +124,7 @@ class Trainer(NamedTuple):
   def train_chunk(self, state: TrainState) -> tuple[TrainState, dict]:
     """A chunk, then fresh episode starts for the next: (state, metrics)."""
     state, metrics = self.chunk(state)
-    return state._replace(env=self.refill(state.env)), metrics
+    return state._replace(env=self.refill(state.env, np.False_)), metrics
 
 
 def mesh_shape(num_members: int, num_devices: int) -> tuple[int, int]:
@@ -190,9 +191,9 @@ def make_trainer(env: LocomotionEnv, agent: Agent, cfg: TrainConfig, eval_episod
   where = layout(num_members, list(jax.devices() if devices is None else devices))
   cfg.check(where.group_size)
   train_env = EpisodeStarts.for_steps(env, cfg.unroll_length * cfg.iterations_per_chunk)
-  return Trainer(_make_init(train_env, agent, cfg, where, num_members),
-                 _make_chunk(train_env, agent, cfg, where, dynamic_updates),
-                 _make_refill(train_env, where),
+  refill = _make_refill(train_env, where)
+  return Trainer(_make_init(train_env, agent, cfg, where, num_members, refill),
+                 _make_chunk(train_env, agent, cfg, where, dynamic_updates), refill,
                  make_evaluate(env, agent, eval_episodes, num_members, where.mesh), cfg, env, agent,
                  num_members, where.shardings)
 
@@ -207,15 +208,16 @@ def make_evaluate(env: LocomotionEnv, agent: Agent, eval_episodes: int, num_memb
 
 
 def _make_init(train_env: EpisodeStarts, agent: Agent, cfg: TrainConfig, where: Layout,
-               num_members: int):
-  """Trainer.init: the members' fresh TrainState, placed on the mesh."""
+               num_members: int, refill):
+  """Trainer.init: the members' fresh TrainState, placed on the mesh: its envs blank, then
+  begun by `refill`."""
   env = train_env.env
 
   def init_member(seed, hp):
     agent_key, env_key, key = jax.random.split(jax.random.PRNGKey(seed), 3)
     hp = dict(hp)
     ratio = hp.pop("replay_ratio")
-    env_state = jax.vmap(train_env.reset)(jax.random.split(env_key, cfg.num_envs))
+    env_state = jax.vmap(train_env.blank)(jax.random.split(env_key, cfg.num_envs))
     return TrainState(
         agent=agent.init(agent_key, hp),
         replay=replay.init(cfg.replay_rows(), cfg.num_envs, env.observation_size,
@@ -238,18 +240,20 @@ def _make_init(train_env: EpisodeStarts, agent: Agent, cfg: TrainConfig, where: 
     values = {**defaults, **(hparams or {})}
     batched = {k: np.broadcast_to(np.asarray(v, defaults[k].dtype), (num_members,))
                for k, v in values.items()}
-    return compiled_init(seed_bits(seeds), batched)
+    state = compiled_init(seed_bits(seeds), batched)
+    return state._replace(env=refill(state.env, np.True_))
   return init
 
 
 def _make_refill(train_env: EpisodeStarts, where: Layout):
   """Trainer.refill: each env's fresh episode starts, made where its env lives."""
-  def refill(env_states):
-    return where.each_member(jax.vmap(train_env.refill))(env_states)
-  return jax.jit(jax.shard_map(refill, mesh=where.mesh, in_specs=(where.specs.env,),
+  def refill(env_states, begin):
+    return where.each_member(jax.vmap(lambda s: train_env.refill(s, begin)))(env_states)
+  replicated = NamedSharding(where.mesh, P())
+  return jax.jit(jax.shard_map(refill, mesh=where.mesh, in_specs=(where.specs.env, P()),
                                out_specs=where.specs.env, check_vma=False),
-                 in_shardings=(where.shardings.env,), out_shardings=where.shardings.env,
-                 donate_argnums=0)
+                 in_shardings=(where.shardings.env, replicated),
+                 out_shardings=where.shardings.env, donate_argnums=0)
 
 
 def collect(agent: Agent, train_env: EpisodeStarts, unroll_length: int, agent_state, env_state,

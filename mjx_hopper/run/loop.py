@@ -291,7 +291,7 @@ class _Chunk:
 
   def refill(self, state: train.TrainState) -> train.TrainState:
     """`state` with fresh episode starts for the next chunk."""
-    return state._replace(env=self._refill.result()(state.env))
+    return state._replace(env=self._refill.result()(state.env, np.False_))
 
   def finite(self, agent) -> np.ndarray:
     """(members,): whether every float of each member's `agent` is finite."""
