@@ -5,10 +5,11 @@ import json
 import subprocess
 import sys
 
-# The programs lowered before the first chunk's row: the chunk, init, the evaluation (where it
-# is traced beside the chunk's compile), the members' finiteness check, and while building the
-# env, MJX's model and data and the reset's reward terms (envs.check_task).
-MOST_PROGRAMS_BEFORE_FIRST_CHUNK = 7
+# The programs lowered before the first chunk's row: the chunk, init and the refill that begins
+# its envs, the evaluation (where it is traced beside the chunk's compile), the members'
+# finiteness check, and while building the env, MJX's model and data and the reset's reward
+# terms (envs.check_task).
+MOST_PROGRAMS_BEFORE_FIRST_CHUNK = 8
 
 PROGRAM = """
 import json, sys
