@@ -48,7 +48,7 @@ def cases(robots: str, kinds: str, overrides: dict) -> list[dict]:
     env = envs.make(robot)
     for kind in kinds.split(","):
       preset = presets.get(robot, kind)
-      out.append(dict(robot=robot, agent=preset.agent, preset=preset.agent_preset,
+      out.append(dict(robot=robot, agent=preset.agent, preset=kind,
                       overrides={**preset.agent_overrides, **overrides},
                       obs=env.observation_size, act=env.action_size,
                       batch=preset.train.batch_size, kind=kind))

@@ -23,7 +23,7 @@ def test_every_robot_has_a_valid_gpu_and_cpu_preset():
     for kind in presets.KINDS:
       preset = presets.get(env, kind)
       preset.train.check(num_devices=1)
-      agents.config(preset.agent, preset.agent_preset, **preset.agent_overrides)
+      agents.config(preset.agent, kind, **preset.agent_overrides)
       assert preset.why and preset.target > 0 and preset.minutes > 0
       cfg = presets.run_config(env, kind, max_minutes=1.0)
       assert (cfg.env, cfg.agent, cfg.train, cfg.max_minutes) == (env, preset.agent,

@@ -24,10 +24,10 @@ KINDS = ("gpu", "cpu")
 @dataclasses.dataclass(frozen=True)
 class Preset:
   """A robot's measured settings for one kind of machine: its agent, trainer layout,
-  evaluation period, its score, and the budget that reaches it."""
+  evaluation period, its score, and the budget that reaches it. Its agent's settings are the
+  agent's own preset of the same kind, with `agent_overrides` over them."""
 
-  agent: str                # the agent, with its named preset and overrides
-  agent_preset: str
+  agent: str
   agent_overrides: dict
   train: train.TrainConfig
   eval_every: int           # env steps between evaluations
@@ -43,7 +43,7 @@ class Preset:
 
 
 # D4PG's cpu preset and the trainer's default layout: a few hundred envs, small batches.
-_CPU = dict(agent="d4pg", agent_preset="cpu", agent_overrides={}, train=train.TrainConfig(),
+_CPU = dict(agent="d4pg", agent_overrides={}, train=train.TrainConfig(),
             eval_every=200_000)
 # The Hopper's own D4PG settings: a penalty on the squared pre-tanh actions keeps the policy off
 # the tanh's limits early on, which lets it learn at a higher rate, with mixed exploration noise
@@ -57,7 +57,7 @@ _CPU_TUNED = {**_CPU, "agent_overrides": {**_HOPPER_CPU, **_SMALL_NETWORKS}}
 _GPU_TRAIN = train.TrainConfig(num_envs=1024, unroll_length=1, batch_size=8192,
                                replay_ratio=64.0, replay_size=4_000_000, min_replay=40_960,
                                iterations_per_chunk=50)
-_GPU = dict(agent="d4pg", agent_preset="gpu", agent_overrides={"sigma": 0.4, "sigma_min": 0.05},
+_GPU = dict(agent="d4pg", agent_overrides={"sigma": 0.4, "sigma_min": 0.05},
             train=_GPU_TRAIN, eval_every=500_000)
 _GPU_WHY = "1,024 envs, 8 updates of 8,192 per iteration, mixed noise (evidence: 60e8b34)"
 _CPU_TUNED_WHY = "Hopper's cpu settings, 128-128 networks (evidence: {})"
@@ -140,6 +140,6 @@ def run_config(env, kind: str, **changes):
     changes.setdefault("max_minutes", None)
   overrides = {**preset.agent_overrides, **changes.pop("agent_overrides", {})}
   return RunConfig(**{
-      "env": env, "agent": preset.agent, "agent_preset": preset.agent_preset,
+      "env": env, "agent": preset.agent, "agent_preset": kind,
       "agent_overrides": overrides, "train": preset.train, "eval_every": preset.eval_every,
       "total_env_steps": preset.env_steps, "max_minutes": preset.minutes, **changes})
