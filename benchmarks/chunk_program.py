@@ -35,7 +35,7 @@ def measure(args) -> dict:
     runs, presets = common.project_module("run.runs"), common.project_module("settings.presets")
     cfg = presets.run_config(args.env, args.kind)
     trainer = runs.build(cfg)
-    state = runs.init(cfg, trainer, cfg.members())
+    state = runs.init(cfg, trainer, cfg.member_settings())
     chunk = getattr(trainer, "chunk", None) or trainer.train_chunk  # before EpisodeStarts
     refill = getattr(trainer, "refill", None)
     figures = {"lowered_chars": len(chunk.lower(state).as_text())}

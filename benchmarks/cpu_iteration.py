@@ -79,12 +79,13 @@ def part_split(env_name: str, kind: str, repeats: int) -> dict:
     trainer = runs.build(cfg)
 
     def fresh():  # each part its own state: a chunk's call consumes (donates) the one it gets
-      return runs.init(cfg, trainer, cfg.members())
+      return runs.init(cfg, trainer, cfg.member_settings())
     learning = per_chunk(trainer.chunk, fresh(), trainer=trainer)
     # The same chunk before learning starts: collection and insert alone.
     waiting = dataclasses.replace(cfg, train=dataclasses.replace(tc, min_replay=tc.replay_size))
     idle = runs.build(waiting)
-    collecting = per_chunk(idle.chunk, runs.init(waiting, idle, waiting.members()), trainer=idle)
+    collecting = per_chunk(idle.chunk, runs.init(waiting, idle, waiting.member_settings()),
+                           trainer=idle)
     refill = per_chunk(jax.jit(lambda e, _: (trainer.refill(e, False), None),
                                out_shardings=(trainer.shardings.env, None)), fresh().env, None)
     init, run = rollout.make_stepper(trainer.env, tc.num_envs, steps)

@@ -41,7 +41,8 @@ def measure(args) -> dict:
   cfg = dataclasses.replace(cfg, train=dataclasses.replace(
       cfg.train, min_replay=cfg.train.steps_per_iteration))
   trainer = runs.build(cfg)
-  timed = common.Timed(trainer.chunk, runs.init(cfg, trainer, cfg.members()), trainer=trainer)
+  timed = common.Timed(trainer.chunk, runs.init(cfg, trainer, cfg.member_settings()),
+                       trainer=trainer)
   seconds = timed(args.chunks)
   per_chunk = args.members * cfg.train.steps_per_iteration * args.chunk * args.chunks
   updates = args.members * cfg.train.updates_per_iteration * args.chunk * args.chunks

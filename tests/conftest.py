@@ -55,7 +55,7 @@ def build_key(cfg: config.RunConfig, num_members: int | None = None) -> tuple:
   members and whether their update counts are dynamic (out_dir, budgets and seeds are not)."""
   return (cfg.env, _frozen(cfg.env_settings), cfg.episode_steps, cfg.agent,
           _frozen(dataclasses.asdict(cfg.agent_config())), cfg.train_config(), cfg.eval_episodes,
-          num_members or len(cfg.members()), "replay_ratio" in cfg.grid)
+          num_members or len(cfg.member_settings()), "replay_ratio" in cfg.grid)
 
 
 @pytest.fixture(scope="session", autouse=True)

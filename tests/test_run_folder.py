@@ -23,7 +23,7 @@ def partial(tmp_path_factory):
                             out_dir=str(tmp_path_factory.mktemp("partial")))
   folder = RunFolder.of(cfg)
   trainer = runs.build(cfg, 2)
-  state = runs.init(cfg, trainer, cfg.members()[2:])
+  state = runs.init(cfg, trainer, cfg.member_settings()[2:])
   record = {"best_return": [1.0, 5.0], "best_env_steps": [40, 40]}
   mngr = store.manager(folder.checkpoints)
   store.save(mngr, state, {**config_item(cfg, [2, 3]), "record": record})
@@ -35,7 +35,7 @@ def test_a_member_is_its_index_not_its_position(partial):
   directory, state = partial
   saved = Saved.read(store.manager(directory), 0)
   assert saved.indices == [2, 3]
-  assert [m["seed"] for m in saved.members()] == [2, 3]
+  assert [m["seed"] for m in saved.member_settings()] == [2, 3]
   assert [saved.position(m) for m in (2, 3, "best")] == [0, 1, 1]
   for index, position in ((2, 0), (3, 1), ("best", 1)):
     agent = runs.load_member(directory, index, which="latest", print_fn=lambda _: None).agent
@@ -83,7 +83,7 @@ def test_a_run_over_processes_resumes_on_as_many(tmp_path):
   trainer = runs.build(cfg, 2)
   mngr = store.manager(RunFolder.of(cfg).checkpoints)
   check_processes(mngr, 2)  # nothing saved yet: any number
-  store.save(mngr, runs.init(cfg, trainer, cfg.members()), config_item(cfg, [0, 1], 2))
+  store.save(mngr, runs.init(cfg, trainer, cfg.member_settings()), config_item(cfg, [0, 1], 2))
   store.wait_and_record(mngr)
   check_processes(mngr, 2)
   saved = Saved.read(mngr, mngr.latest_step())  # eval, export and extract read it as any

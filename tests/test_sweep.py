@@ -86,7 +86,7 @@ def test_member_is_bit_identical_to_its_single_run(single):
   # device, from its own seed's keys, with its learning rate as an array of the same program.
   cfg = dataclasses.replace(TINY, seeds=(1,), grid={"learning_rate": (1e-3, 3e-4)})
   trainer = runs.build(cfg)
-  members = cfg.members()
+  members = cfg.member_settings()
   state, metrics = run_chunks(trainer, runs.init(cfg, trainer, members))
   # Member 1 has TINY's own learning rate: its single run is started as `loop.run(TINY)` starts
   # one; member 0's gets its learning rate through init.
@@ -119,7 +119,7 @@ def test_sweep_writes_results_resumes_exactly_and_extracts(single, tmp_path, cap
   assert_same(jax.device_get(straight.state), jax.device_get(resumed.state))
   # Two members per device run under vmap: within a tolerance of their single runs, and not
   # of the run of another sigma from the same seed (members 0 and 2).
-  singles = [member(single_run(single, chosen)[0]) for chosen in cfg.members()]
+  singles = [member(single_run(single, chosen)[0]) for chosen in cfg.member_settings()]
   for i, one in enumerate(singles):
     assert_close(member(straight.state, i), one, rtol=5e-2)
   with pytest.raises(AssertionError):
@@ -175,11 +175,11 @@ def test_replay_ratio_and_n_step_sweep_each_member_their_own():
   cfg = dataclasses.replace(TINY, grid={"replay_ratio": (1.0, 2.0), "n_step": (1, 3)})
   trainer = runs.build(cfg)
   assert trainer.agent.n_step == 3  # the replay reads the longest window
-  state, _ = run_chunks(trainer, runs.init(cfg, trainer, cfg.members()), chunks=1)
+  state, _ = run_chunks(trainer, runs.init(cfg, trainer, cfg.member_settings()), chunks=1)
   # Learning starts at iteration 3 of 5: 3 iterations of 1 or 2 updates per iteration.
-  ratios = [m["replay_ratio"] for m in cfg.members()]
+  ratios = [m["replay_ratio"] for m in cfg.member_settings()]
   assert list(state.updates) == [3 * int(r) for r in ratios]  # 8 transitions, batch 8
-  assert list(state.agent.hparams["n_step"]) == [m["n_step"] for m in cfg.members()]
+  assert list(state.agent.hparams["n_step"]) == [m["n_step"] for m in cfg.member_settings()]
 
 
 def reference_pbt_step(returns, diverged, values, ranges, quanta, pbt, rng):
@@ -287,12 +287,12 @@ def test_a_diverged_member_is_frozen_and_the_others_go_on_unchanged(single, tmp_
   out = capsys.readouterr().out
   assert ("[diverged] member 1 at 40 env steps: " in out and "parameters not finite; frozen "
           "at its last finite agent" in out)
-  sane, _ = single_run(single, cfg.members()[0], chunks=3)
+  sane, _ = single_run(single, cfg.member_settings()[0], chunks=3)
   assert_as_its_single_run(member(result.state, 0), member(sane))
   # Member 1 diverged in its first chunk: its agent stays the one it started with.
   trainer = runs.build(cfg)
   assert_same(member(result.state.agent, 1),
-              member(runs.init(cfg, trainer, cfg.members()).agent, 1))
+              member(runs.init(cfg, trainer, cfg.member_settings()).agent, 1))
   with open(tmp_path / "log.csv") as f:
     rows = list(csv.DictReader(f))
   assert {r["diverged"] for r in rows if r["member"] == "1"} == {"1"}

@@ -9,11 +9,11 @@ import numpy as np
 class Members:
   """What a run knows of each of its members, besides its state.
 
-  Two index spaces name members. A member's *index* is its place in `RunConfig.members()`: the
-  `member` column of log.csv, what `extract` takes, and what `parents` holds. Its *position* is
-  its place along the TrainState's member axis and every array here (`indices[position]` is its
-  index; a run over several processes still holds every member). A single run has one member,
-  index and position 0.
+  Two index spaces name members. A member's *index* is its place in
+  `RunConfig.member_settings()`: the `member` column of log.csv, what `extract` takes, and what
+  `parents` holds. Its *position* is its place along the TrainState's member axis and every
+  array here (`indices[position]` is its index; a run over several processes still holds every
+  member). A single run has one member, index and position 0.
   """
 
   def __init__(self, members: list[dict], indices: list[int], single: bool, pbt: bool,

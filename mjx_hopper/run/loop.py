@@ -220,7 +220,7 @@ def _open(cfg: RunConfig, checkpoint_dir: str | None, say, progress_fn):
   """The parts of a run, and the state to train from (fresh, or the newest readable
   checkpoint's), with the training chunk compiling meanwhile, then the evaluation."""
   t_start = time.perf_counter()
-  mine = cfg.members()
+  mine = cfg.member_settings()
   indices = list(range(len(mine)))
   primary = distributed.primary()
   folder = RunFolder.of(cfg)

@@ -23,13 +23,13 @@ def build(cfg: RunConfig, num_members: int | None = None) -> train.Trainer:
   envs.check_task(env)
   agent = agents.make(cfg.agent, env.observation_size, env.action_size, cfg.agent_config())
   return train.make_trainer(env, agent, cfg.train_config(), eval_episodes=cfg.eval_episodes,
-                            num_members=num_members or len(cfg.members()),
+                            num_members=num_members or len(cfg.member_settings()),
                             dynamic_updates="replay_ratio" in cfg.grid)
 
 
 def init(cfg: RunConfig, trainer: train.Trainer, members: list[dict]) -> train.TrainState:
-  """The fresh TrainState of `members` (from `cfg.members()`), each from its own seed's key and
-  with its own swept values: a member starts as the single run of its settings."""
+  """The fresh TrainState of `members` (from `cfg.member_settings()`), each from its own seed's
+  key and with its own swept values: a member starts as the single run of its settings."""
   return trainer.init([m["seed"] for m in members],
                       {name: [m[name] for m in members] for name in cfg.grid})
 
@@ -82,7 +82,7 @@ def load_member(directory: str, member: int | str | None = None, env: Any = None
   def load(step):
     saved = Saved.read(mngr, step, env)
     position = saved.position(member)
-    members = saved.members()
+    members = saved.member_settings()
     trainer = build(saved.config, len(members))
     like = jax.eval_shape(lambda k: init(saved.config, trainer, members).agent, 0)
     agents_state, best = saved.agents(mngr, like, which)
@@ -144,7 +144,7 @@ def _restore(directory: str, print_fn, env: Any, with_best: bool = False):
 
   def load(step):
     saved = Saved.read(mngr, step, env)
-    members = saved.members()
+    members = saved.member_settings()
     trainer = build(saved.config, len(members))
     state = store.read_state(mngr, step, init(saved.config, trainer, members))
     best = store.read_best(mngr, step, state.agent) if with_best else None
@@ -159,7 +159,7 @@ def _write_member(saved: Saved, state, best, position: int, out_dir: str) -> tup
   """Writes the member at `position` of a sweep's restored state as a single run's
   checkpoint. Returns (its directory, the member's seed and swept values)."""
   cfg, record = saved.config, saved.record
-  chosen = record.get("values", saved.members())[position]
+  chosen = record.get("values", saved.member_settings())[position]
   agent_values = {k: v for k, v in chosen.items() if k not in ("seed", *TRAINER_DYNAMIC)}
   single = dataclasses.replace(
       cfg, seed=chosen["seed"], seeds=(), grid={}, pbt=None, out_dir=out_dir,

@@ -88,7 +88,7 @@ class RunConfig:
     if self.pbt is not None:
       if not isinstance(self.pbt, PBT):
         raise ValueError(f"pbt takes a pbt.PBT or None, got {self.pbt!r}")
-      self.pbt.check(self.grid, len(self.members()), lambda name, value: check_value(
+      self.pbt.check(self.grid, len(self.member_settings()), lambda name, value: check_value(
           self.agent, self.agent_preset, name, value, self.train, self.agent_overrides))
 
   def task(self) -> type[envs.LocomotionEnv]:
@@ -116,12 +116,12 @@ class RunConfig:
     """Whether evaluations run on the host's CPU, beside training on `backend` (as
     `jax.default_backend()` names it): `eval_on`."""
     if self.eval_on == "auto":
-      return len(self.members()) == 1 and backend != "cpu"
+      return len(self.member_settings()) == 1 and backend != "cpu"
     return self.eval_on == "host"
 
-  def members(self) -> list[dict]:
+  def member_settings(self) -> list[dict]:
     """Each member's seed and swept values, in member order (one member for a single run)."""
-    return members(tuple(self.seeds) or (self.seed,), self.grid)
+    return member_settings(tuple(self.seeds) or (self.seed,), self.grid)
 
   def agent_config(self):
     """The agent's config; in a sweep of n-step values, n_step is the largest a member may have
@@ -268,7 +268,7 @@ def check_value(agent: str, agent_preset: str, name: str, value, train_cfg: Trai
     agents.config(agent, agent_preset, **{**(overrides or {}), name: value})
 
 
-def members(seeds: tuple[int, ...], grid: dict) -> list[dict[str, Any]]:
+def member_settings(seeds: tuple[int, ...], grid: dict) -> list[dict[str, Any]]:
   """Every member's seed and swept values, in member order: the grid's combinations in the
   order given (the last name varying fastest), each with every seed."""
   names = list(grid)

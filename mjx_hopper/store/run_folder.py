@@ -120,16 +120,16 @@ class Saved:
   @property
   def indices(self) -> list[int]:
     """The indices of the members the step holds, in position order."""
-    return list(self.item.get("member_indices", range(len(self.config.members()))))
+    return list(self.item.get("member_indices", range(len(self.config.member_settings()))))
 
   @property
   def record(self) -> dict:
     """The members' record: best evaluations, divergence, settings now, lineage."""
     return self.item.get("record", {})
 
-  def members(self) -> list[dict]:
+  def member_settings(self) -> list[dict]:
     """The seed and swept values each held member started from, in position order."""
-    everyone = self.config.members()
+    everyone = self.config.member_settings()
     return [everyone[i] for i in self.indices]
 
   def best_index(self) -> int:
