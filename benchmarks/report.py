@@ -280,8 +280,8 @@ def sections() -> list[tuple[str, str, str, list[str]]]:
     rows.append([f"`{job}`", f"{s['python']}, jax {s['jax']}", s["tests"] - s["skipped"],
                  s["failed"], num(s["pytest_s"] / 60, 1), num(s["with_setup_s"] / 60, 1),
                  slowest])
-  out.append(("Test suite", "CI's two jobs on 2 CPU cores from an empty compile cache "
-              "(`benchmarks/suite_time.py`); slowest files in test minutes (two workers).",
+  out.append(("Test suite", "CI's two jobs on 2 CPU cores, empty compile cache; slowest "
+              "files in minutes of one worker.",
               table(["job", "Python", "tests run", "failed", "pytest (min)",
                      "with set-up (min)", "slowest files (min)"], rows), list(SUITE.values())))
   return out
