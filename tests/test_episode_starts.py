@@ -103,8 +103,9 @@ def test_one_refill_program_refills_and_begins(short_hopper):
   wrapped = envs.EpisodeStarts(short_hopper, 2)
   refill = jax.jit(wrapped.refill)
   state = jax.jit(wrapped.reset)(jax.random.PRNGKey(0))
+  step = jax.jit(wrapped.step)
   for _ in range(2):
-    state = wrapped.step(state, jnp.zeros(short_hopper.action_size))
+    state = step(state, jnp.zeros(short_hopper.action_size))
   kept, begun = refill(state, np.False_), refill(state, np.True_)
   np.testing.assert_array_equal(kept.pipeline_state.qpos, state.pipeline_state.qpos)
   assert int(kept.info["steps"]) == 2 and int(kept.info["starts_used"]) == 0
