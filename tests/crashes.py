@@ -2,16 +2,48 @@
 `pytest -n` sees them. A worker that dies in native code (XLA's compiler has segfaulted in
 CI, never on our own machines) is replaced, and its file goes on in the new worker from the
 test it died in. A run whose only failures are such crashes, at most MAX_CRASHES of them and
-each test passing when run again, passes, and says so; a test that crashes every time fails."""
+each test passing when run again, passes, and says so; a test that crashes every time fails.
+Its scheduler keeps a crash from stalling the run (LoadFileAfterCrashes)."""
 
 import collections
 
 import pytest
+from xdist.scheduler import LoadFileScheduling
 
 MAX_CRASHES = 2
 _crashes: collections.Counter = collections.Counter()
 _failed: set[str] = set()
 _passed: set[str] = set()
+
+
+class LoadFileAfterCrashes(LoadFileScheduling):
+  """xdist's `--dist loadfile`, less two ways in which a crash stalls the run for good
+  (pytest-xdist issues 1327 and 1378, open in 3.8): the dead worker's finished files went
+  back on the queue as empty units of work, and a worker could be left holding one test, which
+  it runs only once it is sent the next test or told to stop."""
+
+  def remove_node(self, node):
+    workload = self.assigned_work[node]
+    if self._pending_of(workload):  # it crashed: only its unfinished files go back
+      for scope in [scope for scope, unit in workload.items() if all(unit.values())]:
+        del workload[scope]
+    return super().remove_node(node)
+
+  def _reschedule(self, node):
+    super()._reschedule(node)
+    if node.shutting_down or self._pending_of(self.assigned_work[node]) != 1:
+      return
+    if self.workqueue:
+      self._assign_work_unit(node)
+    else:
+      node.shutdown()
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config, log):
+  if config.getvalue("dist") == "loadfile":
+    return LoadFileAfterCrashes(config, log)
+  return None
 
 
 @pytest.hookimpl(optionalhook=True)

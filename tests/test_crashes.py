@@ -1,5 +1,5 @@
 """tests/crashes.py: a test worker's crash fails the run, unless the test passes when run
-again and nothing else failed."""
+again and nothing else failed; and the run goes on to its end."""
 
 import os
 import resource
@@ -8,12 +8,13 @@ import sys
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 CRASHING = """
-import ctypes, os
+import ctypes, os, time
 
 def test_before():
   pass
 
 def test_crashes():
+  time.sleep(1)  # the other worker runs ahead, and the queue empties
   if os.environ["CRASH"] == "always" or not os.path.exists("crashed"):
     open("crashed", "w").close()
     ctypes.string_at(0)  # a segfault
@@ -26,13 +27,18 @@ def test_fails():
 """
 
 
-def run(tmp_path, crash: str, fail: str = "0") -> subprocess.CompletedProcess:
+def run(tmp_path, crash: str, fail: str = "0", files_before: int = 0
+        ) -> subprocess.CompletedProcess:
+  """pytest on two workers as scripts/test.sh runs it, over `files_before` files of one quick
+  test each and then CRASHING."""
   (tmp_path / "pytest.ini").write_text("[pytest]\n")
+  for i in range(files_before):
+    (tmp_path / f"test_a{i:02}.py").write_text("def test_quick():\n  pass\n")
   (tmp_path / "test_crashing.py").write_text(CRASHING)
   return subprocess.run(
-      [sys.executable, "-m", "pytest", "-n", "2", "--dist", "loadfile", "-p", "crashes",
-       "-p", "no:cacheprovider", "--max-worker-restart", "2", "-q", "-o", "addopts=",
-       "test_crashing.py"], cwd=tmp_path, capture_output=True, text=True, timeout=300,
+      [sys.executable, "-m", "pytest", "-n", "2", "--dist", "loadfile", "--no-loadscope-reorder",
+       "-p", "crashes", "-p", "no:cacheprovider", "--max-worker-restart", "2", "-q",
+       "-o", "addopts="], cwd=tmp_path, capture_output=True, text=True, timeout=120,
       env={**os.environ, "PYTHONPATH": HERE, "CRASH": crash, "FAIL": fail},
       preexec_fn=lambda: resource.setrlimit(resource.RLIMIT_CORE, (0, 0)))  # no core files
 
@@ -55,3 +61,12 @@ def test_a_crash_every_time_fails_the_run(tmp_path):
   done = run(tmp_path, "always")
   assert done.returncode != 0, done.stdout
   assert "did not pass when run again" in done.stdout
+
+
+def test_a_crash_after_finished_files_runs_to_the_end(tmp_path):
+  # xdist's own scheduler put the dead worker's finished files back as empty work, on which
+  # the workers then waited for good (a TimeoutExpired here).
+  done = run(tmp_path, "once", files_before=30)
+  assert done.returncode == 0, done.stdout
+  assert "34 passed" in done.stdout and "a worker died in test_crashing.py::test_crashes" \
+      in done.stdout
