@@ -89,8 +89,10 @@ class EpisodeStarts(Wrapper):
   def blank(self, rng: jax.Array) -> State:
     """A state of zeros with the key `rng`, whose starts are all used: `refill` with `begin`
     makes it a first state."""
-    shapes = jax.eval_shape(  # of a begun state: traced, not computed
-        lambda r: self._begun(jax.vmap(self.env.reset)(jax.random.split(r, self.starts)), r), rng)
+    # Shapes of a begun state, traced, not computed; from one reset's, as vmap traces slower.
+    one = jax.eval_shape(self.env.reset, rng)
+    firsts = jax.tree.map(lambda s: jax.ShapeDtypeStruct((self.starts, *s.shape), s.dtype), one)
+    shapes = jax.eval_shape(self._begun, firsts, rng)
     state = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
     state.info.update(rng=rng, starts_used=jnp.asarray(self.starts, jnp.int32))
     return state

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import concurrent.futures
+import functools
 import os
 from typing import NamedTuple
 
@@ -29,17 +30,18 @@ class Started(NamedTuple):
 
 
 def start(trainer: train.Trainer, init, evaluator) -> Started:
-  """Starts making the fresh state (`init()`, whose envs begin in the trainer's refill) and
-  compiling the chunk, the finiteness check and `evaluator`'s evaluation. The first training
-  row needs the chunk, the state and the check, which come first, side by side: the chunk in
-  one thread, the state and the check in the other. The evaluation follows, on a small CPU
-  after the chunk in its thread, so as not to slow its compile. The programs are traced here,
-  in turn, since tracing holds Python's lock; the state's programs are traced in its thread,
-  and on a small CPU the evaluation in the chunk's."""
+  """Starts making the fresh state (`init()`, whose envs begin in the trainer's refill; the
+  blank `init(begin=False)` gives its shapes) and compiling the chunk, the finiteness check and
+  `evaluator`'s evaluation. The first training row needs the chunk, the state and the check,
+  which come first, side by side: the chunk in one thread, the state and the check in the
+  other. The evaluation follows, on a small CPU after the chunk in its thread, so as not to
+  slow its compile. The programs are traced here, in turn, since tracing holds Python's lock;
+  the state's programs (the refill's too) are traced in its thread, and on a small CPU the
+  evaluation in the chunk's."""
   shapes = jax.tree.map(
       lambda sharding, part: jax.tree.map(
           lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sharding), part),
-      trainer.shardings, jax.eval_shape(init))
+      trainer.shardings, jax.eval_shape(functools.partial(init, begin=False)))
   # Two lines: the chunk, then the evaluation (compiled beside the chunk, it slowed the chunk's
   # compile more than it brought the first evaluation forward); the state (its program and the
   # refill), then the finiteness check. Tracing here, during the chunk's compile, brings the

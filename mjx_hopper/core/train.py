@@ -98,9 +98,10 @@ class TrainState(NamedTuple):
 class Trainer(NamedTuple):
   """Compiled functions of one (env, agent, config, number of members S).
 
-  init(seeds (S,), hparams=None) -> TrainState: each member from jax.random.PRNGKey(seed);
-    hparams: {name: (S,)} of the agent's dynamic settings and "replay_ratio", defaulting to the
-    config's.
+  init(seeds (S,), hparams=None, begin=True) -> TrainState: each member from
+    jax.random.PRNGKey(seed); hparams: {name: (S,)} of the agent's dynamic settings and
+    "replay_ratio", defaulting to the config's; begin=False: its envs blank, as `refill` begins
+    them (the state's shapes, without tracing the refill).
   chunk(state) -> (state, metrics (S,)): `iterations_per_chunk` iterations; metrics: the agent's
     metrics averaged over the chunk, "episodes" ended, their mean "episode_return" (NaN if
     none) and "learning".
@@ -228,7 +229,7 @@ def _make_init(train_env: EpisodeStarts, agent: Agent, cfg: TrainConfig, where: 
 
   compiled_init = jax.jit(jax.vmap(init_member), out_shardings=where.shardings)
 
-  def init(seeds, hparams=None):
+  def init(seeds, hparams=None, begin=True):
     # NumPy until the one compiled call: eager JAX here would compile programs of its own.
     seeds = np.atleast_1d(np.asarray(seeds))
     if seeds.shape != (num_members,) or not np.issubdtype(seeds.dtype, np.integer):
@@ -241,7 +242,7 @@ def _make_init(train_env: EpisodeStarts, agent: Agent, cfg: TrainConfig, where: 
     batched = {k: np.broadcast_to(np.asarray(v, defaults[k].dtype), (num_members,))
                for k, v in values.items()}
     state = compiled_init(seed_bits(seeds), batched)
-    return state._replace(env=refill(state.env, np.True_))
+    return state._replace(env=refill(state.env, np.True_)) if begin else state
   return init
 
 

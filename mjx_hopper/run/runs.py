@@ -27,11 +27,13 @@ def build(cfg: RunConfig, num_members: int | None = None) -> train.Trainer:
                             dynamic_updates="replay_ratio" in cfg.grid)
 
 
-def init(cfg: RunConfig, trainer: train.Trainer, members: list[dict]) -> train.TrainState:
+def init(cfg: RunConfig, trainer: train.Trainer, members: list[dict], begin: bool = True
+         ) -> train.TrainState:
   """The fresh TrainState of `members` (from `cfg.member_settings()`), each from its own seed's
-  key and with its own swept values: a member starts as the single run of its settings."""
+  key and with its own swept values: a member starts as the single run of its settings.
+  begin=False: its envs blank (Trainer.init)."""
   return trainer.init([m["seed"] for m in members],
-                      {name: [m[name] for m in members] for name in cfg.grid})
+                      {name: [m[name] for m in members] for name in cfg.grid}, begin)
 
 
 def check_which(which: str) -> None:
