@@ -18,9 +18,9 @@ _passed: set[str] = set()
 
 class LoadFileAfterCrashes(LoadFileScheduling):
   """xdist's `--dist loadfile`, less two ways in which a crash stalls the run for good
-  (pytest-xdist issues 1327 and 1378; 3.8.0, the newest release, has both): the dead worker's finished files went
-  back on the queue as empty units of work, and a worker could be left holding one test, which
-  it runs only once it is sent the next test or told to stop."""
+  (pytest-xdist issues 1327 and 1378; 3.8.0, the newest release, has both): the dead worker's
+  finished files went back on the queue as empty units of work, and a worker could be left
+  holding one test, which it runs only once it is sent the next test or told to stop."""
 
   def remove_node(self, node):
     workload = self.assigned_work[node]
