@@ -1,5 +1,5 @@
-"""Peers: our D4PG beside Brax's SAC and PPO on our Hopper, all at once on one GPU, each run a
-process with its share of the GPU; or, with --cpu-baseline MINUTES, SB3's SAC with
+"""Peers: our D4PG beside Brax's SAC and PPO on our Hopper, one after another, each run a process
+alone on the GPU; or, with --cpu-baseline MINUTES, SB3's SAC with
 rl-baselines3-zoo's HopperBulletEnv-v0 settings on PyBullet, then our D4PG cpu preset, MINUTES
 each, on the CPU (the `peers` extra). Evaluations: 16 deterministic 1,000-step episodes of our
 Hopper (SB3's on PyBullet with its clock paused, and on ours at the end), timed from each
@@ -39,8 +39,8 @@ BRAX = {
                 num_minibatches=32, num_updates_per_batch=4, discounting=0.97,
                 learning_rate=3e-4, entropy_cost=1e-2, num_envs=4096, batch_size=2048, seed=1),
 }
-OURS = {"gpu": "--agent d4pg --preset gpu --num-envs 512 --batch-size 1024 --replay-ratio 4 "
-               "--eval-every 200000", "cpu": "--agent d4pg --preset cpu --eval-every 200000"}
+OURS = {"gpu": "--agent d4pg --preset gpu --eval-every 200000",
+        "cpu": "--agent d4pg --preset cpu --eval-every 200000"}
 # rl-baselines3-zoo, hyperparams/sac.yml: HopperBulletEnv-v0 (its pybullet defaults with a
 # linear learning-rate schedule over n_timesteps).
 RL_ZOO_SAC = dict(n_timesteps=1_000_000, learning_rate=7.3e-4, buffer_size=300_000,
@@ -108,14 +108,12 @@ def start(run: dict, out: str, mem_fraction: float) -> subprocess.Popen:
   return subprocess.Popen([sys.executable, __file__, "--worker", folder], env=env)
 
 
-def run_all(runs: list[dict], out: str, parallel: int) -> None:
-  """Runs `parallel` at a time, each with 0.9 / parallel of the GPU; a run still going limit_s
-  after its start is stopped (one SIGTERM: ours saves and exits), and killed 60 s later."""
-  for i in range(0, len(runs), parallel):
-    group = runs[i:i + parallel]
-    print(f"starting {', '.join(r['name'] for r in group)} for {group[0]['minutes']} min",
-          flush=True)
-    procs = [(r, start(r, out, 0.9 / parallel)) for r in group]
+def run_all(runs: list[dict], out: str) -> None:
+  """Runs one at a time, each alone on the device; a run still going limit_s after its start is
+  stopped (one SIGTERM: ours saves and exits), and killed 60 s later."""
+  for run in runs:
+    print(f"starting {run['name']} for {run['minutes']} min", flush=True)
+    procs = [(run, start(run, out, 0.9))]
     stopped = set()
     while any(proc.poll() is None for _, proc in procs):
       for run, proc in procs:
@@ -362,7 +360,7 @@ def main() -> None:
     return workers[run["trainer"]](run, args.worker)
   runs = plan(args)
   os.makedirs(args.out, exist_ok=True)
-  run_all(runs, args.out, 1 if args.cpu_baseline else len(runs))
+  run_all(runs, args.out)
   rows = summarise(runs, args.out)
   report(rows)
   common.write_results(f"peers_{args.label}", {"thresholds": THRESHOLDS, "runs": rows})
