@@ -18,6 +18,7 @@ import inspect
 import itertools
 import json
 import os
+import platform
 import signal
 import subprocess
 import sys
@@ -92,8 +93,10 @@ def plan(args) -> list[dict]:
       settings = settings.split() + ["--seed", str(SEED)]
     # SB3's clock leaves out its evaluations (on PyBullet, sequential), so it runs longer.
     limit_s = 60 * minutes * (1.5 if trainer == "sb3" else 1) + args.grace
+    python = args.ours_python if trainer == "ours" and args.ours_python else sys.executable
     runs.append({"name": f"{i}_{trainer}", "trainer": trainer, "settings": settings,
-                 "minutes": minutes, "eval_episodes": EVAL_EPISODES, "limit_s": limit_s})
+                 "minutes": minutes, "eval_episodes": EVAL_EPISODES, "limit_s": limit_s,
+                 "python": python})
   return runs
 
 
@@ -105,7 +108,7 @@ def start(run: dict, out: str, mem_fraction: float) -> subprocess.Popen:
   run["launch_time"] = time.time()
   with open(os.path.join(folder, "run.json"), "w") as f:
     json.dump(run, f, indent=1)
-  return subprocess.Popen([sys.executable, __file__, "--worker", folder], env=env)
+  return subprocess.Popen([run["python"], __file__, "--worker", folder], env=env)
 
 
 def run_all(runs: list[dict], out: str) -> None:
@@ -219,7 +222,8 @@ def worker_ours(run: dict, folder: str) -> None:
             str(minutes), "--eval-episodes", str(run["eval_episodes"]), "--out-dir", folder,
             "--no-progress", "--log-every", "30", "--checkpoint-minutes", "10000"])
   import jax
-  write_meta(folder, device=jax.devices()[0].device_kind, jax=jax.__version__)
+  write_meta(folder, device=jax.devices()[0].device_kind, jax=jax.__version__,
+             python=platform.python_version())
 
 
 def worker_brax(run: dict, folder: str) -> None:
@@ -350,6 +354,9 @@ def main() -> None:
                  help="seconds past --minutes before a run is stopped")
   p.add_argument("--cpu-baseline", type=float, default=None, metavar="MINUTES",
                  help="SB3 SAC on PyBullet, then our D4PG cpu preset, MINUTES each")
+  p.add_argument("--ours-python", default=None, metavar="PYTHON",
+                 help="the interpreter of our runs (default: this one); PyBullet, which SB3's "
+                      "run needs, installs only on Python 3.11")
   p.add_argument("--label", default="run", help="results: benchmarks/results/peers_LABEL.json")
   p.add_argument("--out", default="runs/peers")
   p.add_argument("--worker", default=None, help=argparse.SUPPRESS)
