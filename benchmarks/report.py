@@ -309,15 +309,18 @@ def start_section() -> tuple[str, str, str, list[str]]:
   for where, name in START.items():
     data, columns = load(name), {}
     for label, figures in data["figures"]["medians"].items():
-      code, cache = label.split(", ")
-      code = data["commit"] if code == "this checkout" else code
+      code, cache = label.rsplit(", ", 1)
+      if code == "this checkout" and len(data["figures"].get("versions", {})) > 1:
+        code += f" on {data['figures']['versions'][code]}"
+      code = code.replace("this checkout", data["commit"])
       flags = data["figures"].get("xla_flags")
       columns[f"{code}{' with ' + flags if flags else ''}, {cache}"] = figures
     rows = [[label, *("–" if c.get(key) is None else num(c[key], 0 if key == "steps_per_s" else 1)
                       for c in columns.values())] for label, key in START_ROWS.items()]
     tables.append(f"On {where}:\n\n" + table(["phase (s)", *columns], rows))
   return ("The start, phase by phase", "The main job (Hopper), s from process start, empty "
-          "(cold) or warm compile cache, beside an earlier commit; compiles overlap.",
+          "(cold) or warm compile cache, beside an earlier commit or other releases; compiles "
+          "overlap.",
           "\n\n".join(tables), list(START.values()))
 
 

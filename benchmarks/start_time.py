@@ -4,9 +4,10 @@ compile cache ("cold") and then from the cache that run left ("warm"). Each run 
 seconds from process start: the imports, the build (imports done to the chunk's tracing), each
 program's tracing, lowering and XLA compile (`jax.monitoring`'s events), and the first lines.
 With --checkout DIR, DIR's code (laid out as installed, first on PYTHONPATH) runs in turns with
-this one's.
+this one's; with --python PYTHON, this code on another interpreter and its releases (JAX's).
 
     python benchmarks/start_time.py --rounds 2 --checkout /tmp/before   # beside another commit
+    python benchmarks/start_time.py --python .venv-floor/bin/python      # beside the floor's JAX
     bash benchmarks/gpu.sh "python benchmarks/start_time.py --kind gpu --label h100"
 """
 
@@ -47,7 +48,8 @@ RATE = re.compile(r"\| ([\d,]+) steps/s")
 MIN_SECONDS = 0.2  # programs whose phases took less are summed as "small programs"
 
 
-def one_run(command: list[str], cache: str, code: str | None, seconds: float) -> dict:
+def one_run(command: list[str], cache: str, python: str, code: str | None,
+            seconds: float) -> dict:
   """One run's phases (s from process start), run for about `seconds`."""
   env = dict(os.environ, MJX_HOPPER_JAX_CACHE=cache)
   if code:
@@ -55,7 +57,7 @@ def one_run(command: list[str], cache: str, code: str | None, seconds: float) ->
   with tempfile.TemporaryDirectory() as out:
     record = os.path.join(out, "events.json")
     start = time.time()
-    proc = subprocess.Popen([sys.executable, "-P", "-c", PROBE,
+    proc = subprocess.Popen([python, "-P", "-c", PROBE,
                              os.path.dirname(os.path.abspath(__file__)), record, *command,
                              "--out-dir", out, "--max-minutes", str(seconds / 60)], env=env,
                             text=True, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
@@ -91,6 +93,13 @@ def one_run(command: list[str], cache: str, code: str | None, seconds: float) ->
           "steps_per_s": statistics.median(later) if later else None, "programs": programs}
 
 
+def versions(python: str) -> str:
+  """The interpreter's Python and JAX versions, as "Python 3.12.1, jax 0.12.0"."""
+  return subprocess.run([python, "-c", "import sys, jax; print(f'Python "
+                         "{sys.version.split()[0]}, jax {jax.__version__}')"], check=True,
+                        capture_output=True, text=True).stdout.strip()
+
+
 def summary(runs: list[dict]) -> dict:
   """The medians of `runs`' phases, programs' phases flattened as 'PROGRAM PHASE'."""
   def flat(run):
@@ -110,29 +119,34 @@ def main() -> None:
   p.add_argument("--checkout", default=None, help="another checkout's folder to time beside")
   p.add_argument("--checkout-name", default=None,
                  help="its name in the results, such as its commit (default: its folder)")
+  p.add_argument("--python", default=None,
+                 help="another interpreter, with its own releases, to time this code on beside")
   p.add_argument("--env", default="Hopper")
   p.add_argument("--kind", default="cpu", help="the robot preset: cpu or gpu")
   p.add_argument("--label", default="cpu")
   args = p.parse_args()
   command = ["train", "--env", args.env, "--agent", "d4pg", "--preset", args.kind,
              "--total-env-steps", "1000000000", "--no-progress", "--log-every", "1"]
-  codes = {"this checkout": None}
+  codes = {"this checkout": (sys.executable, None)}
   with tempfile.TemporaryDirectory(prefix="start_time_") as installed:
     if args.checkout:
-      codes[args.checkout_name or args.checkout] = common.installed_layout(args.checkout,
-                                                                           installed)
+      codes[args.checkout_name or args.checkout] = (
+          sys.executable, common.installed_layout(args.checkout, installed))
+    if args.python:
+      codes[f"this checkout on {versions(args.python)}"] = (args.python, None)
     runs = {(name, cache): [] for name in codes for cache in ("cold", "warm")}
     for i in range(args.rounds):
-      for name, code in (codes.items() if i % 2 == 0 else reversed(codes.items())):
+      for name, (python, code) in (codes.items() if i % 2 == 0 else reversed(codes.items())):
         with tempfile.TemporaryDirectory() as cache:
           for state in ("cold", "warm"):  # the second run loads what the first kept
-            runs[name, state].append(one_run(command, cache, code, args.seconds))
+            runs[name, state].append(one_run(command, cache, python, code, args.seconds))
             print(name, state, json.dumps(runs[name, state][-1]), flush=True)
   medians = {f"{name}, {state}": summary(r) for (name, state), r in runs.items()}
   for label, figures in medians.items():
     print(label, {k: round(v, 1) for k, v in figures.items()})
   common.write_results(f"start_time_{args.label}", {
       "preset": f"{args.env} {args.kind}", "xla_flags": os.environ.get("XLA_FLAGS"),
+      "versions": {name: versions(python) for name, (python, _) in codes.items()},
       "medians": medians,
       "runs": {f"{name}, {state}": r for (name, state), r in runs.items()}})
 
