@@ -31,6 +31,7 @@ def measure(args) -> dict:
     else:  # code from before mjx_hopper.setup
       mjx_hopper.use_compile_cache(cache)
     import jax
+    import numpy as np
 
     runs, presets = common.project_module("run.runs"), common.project_module("settings.presets")
     cfg = presets.run_config(args.env, args.kind)
@@ -44,7 +45,10 @@ def measure(args) -> dict:
         " = " in line for line in timed.compiled.as_text().splitlines())
     figures.update(trace_s=timed.trace_s, compile_s=timed.compile_s)
     if refill is not None:
-      lowered = refill.lower(timed.state.env)
+      try:
+        lowered = refill.lower(timed.state.env, np.False_)
+      except (TypeError, ValueError):  # code from before the refill began init's envs
+        lowered = refill.lower(timed.state.env)
       figures["refill_instructions"] = sum(
           " = " in line for line in lowered.compile().as_text().splitlines())
     timed(2)  # past the first chunks' replay warm-up
