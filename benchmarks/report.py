@@ -45,7 +45,8 @@ LEARNER = ("learner_robots_h100.json", "learner_robots_bf16_h100.json")
 SWEEPS = ("sweep_throughput_h100.json", "sweep_throughput_2gpu_h200.json",
           "sweep_throughput_cpu.json")
 PBT = "pbt_quality_halfcheetah_h100x2.json"
-START = {"one H200": "start_time_h200.json", "2 CPU cores": "start_time_cpu.json"}
+START = {"one H200": "start_time_h200.json", "2 CPU cores": "start_time_cpu.json",
+         "2 CPU cores, two JAX releases": "start_time_cpu_jax.json"}
 # The same seeds of a gpu preset with two commits' code, in turn on one machine: newer first.
 BESIDE = {"Humanoid on one H200": [TTS.format("Humanoid_gpu_seeds23-24"),
                                    TTS.format("Humanoid_gpu_d8161c9_seeds23-24")]}
