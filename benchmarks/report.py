@@ -337,7 +337,10 @@ def iteration_section() -> tuple[str, str, str, list[str]]:
                             ("whole chunk", "chunk_s"))]
   rows += [[name, *(num(d["run"][key], digits) for d in data.values())]
            for name, key, digits in (("run: first row (s)", "first_row_run_s", 1),
-                                     ("run: chunks' env steps/s", "chunk_env_steps_per_s", 0))]
+                                     ("run: chunks' env steps/s", "chunk_env_steps_per_s", 0),
+                                     ("run: wall clock's env steps/s", "wall_env_steps_per_s", 0))]
+  rows.append(["run: pauses after the first row (evaluations, logs, saves)",
+               *(f"{d['run']['pause_share']:.1%}" for d in data.values())])
   first = next(iter(parts.values()))
   text = (f"A chunk: {num(first['env_steps_per_chunk'])} env steps, "
           f"{num(first['updates_per_chunk'])} updates.\n\n"
