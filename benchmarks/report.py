@@ -46,10 +46,7 @@ SWEEPS = ("sweep_throughput_h100.json", "sweep_throughput_2gpu_h200.json",
           "sweep_throughput_cpu.json")
 PBT = "pbt_quality_halfcheetah_h100x2.json"
 START = {"one H200": "start_time_h200.json", "2 CPU cores": "start_time_cpu.json",
-         "2 CPU cores, two JAX releases": "start_time_cpu_jax.json"}
-# The same seeds of a gpu preset with two commits' code, in turn on one machine: newer first.
-BESIDE = {"Humanoid on one H200": [TTS.format("Humanoid_gpu_seeds23-24"),
-                                   TTS.format("Humanoid_gpu_d8161c9_seeds23-24")]}
+         "2 CPU cores, this code on two JAX releases": "start_time_cpu_jax.json"}
 DISTRIBUTED = ("distributed_gpu2.json", "distributed_cpu2.json")
 # The training chunk as a program, before and after a change (chunk_program.py).
 CHUNK = {"one H100": "chunk_program_h100.json"}
@@ -235,7 +232,6 @@ def sections() -> list[tuple[str, str, str, list[str]]]:
               "peak.",
               table(["robot", "batch", "precision", "updates/s", "GFLOP/update", "% of peak",
                      "bfloat16 updates/s"], rows), list(LEARNER)))
-  out.append(beside_section())
   out.append(gymnasium_section())
   out.append(start_section())
   out.append(chunk_section())
@@ -288,22 +284,6 @@ def sections() -> list[tuple[str, str, str, list[str]]]:
   return out
 
 
-def beside_section() -> tuple[str, str, str, list[str]]:
-  """Time to score with two commits' code on the same seeds and machine."""
-  rows = []
-  for label, names in BESIDE.items():
-    for name in names:
-      t = time_to_score([name])
-      rows.append([label, code(load(name)["commit"]), t["seeds"], t["reached"],
-                   *(num(t[k]) for k in ("median", "fastest", "slowest")),
-                   num(t["env_steps"], 2)])
-  return ("Before and after", "A gpu preset's seeds, timed as above, with two commits' code "
-          "in turn.",
-          table(["task", "code", "seeds", "reached", "median (s)", "fastest (s)",
-                 "slowest (s)", "env steps to it (M, median)"], rows),
-          [n for names in BESIDE.values() for n in names])
-
-
 def start_section() -> tuple[str, str, str, list[str]]:
   """A run's start, phase by phase (s from process start), before and after, cold and warm."""
   tables = []
@@ -311,9 +291,9 @@ def start_section() -> tuple[str, str, str, list[str]]:
     data, columns = load(name), {}
     for label, figures in data["figures"]["medians"].items():
       code, cache = label.rsplit(", ", 1)
-      if code == "this checkout" and len(data["figures"].get("versions", {})) > 1:
-        code += f" on {data['figures']['versions'][code]}"
-      code = code.replace("this checkout", data["commit"])
+      versions = data["figures"].get("versions", {})
+      code = (versions[code] if len(set(versions.values())) > 1
+              else code.replace("this checkout", data["commit"]))
       flags = data["figures"].get("xla_flags")
       columns[f"{code}{' with ' + flags if flags else ''}, {cache}"] = figures
     rows = [[label, *("–" if c.get(key) is None else num(c[key], 0 if key == "steps_per_s" else 1)
