@@ -100,10 +100,10 @@ def plan(args) -> list[dict]:
   return runs
 
 
-def start(run: dict, out: str, mem_fraction: float) -> subprocess.Popen:
+def start(run: dict, out: str) -> subprocess.Popen:
   folder = os.path.join(out, run["name"])
   os.makedirs(folder, exist_ok=True)
-  env = dict(os.environ, XLA_PYTHON_CLIENT_MEM_FRACTION=f"{mem_fraction:.3f}",
+  env = dict(os.environ, XLA_PYTHON_CLIENT_MEM_FRACTION="0.9",
              MJX_HOPPER_JAX_CACHE=os.path.join(out, "jax_cache"))
   run["launch_time"] = time.time()
   with open(os.path.join(folder, "run.json"), "w") as f:
@@ -116,20 +116,17 @@ def run_all(runs: list[dict], out: str) -> None:
   stopped (one SIGTERM: ours saves and exits), and killed 60 s later."""
   for run in runs:
     print(f"starting {run['name']} for {run['minutes']} min", flush=True)
-    procs = [(run, start(run, out, 0.9))]
-    stopped = set()
-    while any(proc.poll() is None for _, proc in procs):
-      for run, proc in procs:
-        late = time.time() - run["launch_time"] - run["limit_s"]
-        if proc.poll() is None and late > 60:
-          proc.kill()
-        elif proc.poll() is None and late > 0 and run["name"] not in stopped:
-          proc.send_signal(signal.SIGTERM)
-          stopped.add(run["name"])
+    proc, stopped = start(run, out), False
+    while proc.poll() is None:
+      late = time.time() - run["launch_time"] - run["limit_s"]
+      if late > 60:
+        proc.kill()
+      elif late > 0 and not stopped:
+        proc.send_signal(signal.SIGTERM)
+        stopped = True
       time.sleep(2)
-    for run, proc in procs:
-      if proc.returncode:
-        print(f"{run['name']} exited with {proc.returncode}; see its output above", flush=True)
+    if proc.returncode:
+      print(f"{run['name']} exited with {proc.returncode}; see its output above", flush=True)
 
 
 def evaluations(folder: str) -> list[dict]:

@@ -55,8 +55,9 @@ SPLIT = {"one H200": "chunk_program_h200_split.json", "2 CPU cores": "chunk_prog
 # A start's phases as the table shows them: label, and its key in start_time.py's medians.
 START_ROWS = {"imports": "imports", "build": "build", "chunk: tracing": "chunk trace",
               "chunk: compile": "chunk compile", "init: compile": "init_member compile",
-              "refill: compile": "refill compile", "evaluation: compile": "one compile", "first training row": "first_train",
-              "first evaluation": "first_eval", "env steps/s": "steps_per_s"}
+              "refill: compile": "refill compile", "evaluation: compile": "one compile",
+              "first training row": "first_train", "first evaluation": "first_eval",
+              "env steps/s": "steps_per_s"}
 GYMNASIUM = "gymnasium_throughput_cpu.json"
 NOTEBOOK = "notebook_time_cpu_2026-11-26.json"
 FIRST_VIDEO = "notebook_first_video_cpu.json"
@@ -160,8 +161,8 @@ def peer_settings(run: dict) -> str:
   return f"reward scaling {s['reward_scaling']}, discount {s['discounting']}"
 
 
-PEER_HEAD = ["machine", "trainer", "settings", "minutes", "to 1,000 (s)", "to 2,000 (s)", "best return",
-             "env steps/s"]
+PEER_HEAD = ["machine", "trainer", "settings", "minutes", "to 1,000 (s)", "to 2,000 (s)",
+             "best return", "env steps/s"]
 
 
 def summary() -> str:
