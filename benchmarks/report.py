@@ -59,7 +59,7 @@ START_ROWS = {"imports": "imports", "build": "build", "chunk: tracing": "chunk t
               "first training row": "first_train", "first evaluation": "first_eval",
               "env steps/s": "steps_per_s"}
 GYMNASIUM = "gymnasium_throughput_cpu.json"
-NOTEBOOK = "notebook_time_cpu_2026-11-26.json"
+NOTEBOOK = "notebook_time_cpu.json"
 FIRST_VIDEO = "notebook_first_video_cpu.json"
 ITERATION = {"XLA's": "cpu_iteration_cpu.json", "YNNPACK's": "cpu_iteration_cpu_ynn.json"}
 SUITE = {"scripts/test.sh": "suite_time_py312.json",
