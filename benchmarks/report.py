@@ -60,7 +60,6 @@ START_ROWS = {"imports": "imports", "build": "build", "chunk: tracing": "chunk t
               "env steps/s": "steps_per_s"}
 GYMNASIUM = "gymnasium_throughput_cpu.json"
 NOTEBOOK = "notebook_time_cpu.json"
-FIRST_VIDEO = "notebook_first_video_cpu.json"
 ITERATION = {"XLA's": "cpu_iteration_cpu.json", "YNNPACK's": "cpu_iteration_cpu_ynn.json"}
 SUITE = {"scripts/test.sh": "suite_time_py312.json",
          ".ci/floor": "suite_time_floor_py311.json"}
@@ -267,9 +266,9 @@ def sections() -> list[tuple[str, str, str, list[str]]]:
               "the kernel's start.",
               table(["section", "minutes"], [[t, num(s / 60, 1)] for t, s in
                                              nb["sections_s"].items() if s >= 30]
-                    + [["all", num(nb["total_s"] / 60, 1)], ["first video", num(
-                        load(FIRST_VIDEO)["figures"]["first_video_s"] / 60, 1)]]),
-              [NOTEBOOK, FIRST_VIDEO]))
+                    + [["all", num(nb["total_s"] / 60, 1)],
+                       ["first video", num(nb["first_video_s"] / 60, 1)]]),
+              [NOTEBOOK]))
   out.append(pretrained_section(sorted(p.name for p in RESULTS.glob("pretrained_*.json"))))
   rows = []
   for job, name in SUITE.items():
