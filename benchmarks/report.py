@@ -33,7 +33,7 @@ CPU = {"Hopper": [TTS.format("Hopper_cpu_128")],
        "Walker2D": [TTS.format("Walker2D_cpu_tuned_2026-11-26")],
        "HalfCheetah": [TTS.format("HalfCheetah_cpu60")],
        "Ant": [TTS.format("Ant_cpu_tuned_2026-11-26")],
-       "Humanoid": [TTS.format("Humanoid_cpu_tuned_2026-11-26")],
+       "Humanoid": [TTS.format("Humanoid_cpu_tuned_2026-11-26"), TTS.format("Humanoid_cpu_seed2")],
        "Hopper, DDPG": [TTS.format("Hopper_ddpg_cpu")],
        "Hopper, DMPO": [TTS.format("Hopper_dmpo128_cpu_2026-11-26")],
        "HighJump (an event)": [TTS.format("HighJump_cpu")]}
