@@ -36,7 +36,8 @@ def measure(args) -> dict:
     runs, presets = common.project_module("run.runs"), common.project_module("settings.presets")
     cfg = presets.run_config(args.env, args.kind)
     trainer = runs.build(cfg)
-    state = runs.init(cfg, trainer, cfg.member_settings())
+    members = getattr(cfg, "member_settings", None) or cfg.members  # its name before c1d0d21
+    state = runs.init(cfg, trainer, members())
     chunk = getattr(trainer, "chunk", None) or trainer.train_chunk  # before EpisodeStarts
     refill = getattr(trainer, "refill", None)
     figures = {"lowered_chars": len(chunk.lower(state).as_text())}
