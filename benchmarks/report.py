@@ -49,7 +49,7 @@ START = {"one H200": "start_time_h200.json", "2 CPU cores": "start_time_cpu.json
          "2 CPU cores, this code on two JAX releases": "start_time_cpu_jax.json"}
 DISTRIBUTED = ("distributed_gpu2.json", "distributed_cpu2.json")
 # The training chunk as a program, before and after a change (chunk_program.py).
-CHUNK = {"one H100": "chunk_program_h100.json"}
+CHUNK = {"one H100": "chunk_program_h100.json", "2 CPU cores": "chunk_program_cpu.json"}
 # The chunk compiled as one program, and as its collection and its learning at once (--split).
 SPLIT = {"one H200": "chunk_program_h200_split.json", "2 CPU cores": "chunk_program_cpu_split.json"}
 # A start's phases as the table shows them: label, and its key in start_time.py's medians.
