@@ -348,7 +348,7 @@ def chunk_section() -> tuple[str, str, str, list[str]]:
                   num(f["collection_compile_s"], 1), num(f["learning_compile_s"], 1),
                   num(f["split_compile_s"], 1)])
   return ("The training chunk", "Hopper's preset: the chunk's HLO instructions, "
-          "cold compile and env steps/s over 10 chunks, each code in a fresh process; then "
+          "cold compile and env steps/s over its chunks (10 on the GPU, 5 on the CPU), each code in a fresh process; then "
           "compiled as one program, or as its collection and its learning at once.",
           table(["machine", "code", "instructions", "compile (s)", "refill's instructions",
                  "env steps/s"], rows) + "\n\n" + table(
