@@ -33,7 +33,8 @@ CPU = {"Hopper": [TTS.format("Hopper_cpu_128")],
        "Walker2D": [TTS.format("Walker2D_cpu_tuned_2026-11-26")],
        "HalfCheetah": [TTS.format("HalfCheetah_cpu60")],
        "Ant": [TTS.format("Ant_cpu_tuned_2026-11-26")],
-       "Humanoid": [TTS.format("Humanoid_cpu_tuned_2026-11-26"), TTS.format("Humanoid_cpu_seed2")],
+       "Humanoid": [TTS.format("Humanoid_cpu_tuned_2026-11-26"),
+                    TTS.format("Humanoid_cpu_seed2")],
        "Hopper, DDPG": [TTS.format("Hopper_ddpg_cpu")],
        "Hopper, DMPO": [TTS.format("Hopper_dmpo128_cpu_2026-11-26")],
        "HighJump (an event)": [TTS.format("HighJump_cpu")]}
@@ -289,12 +290,11 @@ def start_section() -> tuple[str, str, str, list[str]]:
   tables = []
   for where, name in START.items():
     data, columns = load(name), {}
+    versions, flags = data["figures"].get("versions", {}), data["figures"].get("xla_flags")
     for label, figures in data["figures"]["medians"].items():
       code, cache = label.rsplit(", ", 1)
-      versions = data["figures"].get("versions", {})
       code = (versions[code] if len(set(versions.values())) > 1
               else code.replace("this checkout", data["commit"]))
-      flags = data["figures"].get("xla_flags")
       columns[f"{code}{' with ' + flags if flags else ''}, {cache}"] = figures
     rows = [[label, *("–" if c.get(key) is None else num(c[key], 0 if key == "steps_per_s" else 1)
                       for c in columns.values())] for label, key in START_ROWS.items()]
@@ -348,8 +348,9 @@ def chunk_section() -> tuple[str, str, str, list[str]]:
                   num(f["collection_compile_s"], 1), num(f["learning_compile_s"], 1),
                   num(f["split_compile_s"], 1)])
   return ("The training chunk", "Hopper's preset: the chunk's HLO instructions, "
-          "cold compile and env steps/s over its chunks (10 on the GPU, 5 on the CPU), each code in a fresh process; then "
-          "compiled as one program, or as its collection and its learning at once.",
+          "cold compile and env steps/s over the chunks its command names, each code in a "
+          "fresh process; then compiled as one program, or as its collection and its "
+          "learning at once.",
           table(["machine", "code", "instructions", "compile (s)", "refill's instructions",
                  "env steps/s"], rows) + "\n\n" + table(
               ["machine", "code", "one program (s)", "collection (s)", "learning (s)",

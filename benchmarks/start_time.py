@@ -127,13 +127,14 @@ def main() -> None:
   args = p.parse_args()
   command = ["train", "--env", args.env, "--agent", "d4pg", "--preset", args.kind,
              "--total-env-steps", "1000000000", "--no-progress", "--log-every", "1"]
+  released = {python: versions(python) for python in (sys.executable, args.python) if python}
   codes = {"this checkout": (sys.executable, None)}
   with tempfile.TemporaryDirectory(prefix="start_time_") as installed:
     if args.checkout:
       codes[args.checkout_name or args.checkout] = (
           sys.executable, common.installed_layout(args.checkout, installed))
     if args.python:
-      codes[f"this checkout on {versions(args.python)}"] = (args.python, None)
+      codes[f"this checkout on {released[args.python]}"] = (args.python, None)
     runs = {(name, cache): [] for name in codes for cache in ("cold", "warm")}
     for i in range(args.rounds):
       for name, (python, code) in (codes.items() if i % 2 == 0 else reversed(codes.items())):
@@ -146,7 +147,7 @@ def main() -> None:
     print(label, {k: round(v, 1) for k, v in figures.items()})
   common.write_results(f"start_time_{args.label}", {
       "preset": f"{args.env} {args.kind}", "xla_flags": os.environ.get("XLA_FLAGS"),
-      "versions": {name: versions(python) for name, (python, _) in codes.items()},
+      "versions": {name: released[python] for name, (python, _) in codes.items()},
       "medians": medians,
       "runs": {f"{name}, {state}": r for (name, state), r in runs.items()}})
 
