@@ -1,13 +1,12 @@
-"""Episode statistics of our envs against PyBullet's, under random and zero actions.
+"""Episode statistics of our envs against PyBullet's, under random and zero actions: each
+statistic's mean and std over the episodes, per robot, policy and engine. Needs PyBullet (the
+oracle extra; its wheels are for Python 3.11). BENCHMARKS.md shows the table.
 
     python benchmarks/fidelity.py [--envs Hopper] [--episodes 256]
-
-Prints, per statistic, PyBullet's mean ± std and ours, the table recorded in docs/fidelity.md.
 """
 
-import time
-
 import jax
+import numpy as np
 
 import common
 from mjx_hopper import envs
@@ -21,9 +20,7 @@ def main() -> None:
   parser.add_argument("--envs", default="Hopper")
   parser.add_argument("--episodes", type=int, default=256, help="episodes per policy and engine")
   args = parser.parse_args()
-  print(f"# fidelity, {time.strftime('%Y-%m-%d')}, {args.episodes} episodes per policy\n")
-  print("| env | policy | statistic | PyBullet mean ± std | MJX mean ± std | MJX − PyBullet |")
-  print("|---|---|---|---|---|---|")
+  rows = []
   for env_id in args.envs.split(","):
     env = envs.make(env_id)
     bullet_env = pybullet_oracle.make(env_id)
@@ -33,10 +30,12 @@ def main() -> None:
     for policy, scale in (("random", 1.0), ("zero", 0.0)):
       ours = jax.device_get(run(jax.random.PRNGKey(1), scale))
       theirs = pybullet_oracle.run_episodes(bullet_env, args.episodes, policy, seed=0)
-      for name in theirs:
-        b, m = theirs[name], ours[name]
-        print(f"| {env_id} | {policy} | {name} | {b.mean():.3f} ± {b.std():.3f} "
-              f"| {m.mean():.3f} ± {m.std():.3f} | {m.mean() - b.mean():+.3f} |")
+      for engine, stats in (("PyBullet", theirs), ("MJX", ours)):
+        rows.append({"robot": env_id, "policy": policy, "engine": engine,
+                     **{name: [float(np.mean(stats[name])), float(np.std(stats[name]))]
+                        for name in theirs}})
+        print(rows[-1])
+  common.write_results("fidelity", {"episodes": args.episodes, "rows": rows})
 
 
 if __name__ == "__main__":

@@ -32,7 +32,7 @@ GPU = {"Hopper": [TTS.format("Hopper_gpu_seeds23-32")],
 CPU = {"Hopper": [TTS.format("Hopper_cpu_128")],
        "Walker2D": [TTS.format("Walker2D_cpu_tuned_2026-11-26")],
        "HalfCheetah": [TTS.format("HalfCheetah_cpu60")],
-       "Ant": [TTS.format("Ant_cpu_tuned_2026-11-26")],
+       "Ant": [TTS.format("Ant_cpu_tuned_2026-11-26"), TTS.format("Ant_cpu_seeds1-2")],
        "Humanoid": [TTS.format("Humanoid_cpu_tuned_2026-11-26"),
                     TTS.format("Humanoid_cpu_seed2")],
        "Hopper, DDPG": [TTS.format("Hopper_ddpg_cpu")],
@@ -61,6 +61,7 @@ START_ROWS = {"imports": "imports", "build": "build", "chunk: tracing": "chunk t
               "env steps/s": "steps_per_s"}
 GYMNASIUM = "gymnasium_throughput_cpu.json"
 NOTEBOOK = "notebook_time_cpu.json"
+FIDELITY = "fidelity.json"
 ITERATION = {"XLA's": "cpu_iteration_cpu.json", "YNNPACK's": "cpu_iteration_cpu_ynn.json"}
 SUITE = {"scripts/test.sh": "suite_time_py312.json",
          ".ci/floor": "suite_time_floor_py311.json"}
@@ -270,6 +271,7 @@ def sections() -> list[tuple[str, str, str, list[str]]]:
                     + [["all", num(nb["total_s"] / 60, 1)],
                        ["first video", num(nb["first_video_s"] / 60, 1)]]),
               [NOTEBOOK]))
+  out.append(fidelity_section())
   out.append(pretrained_section(sorted(p.name for p in RESULTS.glob("pretrained_*.json"))))
   rows = []
   for job, name in SUITE.items():
@@ -303,6 +305,29 @@ def start_section() -> tuple[str, str, str, list[str]]:
           "(cold) or warm compile cache, beside an earlier commit or other releases; compiles "
           "overlap.",
           "\n\n".join(tables), list(START.values()))
+
+
+def fidelity_section() -> tuple[str, str, str, list[str]]:
+  """Each robot's episode statistics in PyBullet and in ours: mean ± std, statistics 0 in every
+  row left out."""
+  data = load(FIDELITY)["figures"]
+  rows = data["rows"]
+  keys = [k for k in rows[0] if k not in ("robot", "policy", "engine")
+          and any(r[k] != [0.0, 0.0] for r in rows)]
+
+  def cell(mean: float, std: float) -> str:
+    if mean == std == 0:
+      return "0"
+    digits = next((d for d, top in ((3, 1), (2, 10), (1, 100)) if abs(mean) < top), 0)
+    return f"{num(mean, digits)} ± {num(std, digits)}"
+
+  return ("Fidelity to PyBullet", f"Episodes under random actions (uniform in [-1, 1]) and "
+          f"zero actions, {data['episodes']} per robot, policy and engine; each statistic's "
+          "mean ± std over them (reward terms: their mean over an episode's steps). "
+          "[docs/fidelity.md](docs/fidelity.md) says where and why the engines differ.",
+          table(["robot", "policy", "engine", *keys],
+                [[r["robot"], r["policy"], r["engine"], *(cell(*r[k]) for k in keys)]
+                 for r in rows]), [FIDELITY])
 
 
 def iteration_section() -> tuple[str, str, str, list[str]]:
