@@ -31,7 +31,7 @@ GPU = {"Hopper": [TTS.format("Hopper_gpu_seeds23-32")],
        "AntLongJump (an event)": [TTS.format("AntLongJump_h100")]}
 CPU = {"Hopper": [TTS.format("Hopper_cpu_128")],
        "Walker2D": [TTS.format("Walker2D_cpu_tuned_2026-11-26")],
-       "HalfCheetah": [TTS.format("HalfCheetah_cpu60")],
+       "HalfCheetah": [TTS.format("HalfCheetah_cpu_seeds1-3")],
        "Ant": [TTS.format("Ant_cpu_tuned_2026-11-26"), TTS.format("Ant_cpu_seeds1-2")],
        "Humanoid": [TTS.format("Humanoid_cpu_tuned_2026-11-26"),
                     TTS.format("Humanoid_cpu_seed2")],
