@@ -428,9 +428,11 @@ def benchmarks_page() -> str:
     for n in dict.fromkeys(names):
       r = load(n)
       made.setdefault((r["date"], machine(n), code(r["commit"]), r["command"]), []).append(n)
-    sources = [f"- {', '.join(f'`{n.removesuffix('.json')}`' for n in files)} ({date}, {where}, "
-               f"{commit}): `{command.removeprefix('python benchmarks/')}`"
-               for (date, where, commit, command), files in made.items()]
+    sources = []
+    for (date, where, commit, command), files in made.items():
+      listed = ", ".join(f"`{n.removesuffix('.json')}`" for n in files)
+      sources.append(f"- {listed} ({date}, {where}, {commit}): "
+                     f"`{command.removeprefix('python benchmarks/')}`")
     parts += [f"## {title}", method, text, "\n".join(sources)]
   return "\n\n".join(parts) + "\n"
 
