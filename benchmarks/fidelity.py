@@ -34,7 +34,8 @@ def main() -> None:
         rows.append({"robot": env_id, "policy": policy, "engine": engine,
                      **{name: [float(np.mean(stats[name])), float(np.std(stats[name]))]
                         for name in theirs}})
-        print(rows[-1])
+        print(f"{env_id}, {policy}, {engine}: " + ", ".join(
+            f"{name} {mean:.3f} ± {std:.3f}" for name, (mean, std) in list(rows[-1].items())[3:]))
   common.write_results("fidelity", {"episodes": args.episodes, "rows": rows})
 
 
