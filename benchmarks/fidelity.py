@@ -31,11 +31,11 @@ def main() -> None:
       ours = jax.device_get(run(jax.random.PRNGKey(1), scale))
       theirs = pybullet_oracle.run_episodes(bullet_env, args.episodes, policy, seed=0)
       for engine, stats in (("PyBullet", theirs), ("MJX", ours)):
-        rows.append({"robot": env_id, "policy": policy, "engine": engine,
-                     **{name: [float(np.mean(stats[name])), float(np.std(stats[name]))]
-                        for name in theirs}})
+        summary = {name: [float(np.mean(stats[name])), float(np.std(stats[name]))]
+                   for name in theirs}
+        rows.append({"robot": env_id, "policy": policy, "engine": engine, **summary})
         print(f"{env_id}, {policy}, {engine}: " + ", ".join(
-            f"{name} {mean:.3f} ± {std:.3f}" for name, (mean, std) in list(rows[-1].items())[3:]))
+            f"{name} {mean:.3f} ± {std:.3f}" for name, (mean, std) in summary.items()))
   common.write_results("fidelity", {"episodes": args.episodes, "rows": rows})
 
 

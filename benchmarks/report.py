@@ -1,6 +1,7 @@
-"""BENCHMARKS.md, the README's results table and the notebook's expected times, made from the
-results files in benchmarks/results/ (each: command, machine, date, commit and figures), so that
-a page and its data cannot drift apart. Standard library only, and deterministic.
+"""BENCHMARKS.md, the README's results table, the notebook's expected times and docs/fidelity.md's
+table, made from the results files in benchmarks/results/ (each: command, machine, date, commit
+and figures), so that a page and its data cannot drift apart. Standard library only, and
+deterministic.
 
     python benchmarks/report.py            # write the pages
     python benchmarks/report.py --check    # exit 1 where a committed page differs
@@ -271,7 +272,6 @@ def sections() -> list[tuple[str, str, str, list[str]]]:
                     + [["all", num(nb["total_s"] / 60, 1)],
                        ["first video", num(nb["first_video_s"] / 60, 1)]]),
               [NOTEBOOK]))
-  out.append(fidelity_section())
   out.append(pretrained_section(sorted(p.name for p in RESULTS.glob("pretrained_*.json"))))
   rows = []
   for job, name in SUITE.items():
@@ -307,9 +307,9 @@ def start_section() -> tuple[str, str, str, list[str]]:
           "\n\n".join(tables), list(START.values()))
 
 
-def fidelity_section() -> tuple[str, str, str, list[str]]:
-  """Each robot's episode statistics in PyBullet and in ours: mean ± std, statistics 0 in every
-  row left out."""
+def fidelity_table() -> str:
+  """docs/fidelity.md's table: each robot's episode statistics in PyBullet and in ours, mean ±
+  std (statistics 0 in every row left out), with its results file."""
   data = load(FIDELITY)["figures"]
   rows = data["rows"]
   keys = [k for k in rows[0] if k not in ("robot", "policy", "engine")
@@ -321,13 +321,12 @@ def fidelity_section() -> tuple[str, str, str, list[str]]:
     digits = next((d for d, top in ((3, 1), (2, 10), (1, 100)) if abs(mean) < top), 0)
     return f"{num(mean, digits)} ± {num(std, digits)}"
 
-  return ("Fidelity to PyBullet", f"Episodes under random actions (uniform in [-1, 1]) and "
-          f"zero actions, {data['episodes']} per robot, policy and engine; each statistic's "
-          "mean ± std over them (reward terms: their mean over an episode's steps). "
-          "[docs/fidelity.md](docs/fidelity.md) says where and why the engines differ.",
-          table(["robot", "policy", "engine", *keys],
-                [[r["robot"], r["policy"], r["engine"], *(cell(*r[k]) for k in keys)]
-                 for r in rows]), [FIDELITY])
+  return (f"Episodes under random actions (uniform in [-1, 1]) and zero actions, "
+          f"{data['episodes']} per robot, policy and engine; each statistic's mean ± std over "
+          "them (reward terms: their mean over an episode's steps).\n\n"
+          + table(["robot", "policy", "engine", *keys],
+                  [[r["robot"], r["policy"], r["engine"], *(cell(*r[k]) for k in keys)]
+                   for r in rows]) + "\n\n" + sources([FIDELITY]))
 
 
 def iteration_section() -> tuple[str, str, str, list[str]]:
@@ -424,17 +423,24 @@ def benchmarks_page() -> str:
            "benchmarks/COMMAND`); do not edit. Machines are noisy: compare rows of one run.",
            "## Summary", summary()]
   for title, method, text, names in sections():
-    made = {}  # files made by one command on one machine, day and commit share a line
-    for n in dict.fromkeys(names):
-      r = load(n)
-      made.setdefault((r["date"], machine(n), code(r["commit"]), r["command"]), []).append(n)
-    sources = []
-    for (date, where, commit, command), files in made.items():
-      listed = ", ".join(f"`{n.removesuffix('.json')}`" for n in files)
-      sources.append(f"- {listed} ({date}, {where}, {commit}): "
-                     f"`{command.removeprefix('python benchmarks/')}`")
-    parts += [f"## {title}", method, text, "\n".join(sources)]
+    parts += [f"## {title}", method, text, sources(names)]
   return "\n\n".join(parts) + "\n"
+
+
+def sources(names: list[str]) -> str:
+  """The lines naming the results files `names` under a table: files made by one command on
+  one machine, day and commit share a line. A command's --out (where it left its episodes) is
+  left out."""
+  made = {}
+  for n in dict.fromkeys(names):
+    r = load(n)
+    command = re.sub(r" --out \S+", "", r["command"]).removeprefix("python benchmarks/")
+    made.setdefault((r["date"], machine(n), code(r["commit"]), command), []).append(n)
+  lines = []
+  for (date, where, commit, command), files in made.items():
+    listed = ", ".join(f"`{n.removesuffix('.json')}`" for n in files)
+    lines.append(f"- {listed} ({date}, {where}, {commit}): `{command}`")
+  return "\n".join(lines)
 
 
 def readme_table() -> str:
@@ -482,14 +488,16 @@ def pages() -> dict[pathlib.Path, str]:
     raise SystemExit(f"report.py: want one notebook cell with {MARK.format('times')}")
   cells[0]["source"] = splice("".join(cells[0]["source"]), "times",
                               notebook_times()).splitlines(keepends=True)
+  fidelity = ROOT / "docs" / "fidelity.md"
   return {ROOT / "BENCHMARKS.md": benchmarks_page(),
           readme: splice(readme.read_text(), "results", readme_table()),
+          fidelity: splice(fidelity.read_text(), "fidelity", fidelity_table()),
           notebook_path: json.dumps(notebook, indent=1, ensure_ascii=False) + "\n"}
 
 
 def used_files() -> set[str]:
   """Every results file the pages are made from."""
-  return {n for *_, names in sections() for n in names} | {RL_ZOO}
+  return {n for *_, names in sections() for n in names} | {RL_ZOO, FIDELITY}
 
 
 def main() -> None:
