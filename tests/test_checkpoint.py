@@ -11,6 +11,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import threading
 import time
 
 import jax
@@ -20,6 +21,7 @@ from etils import epath
 
 import mjx_hopper
 from mjx_hopper import agents, store
+from mjx_hopper.store import failures
 from mjx_hopper.core import train
 from mjx_hopper.faces import cli
 from mjx_hopper.run import loop, runs
@@ -69,10 +71,19 @@ def test_killed_mid_save_keeps_the_previous_checkpoint(tmp_path):
 
 
 def full_disk(monkeypatch):
-  """Orbax's writes of metadata files fail as on a full disk (they run in its writer threads)."""
+  """Orbax's writes of metadata files fail as on a full disk (they run in its writer threads).
+  Its commit thread starts late, as on a loaded machine: it then holds an error of its own to
+  raise at the next save after the step's first error was raised."""
   def write_text(self, *args, **kwargs):
     raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(self))
+  run = threading.Thread.run
+
+  def late_commit(thread):
+    if thread.name == failures.ORBAX_COMMIT_THREAD:
+      time.sleep(0.5)
+    run(thread)
   monkeypatch.setattr(epath.Path, "write_text", write_text)
+  monkeypatch.setattr(threading.Thread, "run", late_commit)
 
 
 def test_a_failed_save_keeps_the_earlier_checkpoint_and_no_partial_files(tmp_path, monkeypatch,

@@ -70,12 +70,22 @@ def _partial(directory: str) -> list[str]:
     return []
 
 
+ORBAX_COMMIT_THREAD = "async_save"  # the name of orbax's background commit thread, a plain Thread
+
+
+def _orbax_writer(thread: threading.Thread) -> bool:
+  """Whether `thread` writes a step for orbax: one of its own Thread classes, or its background
+  commit thread, which stores its error to raise at the next save (a failed save's other item
+  can fail there after the first error was raised)."""
+  return type(thread).__module__.startswith("orbax.") or thread.name == ORBAX_COMMIT_THREAD
+
+
 def failed(mngr: ocp.CheckpointManager, step: int | None, error: Exception) -> SaveFailed:
   """The SaveFailed of a save of `step` (None: the one in flight) that raised `error`, after
   removing the step's partial files, which would otherwise confuse the next resume. Orbax's
   other writer threads of the step may still be writing: they are waited for first."""
   for thread in threading.enumerate():
-    if type(thread).__module__.startswith("orbax.") and thread is not threading.current_thread():
+    if _orbax_writer(thread) and thread is not threading.current_thread():
       with contextlib.suppress(Exception):  # orbax's threads raise their error again on join
         thread.join(WRITERS_S)
   with contextlib.suppress(Exception):  # orbax keeps the error to raise at the next save
