@@ -4,8 +4,8 @@ that it reuses this file's compiled episodes in the same test worker).
 
 The contact models differ (Bullet's hard contacts, MuJoCo's soft ones), so episodes agree in
 distribution, not step for step. A mean passes when |ours - bullet| <= max(rel * |bullet|, abs)
-+ 3 standard errors of the difference: the first part is the agreement that BENCHMARKS.md's
-fidelity table shows, the second the sampling noise of the few episodes run here.
++ 3 standard errors of the difference: the first part is the agreement that docs/fidelity.md's
+table shows, the second the sampling noise of the few episodes run here.
 """
 
 import numpy as np
