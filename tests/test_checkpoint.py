@@ -21,10 +21,10 @@ from etils import epath
 
 import mjx_hopper
 from mjx_hopper import agents, store
-from mjx_hopper.store import failures
 from mjx_hopper.core import train
 from mjx_hopper.faces import cli
 from mjx_hopper.run import loop, runs
+from mjx_hopper.store import failures
 from checkpoint_worker import CONFIG, state
 from test_train import TINY_ARGS
 
