@@ -491,3 +491,41 @@ def test_a_busy_coordinator_port_is_one_line():
       cli.main([*TINY_ARGS[:2], "sweep", *TINY_ARGS[3:], "--seeds", "2", "--distributed",
                 "--coordinator", f"localhost:{port}", "--num-processes", "2", "--process-id",
                 "0"])
+
+
+# A sweep of 4 members whose evaluations fall due inside chunks (every 60 env steps, a chunk
+# being 40) and between PBT's steps (every second evaluation). No checkpoint is due in it (a
+# save waits for the evaluations).
+AGREED_SWEEP = [*TINY_ARGS[3:], "--total-env-steps", "400", "--set", "num_atoms=11",
+                "--set", "sigma=0.1,0.3", "--set", "learning_rate=1e-3,2e-3", "--eval-every",
+                "60", "--pbt", "--pbt-every", "2"]
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(900)
+def test_two_processes_agree_on_their_choices_whatever_their_clocks(tmp_path):
+  """Process 1's evaluation compiles 15 s after process 0's while both train, a chunk a second
+  (tests/late_evaluation.py): every process still takes each evaluation at the same chunk, so the run ends as
+  one process's does. Before the choice was agreed, process 0 started its first evaluation
+  while process 1 went on, and Gloo aborted process 1; where a choice is still made apart,
+  every process ends in one line naming where each stands (test_distributed.py)."""
+  cli.main(["--cpu-devices", "2", "sweep", *AGREED_SWEEP, "--out-dir", str(tmp_path / "one")])
+  port, two = free_port(), tmp_path / "two"
+  worker = os.path.join(os.path.dirname(__file__), "late_evaluation.py")
+  procs = [subprocess.Popen(
+      [sys.executable, worker, "--cpu-devices", "1", "sweep", *AGREED_SWEEP, "--out-dir",
+       str(two), "--distributed", "--coordinator", f"localhost:{port}", "--num-processes", "2",
+       "--process-id", str(i)], env={**os.environ, "LATE_EVALUATION_S": "15"},
+      stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True) for i in range(2)]
+  try:
+    outs = [finish(proc) for proc in procs]
+  finally:
+    for proc in procs:
+      if proc.poll() is None:
+        proc.kill()
+  assert "done: 400 env steps" in outs[0]
+  assert eval_rows(two) == eval_rows(tmp_path / "one")
+  assert {r[1] for r in eval_rows(two)} == {"80", "120", "200", "240", "320", "360", "400"}
+  _, states, _ = runs.restore(str(two / "checkpoints"))
+  _, one, _ = runs.restore(str(tmp_path / "one" / "checkpoints"))
+  assert_same(jax.device_get(states), jax.device_get(one))

@@ -444,9 +444,9 @@ def test_a_signal_to_another_process_stops_this_one_after_its_chunk_saved(tmp_pa
   on after each chunk), this one stops after its chunk too, saves, and says why."""
   agree = distributed.agree
 
-  def signalled_elsewhere(*flags):  # (last, signalled, saving) after a chunk
-    agreed = agree(*flags)
-    return (agreed[0], True, *agreed[2:]) if len(flags) == 3 else agreed
+  def signalled_elsewhere(phase, *flags):  # (last, signalled, saving) after a chunk
+    agreed = agree(phase, *flags)
+    return (agreed[0], True, *agreed[2:]) if phase == "after the chunk" else agreed
   monkeypatch.setattr(distributed, "agree", signalled_elsewhere)
   cfg = dataclasses.replace(TINY, total_env_steps=160, out_dir=str(tmp_path))
   result = loop.run(cfg, progress=False)

@@ -84,8 +84,14 @@ class Evaluator:
     """The queued evaluations that are done, oldest first; with `wait`, all of them. On the
     training's devices every evaluation waits; on the host, only those beyond MAX_PENDING do.
     Those queued while the program compiled start here, once it is compiled (or with `wait`)."""
-    if not self.pending or not (wait or self.program.done()):
+    if not self.pending:
       return []
+    if not wait:
+      # Whether the program is compiled rests on one process's clock: agreed over processes.
+      compiling, = distributed.agree("evaluation compiled", not self.program.done())
+      if compiling:
+        return []
+    distributed.in_step("evaluation")  # its program's collectives, then the results'
     self.pending = [p if p.started is not None else p._replace(started=self._start(p))
                     for p in self.pending]
     wait = wait or self.host is None
@@ -93,7 +99,7 @@ class Evaluator:
     while self.pending and (wait or len(self.pending) > MAX_PENDING
                             or _finished(self.pending[0].started)):
       done = self.pending.pop(0)
-      out.append(Done(done.env_steps, distributed.gather(done.started), done.agent,
+      out.append(Done(done.env_steps, distributed.gather(done.started, "evaluation"), done.agent,
                       done.diverged))
     return out
 

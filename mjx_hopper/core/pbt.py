@@ -121,7 +121,7 @@ def make_step(pbt: PBT, grid: dict, trainer, seed: int, say):
                          static_argnames="data")
 
   def step(state, returns, env_steps: int, members):
-    hparams, ratio = distributed.gather((state.agent.hparams, state.replay_ratio))
+    hparams, ratio = distributed.gather((state.agent.hparams, state.replay_ratio), "pbt")
     values = {name: np.asarray(ratio if name == "replay_ratio" else hparams[name])
               for name in grid}
     quanta = {name: 1 for name, v in values.items() if np.issubdtype(v.dtype, np.integer)}

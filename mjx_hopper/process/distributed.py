@@ -119,10 +119,12 @@ def primary() -> bool:
   return jax.process_index() == 0
 
 
-def gather(tree):
-  """`tree`'s arrays on the host, whole: gathered from every process where they span several."""
+def gather(tree, phase: str):
+  """`tree`'s arrays on the host, whole: gathered from every process where they span several,
+  once the processes have checked that they all gather for `phase` (`in_step`)."""
   if count() == 1:
     return jax.device_get(tree)
+  in_step(phase)
 
   def one(x):
     if isinstance(x, jax.Array) and not x.is_fully_addressable:
@@ -131,13 +133,46 @@ def gather(tree):
   return jax.tree.map(one, tree)
 
 
-def agree(*flags: bool) -> tuple[bool, ...]:
-  """Each of `flags`, true where it is true on any process."""
+def agree(phase: str, *flags: bool) -> tuple[bool, ...]:
+  """Each of `flags`, true where it is true on any process, once the processes have checked
+  that they all agree on `phase` (`in_step`)."""
   if count() == 1:
     return tuple(bool(f) for f in flags)
-  everyone = multihost_utils.process_allgather(np.array(flags, bool))
-  return tuple(bool(f) for f in np.asarray(everyone).reshape(count(), len(flags)).any(0))
+  return tuple(_exchange(phase, flags).any(0))
 
+
+def in_step(phase: str) -> None:
+  """Checks that every process has reached `phase` (a short name for a host-side step whose
+  collectives follow). Where one has reached another, raises OutOfStep naming both, rather
+  than letting the next collective abort inside the runtime. One small collective."""
+  if count() > 1:
+    _exchange(phase, ())
+
+
+class OutOfStep(RuntimeError):
+  """The processes of a run reached different collectives: a choice was made apart."""
+
+
+# The fixed size of every exchange, so that processes out of step exchange as many bytes and
+# read each other's phase, rather than aborting on a size mismatch.
+PHASE_BYTES, MAX_FLAGS = 32, 8
+
+
+def _exchange(phase: str, flags) -> np.ndarray:
+  """(processes, len(flags)): every process's `flags`, after checking that all are at `phase`."""
+  name = phase.encode()
+  if len(name) > PHASE_BYTES or len(flags) > MAX_FLAGS:
+    raise ValueError(f"phase {phase!r} with {len(flags)} flags: at most {PHASE_BYTES} bytes "
+                     f"and {MAX_FLAGS} flags")
+  mine = np.zeros(PHASE_BYTES + MAX_FLAGS, np.uint8)
+  mine[:len(name)] = np.frombuffer(name, np.uint8)
+  mine[PHASE_BYTES:PHASE_BYTES + len(flags)] = np.asarray(flags, bool)
+  everyone = np.asarray(multihost_utils.process_allgather(mine)).reshape(count(), -1)
+  phases = [bytes(row[:PHASE_BYTES]).rstrip(b"\0").decode(errors="replace") for row in everyone]
+  if any(p != phase for p in phases):
+    where = ", ".join(f"process {i} at {p!r}" for i, p in enumerate(phases))
+    raise OutOfStep(f"the processes are out of step ({where}): a choice was made apart")
+  return everyone[:, PHASE_BYTES:PHASE_BYTES + len(flags)].astype(bool)
 
 
 @contextlib.contextmanager
@@ -161,8 +196,10 @@ def watch(folder: str):
     yield
   except BaseException as error:
     _mark(marks, me, {**mine, "state": "failed"})
-    # A collective whose peer died fails at once: the watch names the peer if it finds it gone.
-    time.sleep(2 * WATCH_S)
+    if not isinstance(error, OutOfStep):  # which every process finds, and says, at once
+      # A collective whose peer died fails at once: the watch names the peer if it finds it
+      # gone.
+      time.sleep(2 * WATCH_S)
     stop.set()
     text = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
     _end(f"process {me} stopped at an error: {text}")

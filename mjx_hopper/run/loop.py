@@ -113,7 +113,7 @@ def _lock(folder: str, say, primary: bool):
         stack.enter_context(runlock.hold(folder, say))
       except runlock.Locked as locked:
         error = locked
-    refused, = distributed.agree(error is not None)
+    refused, = distributed.agree("lock", error is not None)
     if error is not None:
       raise error
     if refused:
@@ -162,7 +162,8 @@ def _train(p: _Parts, state: train.TrainState, progress: bool, stop, user: "_Use
   while True:
     # Over processes, what one process alone knows (a signal, its clock, progress_fn) is
     # agreed on, so that every process makes the same choices.
-    stopped, signalled = distributed.agree(asked or p.until.reached(env_steps), stop.requested)
+    stopped, signalled = distributed.agree("chunk", asked or p.until.reached(env_steps),
+                                            stop.requested)
     _signalled_elsewhere(stop, signalled)
     if stopped or signalled or members.done():
       break
@@ -177,7 +178,7 @@ def _train(p: _Parts, state: train.TrainState, progress: bool, stop, user: "_Use
       break  # this state is not evaluated, and never saved
     state = p.chunk.refill(state)  # after the row: its program may still be compiling
     last, signalled, saving = distributed.agree(
-        asked or p.until.reached(env_steps), stop.requested, p.saver.due())
+        "after the chunk", asked or p.until.reached(env_steps), stop.requested, p.saver.due())
     _signalled_elsewhere(stop, signalled)
     if env_steps >= next_eval or last:
       next_eval += cfg.eval_every
@@ -287,7 +288,7 @@ class _Chunk:
     single run, which stops when it diverges))."""
     before = None if self.single else self._copy(state.agent)
     state, metrics = self.program.result()(state)
-    return state, distributed.gather(metrics), before
+    return state, distributed.gather(metrics, "metrics"), before
 
   def refill(self, state: train.TrainState) -> train.TrainState:
     """`state` with fresh episode starts for the next chunk."""
@@ -295,7 +296,7 @@ class _Chunk:
 
   def finite(self, agent) -> np.ndarray:
     """(members,): whether every float of each member's `agent` is finite."""
-    return distributed.gather(self._finite.result()(agent))
+    return distributed.gather(self._finite.result()(agent), "finite")
 
   def freeze(self, state: train.TrainState, before, diverged: np.ndarray) -> train.TrainState:
     """`state` with the agents of the `diverged` members taken back to `before`."""
@@ -364,7 +365,7 @@ def _log_train(p: _Parts, user: _UserCode, state, env_steps: int, rate: float,
                metrics: dict) -> bool:
   """Logs a chunk: a row per member, and a sweep's terminal line. Returns whether progress_fn
   asked to stop."""
-  updates = np.asarray(distributed.gather(state.updates))
+  updates = np.asarray(distributed.gather(state.updates, "updates"))
   rows = [{"kind": "train", **p.members.tags(m), "env_steps": env_steps,
            "updates": int(updates[m]), "wall_s": p.until.elapsed(), "steps_per_s": rate,
            **{k: float(v[m]) for k, v in metrics.items()}} for m in range(len(p.members))]
