@@ -31,7 +31,7 @@ import pytest  # noqa: E402
 
 import mjx_hopper  # noqa: E402
 
-pytest_plugins = ["crashes"]
+pytest_plugins = ["crashes", "ledger"]
 
 mjx_hopper.setup()  # before MuJoCo is imported, which reads MUJOCO_GL once
 

@@ -26,13 +26,14 @@ def setup(compile_cache: str | None = None, cpu_devices: int | None = None) -> s
   program, in `compile_cache` (None: the folder already set, else $MJX_HOPPER_JAX_CACHE, else
   ~/.cache/mjx_hopper/jax) per `cpu_key()`, GSPMD where Shardy crashes, and gloo's CPU
   collectives where none is chosen (used only by a run over processes). Last, the logs
-  and hooks that leave a failed save to its one line (`store.failures`). Unset environment
+  and hooks that leave a failed save to its one line (`store.failures`), and where
+  $MJX_HOPPER_COMPILE_LEDGER is set, the compile ledger (`process.ledger`). Unset environment
   variables only are set. Returns the compile cache's folder. A `cpu_devices` that JAX's
   started backends do not have is a ValueError.
   """
   if cpu_devices is not None and cpu_devices < 1:
     raise ValueError(f"cpu_devices must be >= 1, got {cpu_devices}")
-  from mjx_hopper.process import jax_private  # imports no JAX
+  from mjx_hopper.process import jax_private, ledger  # import no JAX
   started = jax_private.backends_started()
   if not started:
     os.environ.update(settings_before_start(platform.system(), os.environ, cpu_devices))
@@ -53,6 +54,8 @@ def setup(compile_cache: str | None = None, cpu_devices: int | None = None) -> s
   if jax.config.jax_cpu_collectives_implementation is None:
     jax.config.update("jax_cpu_collectives_implementation", "gloo")
   jax_private.quiet_cache_loads()
+  if os.environ.get(ledger.VARIABLE):
+    ledger.start()
   from mjx_hopper.store import failures
   failures.quiet_failed_saves()
   return directory
