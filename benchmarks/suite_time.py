@@ -1,8 +1,11 @@
-"""The test suite's wall clock as CI runs it: `bash scripts/test.sh` (the whole suite on Python
-3.12, the newest releases), or with --floor `bash .ci/floor` (Python 3.11, the oldest releases,
-the tests that lean on each dependency's API), from an empty compile cache, with the outcome and each test file's seconds.
+"""The test suite's wall clock as CI runs it: `bash scripts/test.sh` (the quick tier on Python
+3.12, the newest releases; with --slow, `scripts/test.sh -m slow`, the slow tier), or with
+--floor `bash .ci/floor` (Python 3.11, the oldest releases, the tests that lean on each
+dependency's API), from an empty compile cache, with the outcome, each test file's seconds and
+the compile ledger's totals (tests/ledger.py).
 
     python benchmarks/suite_time.py --label py312
+    python benchmarks/suite_time.py --slow --label py312_slow
     python benchmarks/suite_time.py --floor --label floor_py311
 
 Writes benchmarks/results/suite_time_LABEL.json. Run it on an otherwise idle machine: the suite
@@ -33,19 +36,27 @@ def figures(output: str, junit: str, wall_s: float) -> dict:
   for case in suite.iter("testcase"):
     per_file[case.get("classname").split(".")[-1] + ".py"] += float(case.get("time"))
   versions = re.search(r"Python (\S+), jax (\S+)", output)
+  ledger = re.search(r"all test files: (\d+) programs, (\d+) compiled and (\d+) from the cache, "
+                     r"(\d+) s compiling, (\d+) s tracing, (\d+) s lowering, (\d+) trainer "
+                     r"configurations", output)
   return {"python": versions and versions.group(1), "jax": versions and versions.group(2),
           "tests": int(suite.get("tests")), "failed": int(suite.get("failures")) + int(
               suite.get("errors")), "skipped": int(suite.get("skipped")),
           "pytest_s": round(float(suite.get("time"))), "with_setup_s": round(wall_s),
-          "file_s": {name: round(s, 1) for name, s in per_file.most_common()}}
+          "file_s": {name: round(s, 1) for name, s in per_file.most_common()},
+          "ledger": ledger and dict(zip(("programs", "compiled", "cache_hits", "compile_s",
+                                         "trace_s", "lower_s", "trainer_configurations"),
+                                        map(int, ledger.groups())))}
 
 
 def main() -> None:
   p = common.parser(__doc__)
   p.add_argument("--floor", action="store_true", help="the floor job (.ci/floor)")
+  p.add_argument("--slow", action="store_true", help="the slow tier (scripts/test.sh -m slow)")
   p.add_argument("--label", default="py312")
   args = p.parse_args()
-  script = [".ci/floor"] if args.floor else ["scripts/test.sh"]
+  script = [".ci/floor"] if args.floor else ["scripts/test.sh", *(["-m", "slow"] if args.slow
+                                                                  else [])]
   with tempfile.TemporaryDirectory() as scratch:
     junit = os.path.join(scratch, "junit.xml")
     start = time.perf_counter()

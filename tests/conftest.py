@@ -2,23 +2,28 @@
 one trainer per config for each test worker."""
 
 import dataclasses
+import functools
+import hashlib
 import os
 from importlib.metadata import version
 
 # Two devices, so that batches are sharded. The suite's time is mostly compiling, so: XLA:CPU's
 # loop emitters instead of its fusion emitters, which compile MJX's physics faster (users keep
 # XLA's default, whose programs' speed depends on the robot; jaxlib 0.11 dropped the loop
-# emitters and refuses their flag), and LLVM's optimisation level 1, which compiles faster for
-# a little speed (level 0 runs too slowly for the tests' 1,000-step episodes). And
+# emitters and refuses their flag), and LLVM's optimisation level 0, which compiles fastest;
+# the programs that run whole 1,000-step episodes take level 1 (LONG_RUNNING), as level 0 runs
+# them several times slower (benchmarks/results/compile_flags_cpu.json). And
 # single-threaded matrix products within a device: XLA:CPU splits a product over its thread
 # pool only in single-device programs, which changes the order of its sums, so a sweep member
 # would not be bit-identical to its single run on one device (test_sweep.py). The measurements
-# behind each choice are in the commits that made it.
+# behind each choice are in the commits that made it. A flag in $XLA_FLAGS wins over these.
 LOOP_EMITTERS = ("--xla_cpu_use_fusion_emitters=false"
                  if tuple(map(int, version("jaxlib").split(".")[:2])) < (0, 11) else "")
 TEST_XLA_FLAGS = (f"--xla_force_host_platform_device_count=2 {LOOP_EMITTERS} "
-                  "--xla_cpu_multi_thread_eigen=false --xla_backend_optimization_level=1")
-os.environ["XLA_FLAGS"] = os.environ.get("XLA_FLAGS", "") + " " + TEST_XLA_FLAGS
+                  "--xla_cpu_multi_thread_eigen=false --xla_backend_optimization_level=0")
+os.environ["XLA_FLAGS"] = TEST_XLA_FLAGS + " " + os.environ.get("XLA_FLAGS", "")
+# The compile options of a program that runs long: `jax.jit(f, compiler_options=LONG_RUNNING)`.
+LONG_RUNNING = {"xla_backend_optimization_level": 1}
 
 # One compile cache for the tests and the processes they start (CLI runs, notebooks), so that
 # a program compiled by one is loaded by the others.
@@ -35,6 +40,7 @@ pytest_plugins = ["crashes", "ledger"]
 
 mjx_hopper.setup()  # before MuJoCo is imported, which reads MUJOCO_GL once
 
+from mjx_hopper.process import ledger  # noqa: E402
 from mjx_hopper.run import runs  # noqa: E402
 from mjx_hopper.settings import config  # noqa: E402
 
@@ -72,6 +78,7 @@ def shared_builds():
     key = build_key(cfg, num_members)
     if key not in built:
       built[key] = build(cfg, num_members)
+      ledger.note("trainer", hashlib.sha256(repr(key).encode()).hexdigest()[:16])
     return built[key]
   with pytest.MonkeyPatch.context() as patch:
     patch.setattr(runs, "build", cached)
@@ -140,7 +147,7 @@ def mjx_episodes(env_id, num_episodes=128):
   if env_id not in _EPISODES:
     env = make_env(env_id)
 
-    @jax.jit
+    @functools.partial(jax.jit, compiler_options=LONG_RUNNING)
     def run(key, scale):
       random = rollout.random_policy(env.action_size)
       return rollout.episodes(env, lambda obs, k: scale * random(obs, k), key, num_episodes,

@@ -45,7 +45,9 @@ def pytest_terminal_summary(terminalreporter, config):
   shutil.rmtree(folder, ignore_errors=True)
   if not files:
     return
-  total = {k: sum(f[k] for f in files.values()) for k in next(iter(files.values()))}
+  total = {k: sum(f[k] for f in files.values()) for k in next(iter(files.values()))
+           if k != "trainers"}
+  total["trainers"] = set().union(*(f["trainers"] for f in files.values()))
   write = terminalreporter.write_line
   terminalreporter.write_sep("=", "compile ledger")
   write(_line("all test files", total))
@@ -57,4 +59,4 @@ def pytest_terminal_summary(terminalreporter, config):
 def _line(name: str, t: dict) -> str:
   return (f"{name}: {t['programs']} programs, {t['compiled']} compiled and {t['cache hits']} "
           f"from the cache, {t['compile s']:.0f} s compiling, {t['trace s']:.0f} s tracing, "
-          f"{t['lower s']:.0f} s lowering")
+          f"{t['lower s']:.0f} s lowering, {len(t['trainers'])} trainer configurations")

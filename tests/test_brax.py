@@ -158,6 +158,7 @@ def heavier_torso(env, sys, scales):
   return batch, in_axes
 
 
+@pytest.mark.slow  # its own programs: a batch of models under Brax's randomisation
 def test_domain_randomisation_changes_the_physics(hopper):
   scales = jnp.array([1.0, 0.5, 2.0, 4.0])
   randomise = functools.partial(heavier_torso, hopper, scales=scales)

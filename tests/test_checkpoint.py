@@ -26,7 +26,7 @@ from mjx_hopper.faces import cli
 from mjx_hopper.run import loop, runs
 from mjx_hopper.store import failures
 from checkpoint_worker import CONFIG, state
-from test_train import TINY_ARGS
+from configs import TINY_ARGS
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 
@@ -304,7 +304,7 @@ def test_a_checkpoint_without_a_format_is_format_1(monkeypatch):
 
 
 # A tiny D4PG run: 2 chunks of 5 iterations (40 env steps each); learning starts at iteration 3.
-TRAIN = [*TINY_ARGS, "--agent", "d4pg", "--set", "num_atoms=11"]
+TRAIN = TINY_ARGS
 
 
 def train_in_fresh_process(out, steps):

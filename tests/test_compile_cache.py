@@ -83,7 +83,7 @@ cli.main(sys.argv[2:])
 def test_a_second_run_compiles_nothing(tmp_path):
   """The same short training twice, each in a fresh process on the suite's cache: the second
   loads every program, small ones included (what the first did not load, it compiled)."""
-  from test_train import TINY_ARGS
+  from configs import TINY_ARGS
   env = dict(os.environ)
   counts = []
   for run in ("first", "second"):

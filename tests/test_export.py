@@ -19,7 +19,7 @@ from mjx_hopper.faces import cli, export
 from mjx_hopper.process import runlock
 from mjx_hopper.run import loop, runs
 from checkpoint_worker import CONFIG, state as fake_state
-from test_train import TINY
+from configs import TINY
 
 O, A = 15, 3
 AGENTS = [("d4pg", {}), ("ddpg", {}), ("mpo", {}), ("mpo", {"action_bounds": "squash"}),

@@ -19,7 +19,7 @@ from tqdm import tqdm
 from mjx_hopper import agents
 from mjx_hopper.run import loop
 from mjx_hopper.run.logger import Logger, Unavailable, check_services
-from test_train import TINY
+from configs import TINY
 
 NAN = float("nan")
 
@@ -164,7 +164,7 @@ def test_tensorboard_gets_the_csv_scalars_and_survives_a_resume(tmp_path, caplog
 def test_run_writes_tensorboard_and_resumes_it(tmp_path):
   """loop.run with a TensorBoard folder for one chunk writes log.csv's scalars; run again, it
   resumes at 40 env steps and opens a second event file that purges later steps."""
-  from test_train import TINY
+  from configs import TINY
   cfg = dataclasses.replace(TINY, total_env_steps=40, out_dir=str(tmp_path),
                             tensorboard_dir=str(tmp_path / "tb"))
   for _ in range(2):

@@ -9,9 +9,12 @@ import matplotlib
 import numpy as np
 import pytest
 
-from mjx_hopper.faces import notebook
+from mjx_hopper.faces import cli, notebook
 from mjx_hopper.run import loop
-from test_train import TINY, TINY_ARGS
+from mjx_hopper.settings import flags, presets
+
+import configs
+from conftest import build_key
 
 matplotlib.use("Agg")
 
@@ -83,15 +86,18 @@ def test_learning_curve_reads_log_csv(runs):
   np.testing.assert_array_equal(evaluation.get_ydata(), log["eval"]["eval_return"])
 
 
-@pytest.mark.parametrize("agent", ["d4pg", "ddpg", "mpo", "dmpo"])
+@pytest.mark.parametrize("agent", configs.AGENTS)
 def test_tiny_is_the_tests_tiny_run(agent):
-  """The notebook's short mode trains what tests/test_train.py's CLI runs train, so that they
-  share compiled programs."""
-  cfg = notebook.tiny(loop.RunConfig(agent=agent, total_env_steps=5_000_000, max_minutes=5,
-                                     out_dir="runs/x"))
-  assert cfg.train == TINY.train and cfg.episode_steps == TINY.episode_steps
+  """The notebook's short mode of a robot's preset trains what the suite's shared runs train,
+  in Python and on the command line (tests/configs.py), so that they share compiled programs:
+  everything that shapes the trainer is equal (`conftest.build_key`)."""
+  cfg = notebook.tiny(presets.agent_run_config("Hopper", "cpu", agent, total_env_steps=5_000_000,
+                                               max_minutes=5, out_dir="runs/x"))
   assert cfg.out_dir == "runs/x" and cfg.max_minutes is None and cfg.total_env_steps == 80
-  assert cfg.eval_episodes == int(TINY_ARGS[TINY_ARGS.index("--eval-episodes") + 1])
+  args = cli.build_parser().parse_args([*configs.tiny_args(agent)[2:], "--total-env-steps", "80"])
+  from_cli = flags.run_config(args)
+  assert build_key(cfg) == build_key(configs.tiny(agent)) == build_key(from_cli)
+  assert from_cli.log_every == 0 and from_cli.eval_every == cfg.eval_every
 
 
 def test_live_curve_draws_one_figure_in_place(capsys):

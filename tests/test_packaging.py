@@ -13,7 +13,7 @@ import zipfile
 
 import pytest
 
-from test_train import TINY_ARGS
+from configs import TINY_ARGS
 
 ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..")
 with open(os.path.join(ROOT, "pyproject.toml"), "rb") as f:

@@ -12,7 +12,7 @@ from mjx_hopper.faces import cli, export
 from mjx_hopper.run import runs
 from mjx_hopper.settings import config
 from mjx_hopper.store.run_folder import RunFolder, Saved, check_processes, config_item
-from test_train import TINY
+from configs import TINY
 
 
 @pytest.fixture(scope="module")

@@ -14,7 +14,7 @@ import pytest
 from mjx_hopper.faces import cli
 from mjx_hopper.process import runlock
 from mjx_hopper.run import loop
-from test_train import TINY, TINY_ARGS
+from configs import TINY, TINY_ARGS
 
 HOLD = ("import sys, time; from mjx_hopper.process import runlock\n"
         "with runlock.hold(sys.argv[1]):\n"
@@ -54,7 +54,7 @@ def test_a_second_run_is_refused_naming_the_first_and_writes_nothing(held, capsy
   # The command line says it in one line.
   with pytest.raises(SystemExit, match=rf"^mjx-hopper train: {folder} is in use by another "
                                        rf"run \(process {proc.pid} "):
-    cli.main([*TINY_ARGS, "--agent", "d4pg", "--total-env-steps", "80", "--out-dir", str(folder)])
+    cli.main([*TINY_ARGS, "--total-env-steps", "80", "--out-dir", str(folder)])
   assert os.listdir(folder) == [runlock.LOCK]
 
 

@@ -20,7 +20,8 @@ from mjx_hopper.core import train
 from mjx_hopper.core.pbt import PBT, exploit_explore
 from mjx_hopper.faces import cli
 from mjx_hopper.run import loop, runs, sweep
-from test_train import TINY, TINY_ARGS, member
+from configs import TINY, TINY_ARGS
+from test_train import member
 
 
 def run_chunks(trainer, state, chunks=2):
@@ -36,9 +37,10 @@ def assert_same(a, b):
 def assert_close(a, b, rtol):
   """Every float leaf of `a` within rtol of its largest magnitude in `b` (plus 1), the others
   equal. Members vmapped on one device take XLA's batched products, whose sums may be ordered
-  otherwise than a single run's, and two chunks of learning and physics grow those last-bit
-  differences: to about 1e-3 of a leaf's scale mostly, and to 2.3e-2 in 3 of the 960
-  observations of the replay of a 4-member sweep, where an env's contacts went otherwise."""
+  otherwise than a single run's, and chunks of learning and physics grow those last-bit
+  differences: to about 1e-3 of a leaf's scale mostly after two chunks, and more in the few
+  observations where an env's contacts went otherwise, which differ by CPU model. Compared
+  over a chunk, they stay within the tolerance."""
   for (path, x), y in zip(jax.tree_util.tree_leaves_with_path(a), jax.tree.leaves(b)):
     x, y = np.asarray(x), np.asarray(y)
     if x.dtype.kind != "f":
@@ -81,6 +83,9 @@ def single_run(single, chosen, chunks=2):
   return run_chunks(single, single.init([chosen["seed"]], hparams), chunks)
 
 
+# Slow: a configuration of its own (two members, one a device); the quick tier holds members to
+# their single runs in test_sweep_writes_results_resumes_exactly_and_extracts.
+@pytest.mark.slow
 def test_member_is_bit_identical_to_its_single_run(single):
   # Two members on the two CPU devices, one each: each runs the program of a single run on one
   # device, from its own seed's keys, with its learning rate as an array of the same program.
@@ -115,15 +120,18 @@ def test_sweep_writes_results_resumes_exactly_and_extracts(single, tmp_path, cap
   split_cfg = dataclasses.replace(cfg, out_dir=str(tmp_path / "split"))
   stopped = loop.run(split_cfg, progress=False, print_fn=stop_after_first_chunk)
   assert train.iterations(stopped.state) * cfg.train.steps_per_iteration == 40
+  after_one = jax.device_get(stopped.state)
   resumed = loop.run(split_cfg, progress=False)
   assert_same(jax.device_get(straight.state), jax.device_get(resumed.state))
   # Two members per device run under vmap: within a tolerance of their single runs, and not
-  # of the run of another sigma from the same seed (members 0 and 2).
-  singles = [member(single_run(single, chosen)[0]) for chosen in cfg.member_settings()]
+  # of the run of another sigma from the same seed (members 0 and 2). Over one chunk: a second
+  # lets an episode's contacts part on some CPUs (2 of 960 observations, on an AMD host).
+  singles = [member(single_run(single, chosen, chunks=1)[0])
+             for chosen in cfg.member_settings()]
   for i, one in enumerate(singles):
-    assert_close(member(straight.state, i), one, rtol=5e-2)
+    assert_close(member(after_one, i), one, rtol=5e-2)
   with pytest.raises(AssertionError):
-    assert_close(member(straight.state, 0), singles[2], rtol=5e-2)
+    assert_close(member(after_one, 0), singles[2], rtol=5e-2)
 
   with open(tmp_path / "straight" / "log.csv") as f:
     rows = list(csv.DictReader(f))
@@ -335,10 +343,11 @@ def test_pbt_replaces_a_diverged_member_resumes_exactly_and_extracts(tmp_path, c
 
 # A 4-member PBT sweep: members (sigma, learning_rate) 0 (0.1, 1e-3), 1 (0.1, 1e30),
 # 2 (0.3, 1e-3) and 3 (0.3, 1e30). Members 1 and 3 diverge in the first chunk, and PBT gives each
-# a copy of the best member at the first evaluation.
-PBT_SWEEP = [*TINY_ARGS[3:], "--total-env-steps", "200", "--set", "num_atoms=11",
+# a copy of the best member at the second evaluation. Evaluations fall due inside chunks (every
+# 60 env steps, a chunk being 40), and between PBT's steps.
+PBT_SWEEP = [*TINY_ARGS[3:], "--total-env-steps", "200",
              "--set", "sigma=0.1,0.3", "--set", "learning_rate=1e-3,1e30", "--pbt",
-             "--pbt-every", "1"]
+             "--eval-every", "60", "--pbt-every", "2"]
 
 
 def free_port() -> int:
@@ -347,9 +356,15 @@ def free_port() -> int:
     return s.getsockname()[1]
 
 
-def start_processes(out_dir, flags, env=None) -> list[subprocess.Popen]:
+# `mjx-hopper` whose chunks take a second and whose process 1 compiles its evaluation
+# $LATE_EVALUATION_S seconds late, as on a loaded machine.
+LATE = [os.path.join(os.path.dirname(__file__), "late_evaluation.py")]
+
+
+def start_processes(out_dir, flags, env=None, cli_=("-m", "mjx_hopper.faces.cli")
+                    ) -> list[subprocess.Popen]:
   """Two processes of one CPU device each, of one sweep over JAX's distributed runtime."""
-  return [subprocess.Popen([sys.executable, "-m", "mjx_hopper.faces.cli", "--cpu-devices", "1",
+  return [subprocess.Popen([sys.executable, *cli_, "--cpu-devices", "1",
                             "sweep", *PBT_SWEEP, "--out-dir", str(out_dir), "--distributed",
                             *flags(i)], env={**os.environ, **(env(i) if env else {})},
                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
@@ -357,9 +372,9 @@ def start_processes(out_dir, flags, env=None) -> list[subprocess.Popen]:
 
 
 @contextlib.contextmanager
-def two_processes(out_dir, flags, env=None):
+def two_processes(out_dir, flags, env=None, cli_=("-m", "mjx_hopper.faces.cli")):
   """`start_processes`, killed (with what they printed kept) if the test ends before they do."""
-  procs = start_processes(out_dir, flags, env)
+  procs = start_processes(out_dir, flags, env, cli_)
   try:
     yield procs
   finally:
@@ -424,12 +439,16 @@ def test_two_processes_train_one_population_as_one_process_through_their_faults(
   assert killed is not None and killed < 25
 
   # Resumed under SLURM (jax.distributed reads each process's place from SLURM's variables), to
-  # the end: the same members as one process's, bit for bit.
+  # the end, process 1's evaluation compiled 15 s after process 0's while both train: every
+  # process takes each evaluation at the same chunk (before that choice was agreed, process 0
+  # started its first evaluation while process 1 went on, and Gloo aborted process 1), and the
+  # members end as one process's do, bit for bit.
   start = free_port() % 4096  # JAX's coordinator port under SLURM: job id % 4096 + 61440
   job = next(j for j in range(start, start + 4096) if _port_free(j % 4096 + 61440))
-  with two_processes(two, lambda i: ["--checkpoint-minutes", "0"], env=lambda i: {
+  with two_processes(two, lambda i: [], env=lambda i: {
       "SLURM_JOB_ID": str(job), "SLURM_STEP_NODELIST": "localhost", "SLURM_NTASKS": "2",
-      "SLURM_PROCID": str(i), "SLURM_LOCALID": str(i), "SLURM_STEP_NUM_NODES": "1"}) as procs:
+      "SLURM_PROCID": str(i), "SLURM_LOCALID": str(i), "SLURM_STEP_NUM_NODES": "1",
+      "LATE_EVALUATION_S": "15"}, cli_=LATE) as procs:
     outs = [finish(proc) for proc in procs]
   assert f"resumed from {checkpoints}, step {killed}" in outs[0]
   assert "done: 200 env steps" in outs[0] and "done: " not in outs[1]  # process 0 says them
@@ -447,8 +466,9 @@ def test_two_processes_train_one_population_as_one_process_through_their_faults(
   assert sweep.population_ranking(rows["two"], grid) == sweep.population_ranking(
       rows["one"], grid)
   assert (two / "pbt.png").stat().st_size > 10_000
+  assert {r[1] for r in evaluations} == {"80", "120", "200"}
   # PBT's first step: each diverged member copies a member, one of them on the other process.
-  parents = {int(r[0]): int(r[5]) for r in evaluations if r[1] == "80"}
+  parents = {int(r[0]): int(r[5]) for r in evaluations if r[1] == "120"}
   assert parents[1] in (0, 2) and parents[3] in (0, 2)
   assert any(m // 2 != parents[m] // 2 for m in (1, 3))
 
@@ -492,40 +512,3 @@ def test_a_busy_coordinator_port_is_one_line():
                 "--coordinator", f"localhost:{port}", "--num-processes", "2", "--process-id",
                 "0"])
 
-
-# A sweep of 4 members whose evaluations fall due inside chunks (every 60 env steps, a chunk
-# being 40) and between PBT's steps (every second evaluation). No checkpoint is due in it (a
-# save waits for the evaluations).
-AGREED_SWEEP = [*TINY_ARGS[3:], "--total-env-steps", "400", "--set", "num_atoms=11",
-                "--set", "sigma=0.1,0.3", "--set", "learning_rate=1e-3,2e-3", "--eval-every",
-                "60", "--pbt", "--pbt-every", "2"]
-
-
-@pytest.mark.slow
-@pytest.mark.timeout(900)
-def test_two_processes_agree_on_their_choices_whatever_their_clocks(tmp_path):
-  """Process 1's evaluation compiles 15 s after process 0's while both train, a chunk a second
-  (tests/late_evaluation.py): every process still takes each evaluation at the same chunk, so the run ends as
-  one process's does. Before the choice was agreed, process 0 started its first evaluation
-  while process 1 went on, and Gloo aborted process 1; where a choice is still made apart,
-  every process ends in one line naming where each stands (test_distributed.py)."""
-  cli.main(["--cpu-devices", "2", "sweep", *AGREED_SWEEP, "--out-dir", str(tmp_path / "one")])
-  port, two = free_port(), tmp_path / "two"
-  worker = os.path.join(os.path.dirname(__file__), "late_evaluation.py")
-  procs = [subprocess.Popen(
-      [sys.executable, worker, "--cpu-devices", "1", "sweep", *AGREED_SWEEP, "--out-dir",
-       str(two), "--distributed", "--coordinator", f"localhost:{port}", "--num-processes", "2",
-       "--process-id", str(i)], env={**os.environ, "LATE_EVALUATION_S": "15"},
-      stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True) for i in range(2)]
-  try:
-    outs = [finish(proc) for proc in procs]
-  finally:
-    for proc in procs:
-      if proc.poll() is None:
-        proc.kill()
-  assert "done: 400 env steps" in outs[0]
-  assert eval_rows(two) == eval_rows(tmp_path / "one")
-  assert {r[1] for r in eval_rows(two)} == {"80", "120", "200", "240", "320", "360", "400"}
-  _, states, _ = runs.restore(str(two / "checkpoints"))
-  _, one, _ = runs.restore(str(tmp_path / "one" / "checkpoints"))
-  assert_same(jax.device_get(states), jax.device_get(one))

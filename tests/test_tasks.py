@@ -18,7 +18,7 @@ from mjx_hopper.envs.events import AntLongJump, HighJump
 from mjx_hopper.faces import cli, notebook
 from mjx_hopper.run import loop, runs
 from mjx_hopper.settings import presets
-from test_train import TINY_ARGS
+from configs import TINY_ARGS
 
 # The notebook's tiny D4PG run on the high jump, its setting given: the same program as the
 # notebook's own high jump (the compile cache serves the second).
@@ -190,7 +190,7 @@ def test_a_notebook_class_is_passed_again_in_a_new_process(jump_run, tmp_path, m
 def test_the_cli_trains_evaluates_and_records_a_task_by_path(tmp_path, capsys):
   args = [a for a in TINY_ARGS if a != "Hopper"]
   args[args.index("--env")] = "--env=mjx_hopper.envs.events:HighJump"
-  cli.main([*args, "--set", "num_atoms=11", "--env-set", "height_weight=10.0",
+  cli.main([*args, "--env-set", "height_weight=10.0",
             "--total-env-steps", "80", "--out-dir", str(tmp_path)])  # JUMP on the command line: its trainer is reused
   saved = json.loads((tmp_path / "config.json").read_text())
   assert (saved["env"], saved["env_settings"]) == ("mjx_hopper.envs.events:HighJump",

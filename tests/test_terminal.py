@@ -4,7 +4,7 @@ import re
 import subprocess
 import sys
 
-from test_train import TINY_ARGS
+from configs import TINY_ARGS
 
 # The project's lines: its header, its train, eval and summary lines, and resuming notes.
 OWN = re.compile(r"^(no checkpoint in .*: starting a fresh run|Hopper with d4pg \(cpu\): .*"
@@ -13,7 +13,7 @@ OWN = re.compile(r"^(no checkpoint in .*: starting a fresh run|Hopper with d4pg 
 
 def test_a_cpu_run_prints_only_the_projects_lines(tmp_path):
   done = subprocess.run(
-      [sys.executable, "-m", "mjx_hopper.faces.cli", *TINY_ARGS, "--set", "num_atoms=11",
+      [sys.executable, "-m", "mjx_hopper.faces.cli", *TINY_ARGS,
        "--total-env-steps", "80", "--out-dir", str(tmp_path)],
       capture_output=True, text=True, timeout=600, env={**_env(), "JAX_PLATFORMS": "cpu"})
   assert done.returncode == 0, done.stderr[-3000:]

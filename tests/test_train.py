@@ -11,24 +11,11 @@ import pytest
 
 from mjx_hopper import agents, store
 from mjx_hopper.core import evaluator, start, train
-from mjx_hopper.faces import cli, notebook
+from mjx_hopper.faces import cli
 from mjx_hopper.process import distributed
 from mjx_hopper.run import logger, loop, runs
 
-# The notebook's short mode (notebook.tiny): the run of the notebook's own cells and of
-# test_notebook_helpers, so that they share its compiled programs (and, in one test worker,
-# its trainer: conftest.shared_builds).
-TINY = dataclasses.replace(
-    notebook.tiny(loop.RunConfig(env="Hopper", agent="d4pg", agent_preset="cpu")), log_every=0.0)
-
-
-# TINY's settings on the command line, for a given agent.
-TINY_ARGS = ["--cpu-devices", "2", "train", "--env", "Hopper", "--preset", "cpu",
-             "--set", "policy_layers=(16,)", "--set", "critic_layers=(16,)", "--set", "n_step=3",
-             "--num-envs", "4", "--unroll-length", "2", "--batch-size", "8", "--replay-ratio",
-             "2", "--replay-size", "64", "--min-replay", "24", "--iterations-per-chunk", "5",
-             "--episode-steps", "30", "--eval-episodes", "2", "--eval-every", "40",
-             "--no-progress", "--log-every", "0"]
+from configs import TINY, tiny_args
 
 
 @pytest.fixture(scope="module")
@@ -188,13 +175,15 @@ def test_run_logs_checkpoints_and_resumes(tmp_path, capsys):
 
 
 # D4PG's CLI run is test_checkpoint.py's bit-exact test (the same settings, in fresh processes).
+# Each agent's tiny run, as the notebook's short mode trains it (tests/configs.py).
 @pytest.mark.parametrize("agent, extra", [
-    ("ddpg", ["--set", "policy_every=2"]),  # (the policy's update in a branch, on 2 devices)
-    ("mpo", ["--set", "num_samples=4", "--eval-on", "host"]),  # (evaluated beside training)
-    ("dmpo", ["--set", "num_samples=4", "--set", "num_atoms=11"]),
+    ("ddpg", []),
+    ("mpo", ["--eval-on", "host"]),  # (evaluated beside training)
+    # Slow: DMPO's trainer differs from MPO's by its critic, whose loss test_mpo.py checks.
+    pytest.param("dmpo", [], marks=pytest.mark.slow),
 ])
 def test_every_agent_trains_from_the_same_cli(tmp_path, capsys, agent, extra):
-  cli.main([*TINY_ARGS, "--agent", agent, *extra, "--total-env-steps", "80", "--out-dir", str(tmp_path)])
+  cli.main([*tiny_args(agent), *extra, "--total-env-steps", "80", "--out-dir", str(tmp_path)])
   # The terminal lines are short: the agent's learner figures, not every logged field.
   last = [line for line in capsys.readouterr().out.splitlines() if line.startswith("[train]")][-1]
   for _, text in agents.learner_fields(agent):

@@ -1,6 +1,6 @@
 """A ledger of the programs a process compiles: where $MJX_HOPPER_COMPILE_LEDGER names a file,
 each program that XLA compiles or loads from the persistent cache, and each function traced or
-lowered, appends a line to it ({"event": ..., "s": seconds}). The test suite sums the lines of
+lowered, appends a line to it ({"event": ..., "s": seconds, "function": its name}). The test suite sums the lines of
 its workers and of the processes they start (tests/ledger.py); `summarise` reads them."""
 
 from __future__ import annotations
@@ -28,15 +28,25 @@ def start() -> None:
   _started = True
   from jax import monitoring
   monitoring.register_event_duration_secs_listener(
-      lambda event, secs, **_: _write(event, secs))
-  monitoring.register_event_listener(lambda event, **_: _write(event, 0.0))
+      lambda event, secs, fun_name="", **_: _write(event, secs, fun_name))
+  monitoring.register_event_listener(lambda event, **_: _write(event, 0.0, ""))
 
 
-def _write(event: str, secs: float) -> None:
-  name, path = EVENTS.get(event), os.environ.get(VARIABLE)
-  if name is None or not path:
-    return
-  line = json.dumps({"event": name, "s": round(secs, 4)}) + "\n"
+def note(event: str, name: str) -> None:
+  """Appends an event of the caller's own to the ledger, where one is kept: `name` once built
+  (the suite notes each trainer configuration it builds, as "trainer")."""
+  if os.environ.get(VARIABLE):
+    _append(event, 0.0, name)
+
+
+def _write(event: str, secs: float, function: str) -> None:
+  if event in EVENTS and os.environ.get(VARIABLE):
+    _append(EVENTS[event], secs, function)
+
+
+def _append(name: str, secs: float, function: str) -> None:
+  path = os.environ[VARIABLE]
+  line = json.dumps({"event": name, "s": round(secs, 4), "function": function}) + "\n"
   # One write of one short line in append mode: whole lines, from several processes at once.
   fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
   try:
@@ -47,8 +57,9 @@ def _write(event: str, secs: float) -> None:
 
 def summarise(paths) -> dict:
   """The totals of ledger files `paths`: programs (XLA compiles and cache loads), cache hits,
-  compiled (programs not from the cache), and the seconds of compiling, tracing and lowering."""
-  count, secs = collections.Counter(), collections.Counter()
+  compiled (programs not from the cache), the seconds of compiling, tracing and lowering, and
+  the names noted as "trainer"."""
+  count, secs, trainers = collections.Counter(), collections.Counter(), set()
   for path in paths:
     with open(path) as f:
       for line in f:
@@ -58,6 +69,8 @@ def summarise(paths) -> dict:
           continue  # a line cut short by a process killed as it wrote
         count[entry["event"]] += 1
         secs[entry["event"]] += entry["s"]
+        if entry["event"] == "trainer":
+          trainers.add(entry["function"])
   return {"programs": count["compile"], "cache hits": count["cache hit"],
           "compiled": count["compile"] - count["cache hit"], "compile s": secs["compile"],
-          "trace s": secs["trace"], "lower s": secs["lower"]}
+          "trace s": secs["trace"], "lower s": secs["lower"], "trainers": trainers}
