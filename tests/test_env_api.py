@@ -122,7 +122,8 @@ def test_edit_model_changes_the_physics(hopper):
 # Subclassing works the same way for every robot: the Hopper keeps the shared termination rule
 # and HalfCheetah has its own, which the subclass's rule adds to. test_episodes holds every
 # robot's own reward and termination to PyBullet's.
-@pytest.mark.parametrize("robot", ["Hopper", "HalfCheetah"])
+# Slow: a second robot's programs of its own (its termination rule; the Hopper's is shared).
+@pytest.mark.parametrize("robot", ["Hopper", pytest.param("HalfCheetah", marks=pytest.mark.slow)])
 def test_custom_task_by_subclassing_jits_and_vmaps(robot):
   base_env = make_env(robot)
   env = seed_style_task(type(base_env))

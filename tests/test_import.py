@@ -128,6 +128,7 @@ def test_setup_avoids_shardy_where_it_crashes(monkeypatch, crashes, chosen, shar
     jax.config.update("jax_use_shardy_partitioner", before)
 
 
+@pytest.mark.slow  # a whole run in a fresh process
 def test_a_mac_imports_the_envs_and_trains_on_cpu(tmp_path):
   program = ("import platform; platform.system = lambda: 'Darwin'\n"
              "import dataclasses\n"
