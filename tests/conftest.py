@@ -89,10 +89,11 @@ def shared_builds():
 # longest first: the two test workers take files in this order, so that neither is left with a
 # long file at the end while the other idles (scripts/test.sh turns off xdist's own order, by
 # number of tests). A file not listed goes after them.
-LONGEST_FIRST = ("test_sweep.py", "test_notebooks.py", "test_brax.py", "test_pretrained.py", "test_train.py",
-                 "test_episodes.py", "test_tasks.py", "test_export.py", "test_checkpoint.py",
-                 "test_env_api.py", "test_observation.py", "test_dpg.py", "test_gymnasium.py",
-                 "test_mpo.py", "test_presets.py", "test_render.py", "test_notebook_helpers.py")
+LONGEST_FIRST = ("test_notebooks.py", "test_sweep.py", "test_train.py", "test_env_api.py",
+                 "test_observation.py", "test_tasks.py", "test_episodes.py", "test_brax.py",
+                 "test_episode_starts.py", "test_pretrained.py", "test_dpg.py",
+                 "test_new_agent.py", "test_mpo.py", "test_export.py", "test_gymnasium.py",
+                 "test_checkpoint.py", "test_notebook_helpers.py")
 
 
 def pytest_collection_modifyitems(items):

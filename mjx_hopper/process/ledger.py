@@ -1,7 +1,8 @@
 """A ledger of the programs a process compiles: where $MJX_HOPPER_COMPILE_LEDGER names a file,
 each program that XLA compiles or loads from the persistent cache, and each function traced or
-lowered, appends a line to it ({"event": ..., "s": seconds, "function": its name}). The test suite sums the lines of
-its workers and of the processes they start (tests/ledger.py); `summarise` reads them."""
+lowered, appends a line to it ({"event": ..., "s": seconds, "function": its name}). The test
+suite sums the lines of its workers and of the processes they start (tests/ledger.py);
+`summarise` reads them."""
 
 from __future__ import annotations
 
