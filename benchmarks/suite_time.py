@@ -4,12 +4,13 @@
 dependency's API), from an empty compile cache, with the outcome, each test file's seconds and
 the compile ledger's totals (tests/ledger.py).
 
-    python benchmarks/suite_time.py --label py312
-    python benchmarks/suite_time.py --slow --label py312_slow
+    python benchmarks/suite_time.py --label quick --cache /tmp/suite_cache
+    python benchmarks/suite_time.py --slow --label slow --cache /tmp/suite_cache
     python benchmarks/suite_time.py --floor --label floor_py311
 
 Writes benchmarks/results/suite_time_LABEL.json. Run it on an otherwise idle machine: the suite
-is two test workers, one per core of CI's two.
+is two test workers, one per core of CI's two. As CI does, give the quick tier an empty --cache
+and the slow tier the same one after it.
 """
 
 from __future__ import annotations
@@ -53,6 +54,8 @@ def main() -> None:
   p = common.parser(__doc__)
   p.add_argument("--floor", action="store_true", help="the floor job (.ci/floor)")
   p.add_argument("--slow", action="store_true", help="the slow tier (scripts/test.sh -m slow)")
+  p.add_argument("--cache", help="the compile cache's folder, as CI's slow tier finds the quick "
+                 "tier's (default: a new empty one)")
   p.add_argument("--label", default="py312")
   args = p.parse_args()
   script = [".ci/floor"] if args.floor else ["scripts/test.sh", *(["-m", "slow"] if args.slow
@@ -61,7 +64,8 @@ def main() -> None:
     junit = os.path.join(scratch, "junit.xml")
     start = time.perf_counter()
     done = subprocess.run(["bash", *script, f"--junitxml={junit}"], cwd=ROOT, text=True,
-                          env=dict(os.environ, MJX_HOPPER_JAX_CACHE=os.path.join(scratch, "jax")),
+                          env=dict(os.environ, MJX_HOPPER_JAX_CACHE=args.cache or os.path.join(
+                              scratch, "jax")),
                           stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
     wall = time.perf_counter() - start
     print(done.stdout[-3000:])
