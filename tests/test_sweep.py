@@ -481,6 +481,27 @@ def test_two_processes_train_one_population_as_one_process_through_their_faults(
   assert store.manager(checkpoints).latest_step() == 25
 
 
+# Settings under which two processes must still take every choice together (beside those of
+# the test above: evaluations inside chunks, a save after every chunk), in a run of slow chunks
+# (tests/late_evaluation.py) with process 1's evaluation compiled late: evaluation on the host's
+# CPU asked for (one process's choice, which a run over processes declines), and a time budget
+# that ends the run long before its env steps, on each process's own clock.
+@pytest.mark.slow
+def test_two_processes_end_cleanly_at_a_time_budget(tmp_path):
+  port = free_port()
+  settings = ["--eval-on", "host", "--max-minutes", "0.5", "--total-env-steps", "100000"]
+  with two_processes(tmp_path, lambda i: ["--coordinator", f"localhost:{port}",
+                                          "--num-processes", "2", "--process-id", str(i),
+                                          *settings],
+                     env=lambda i: {"LATE_EVALUATION_S": "5"}, cli_=LATE) as procs:
+    outs = [finish(proc) for proc in procs]
+  assert "done: " in outs[0], outs[0]
+  rows = eval_rows(tmp_path)
+  last = max(int(r[1]) for r in rows)
+  assert sorted(int(r[0]) for r in rows if int(r[1]) == last) == [0, 1, 2, 3]
+  assert store.manager(str(tmp_path / "checkpoints")).latest_step() * 8 == last
+
+
 def _port_free(port: int) -> bool:
   with socket.socket() as s:
     try:
