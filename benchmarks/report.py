@@ -64,11 +64,10 @@ GYMNASIUM = "gymnasium_throughput_cpu.json"
 NOTEBOOK = "notebook_time_cpu.json"
 FIDELITY = "fidelity.json"
 ITERATION = {"XLA's": "cpu_iteration_cpu.json", "YNNPACK's": "cpu_iteration_cpu_ynn.json"}
-# CI's jobs, in its order, and the whole suite in one job as it ran before the tiers.
-SUITE = {"scripts/test.sh (quick tier)": "suite_time_quick.json",
+# CI's jobs, in its order.
+SUITE = {"scripts/test.sh": "suite_time_quick.json",
          "scripts/test.sh -m slow": "suite_time_slow.json",
-         ".ci/floor": "suite_time_floor_py311.json",
-         "scripts/test.sh (before the tiers)": "suite_time_py312.json"}
+         ".ci/floor": "suite_time_floor_py311.json"}
 COMPILE_FLAGS = "compile_flags_cpu.json"
 TRAINERS = {"ours": "our D4PG", "sac": "Brax SAC", "ppo": "Brax PPO", "sb3": "SB3 SAC on PyBullet"}
 MARK = "<!-- report.py: {} -->"
@@ -277,39 +276,25 @@ def sections() -> list[tuple[str, str, str, list[str]]]:
                        ["first video", num(nb["first_video_s"] / 60, 1)]]),
               [NOTEBOOK]))
   out.append(pretrained_section(sorted(p.name for p in RESULTS.glob("pretrained_*.json"))))
-  rows, suite = [], {job: name for job, name in SUITE.items() if (RESULTS / name).exists()}
-  for job, name in suite.items():
+  rows = []
+  for job, name in SUITE.items():
     s = load(name)["figures"]
-    slowest = ", ".join(f"{f} {num(t / 60, 1)}" for f, t in list(s["file_s"].items())[:4])
-    ledger = s.get("ledger") or {}
-    rows.append([f"`{job}`", f"{s['python']}, jax {s['jax']}", s["tests"] - s["skipped"],
-                 s["failed"], num(s["pytest_s"] / 60, 1), num(s["with_setup_s"] / 60, 1),
-                 num(sum(s["file_s"].values()) / 60, 1),
-                 num(ledger.get("compiled")), num(ledger.get("compile_s", None) and
-                                                  ledger["compile_s"] / 60, 1), slowest])
-  out.append(("Test suite", "CI's jobs on 2 CPU cores, empty compile cache: pytest's minutes "
-              "and its tests' minutes of a worker summed (two workers share the cores); "
-              "programs compiled and minutes compiling, from the compile ledger; the slowest "
-              "files in minutes of one worker.",
-              table(["job", "Python", "tests run", "failed", "pytest (min)",
-                     "with set-up (min)", "worker-minutes", "programs compiled",
-                     "compiling (min)", "slowest files (min)"], rows), list(suite.values())))
-  out.append(compile_flags_section())
+    rows.append([f"`{job}`", s["tests"] - s["skipped"], s["failed"], num(s["pytest_s"] / 60, 1),
+                 num(s["with_setup_s"] / 60, 1), num(s["ledger"]["compiled"]),
+                 num(s["ledger"]["compile_s"] / 60, 1)])
+  out.append(("Test suite", "CI's jobs in turn, 2 cores, empty cache, in minutes; "
+              "compiled: per the ledger. " + compile_flags_line(),
+              table(["job", "tests", "failed", "pytest", "with set-up", "compiled",
+                     "compiling"], rows), [*SUITE.values(), COMPILE_FLAGS]))
   return out
 
 
-def compile_flags_section() -> tuple[str, str, str, list[str]]:
-  """XLA:CPU's compile options weighed for the suite: compile and run seconds of its programs."""
+def compile_flags_line() -> str:
+  """The tests' XLA optimisation level weighed, in a sentence: the tiny D4PG chunk's compile
+  seconds at level 0 and at level 1 (the suite's before)."""
   data = load(COMPILE_FLAGS)["figures"]
-  keys = {"episodes": "episodes", "chunk": "chunk", "evaluation": "eval"}
-  rows = [[name, *(f"{num(f[k + '_compile_s'], 1)} / {num(f[k + '_run_s'], 1)}"
-                   for k in keys.values()), f["runs"]] for name, f in data.items()]
-  return ("Compile options for the tests", "The suite's programs compiled in a fresh process "
-          "of 2 CPU devices, no compile cache, each option set in turn: the Hopper's 128 "
-          "random-action episodes and the notebook's tiny D4PG trainer; median seconds of "
-          "compile / run.",
-          table(["options", *(f"{k}: compile / run (s)" for k in keys), "runs"], rows),
-          [COMPILE_FLAGS])
+  return (f"The tiny chunk compiles in {num(data['level 0']['chunk_compile_s'], 1)} s at level 0, "
+          f"{num(data['level 1']['chunk_compile_s'], 1)} at 1.")
 
 
 def start_section() -> tuple[str, str, str, list[str]]:

@@ -29,25 +29,24 @@ def pytest_runtest_protocol(item):
       os.environ[_FOLDER], f"{item.path.name}.{os.getpid()}.jsonl")
 
 
-def by_file(folder: str) -> dict[str, dict]:
-  """Each test file's ledger totals, from the files in `folder`."""
+def by_file(folder: str) -> dict[str, list[str]]:
+  """The ledger files in `folder`, by the test file they are of."""
   files: dict[str, list[str]] = {}
   for name in os.listdir(folder):
     files.setdefault(name.split(".py.")[0] + ".py", []).append(os.path.join(folder, name))
-  return {name: ledger.summarise(paths) for name, paths in files.items()}
+  return files
 
 
 def pytest_terminal_summary(terminalreporter, config):
   if not getattr(config, "_ledger_owner", False):
     return
   folder = os.environ[_FOLDER]
-  files = by_file(folder)
+  paths = by_file(folder)
+  files = {name: ledger.summarise(ps) for name, ps in paths.items()}
+  total = ledger.summarise([p for ps in paths.values() for p in ps])
   shutil.rmtree(folder, ignore_errors=True)
   if not files:
     return
-  total = {k: sum(f[k] for f in files.values()) for k in next(iter(files.values()))
-           if k != "trainers"}
-  total["trainers"] = set().union(*(f["trainers"] for f in files.values()))
   write = terminalreporter.write_line
   terminalreporter.write_sep("=", "compile ledger")
   write(_line("all test files", total))

@@ -86,12 +86,11 @@ class Evaluator:
     Those queued while the program compiled start here, once it is compiled (or with `wait`)."""
     if not self.pending:
       return []
-    if not wait:
-      # Whether the program is compiled rests on one process's clock: agreed over processes.
-      compiling, = distributed.agree("evaluation compiled", not self.program.done())
-      if compiling:
-        return []
-    distributed.in_step("evaluation")  # its program's collectives, then the results'
+    # Whether the program is compiled rests on one process's clock: agreed over processes,
+    # before the evaluation's collectives.
+    compiling, = distributed.agree("evaluation", not self.program.done())
+    if compiling and not wait:
+      return []
     self.pending = [p if p.started is not None else p._replace(started=self._start(p))
                     for p in self.pending]
     wait = wait or self.host is None

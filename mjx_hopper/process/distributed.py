@@ -138,7 +138,7 @@ def agree(phase: str, *flags: bool) -> tuple[bool, ...]:
   that they all agree on `phase` (`in_step`)."""
   if count() == 1:
     return tuple(bool(f) for f in flags)
-  return tuple(_exchange(phase, flags).any(0))
+  return tuple(bool(f) for f in _exchange(phase, flags).any(0))
 
 
 def in_step(phase: str) -> None:
