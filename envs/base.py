@@ -269,7 +269,8 @@ class LocomotionEnv(Env):
     info = {"robot": robot, "feet_contact": feet_contact, "steps": jnp.zeros((), jnp.int32),
             "truncation": jnp.zeros(())}
     return State(pipeline_state=data, obs=self.observation(robot), reward=jnp.zeros(()),
-                 done=jnp.zeros(()), metrics=jax.tree.map(jnp.zeros_like, zero_terms),
+                 done=jnp.zeros(()),
+                 metrics={k: jnp.zeros(jnp.shape(v), jnp.float32) for k, v in zero_terms.items()},
                  info=info)
 
   def step(self, state: State, action: jax.Array) -> State:
@@ -300,7 +301,9 @@ class LocomotionEnv(Env):
       info.update(steps=steps, truncation=truncation.astype(jnp.float32))
       done = terminated | truncation
     metrics = dict(state.metrics)
-    metrics.update({k: jnp.where(finite, v, 0.0) for k, v in terms.items()})
+    # float32 and not weakly typed, whatever a term's code: a state's types are the same at
+    # reset, after a step and after a scan, so that a program that takes one is compiled once.
+    metrics.update({k: jnp.where(finite, v, 0.0).astype(jnp.float32) for k, v in terms.items()})
     return state.replace(
         pipeline_state=data,
         obs=jnp.where(finite, obs, 0.0),

@@ -56,10 +56,12 @@ def _frozen(x):
 
 
 def build_key(cfg: config.RunConfig, num_members: int | None = None) -> tuple:
-  """Everything `runs.build(cfg, num_members)` builds its trainer from: the env and its episode
-  length, the agent and its config, the train config, the evaluation's episodes, the number of
-  members and whether their update counts are dynamic (out_dir, budgets and seeds are not)."""
-  return (cfg.env, _frozen(cfg.env_settings), cfg.episode_steps, cfg.agent,
+  """Everything `runs.build(cfg, num_members)` builds its trainer from: the task's class (given
+  as the class, an instance or a name) and its settings with the episode length, the agent and
+  its config, the train config, the evaluation's episodes, the number of members and whether
+  their update counts are dynamic (out_dir, budgets and seeds are not)."""
+  from mjx_hopper import envs
+  return (envs.task_class(cfg.env), _frozen(cfg.task_settings()), cfg.agent,
           _frozen(dataclasses.asdict(cfg.agent_config())), cfg.train_config(), cfg.eval_episodes,
           num_members or len(cfg.member_settings()), "replay_ratio" in cfg.grid)
 
@@ -86,19 +88,36 @@ def shared_builds():
 
 
 # The test files that take longest from an empty compile cache (`pytest --durations=0`),
-# longest first: the two test workers take files in this order, so that neither is left with a
+# longest first: the two test workers take them in this order, so that neither is left with a
 # long file at the end while the other idles (scripts/test.sh turns off xdist's own order, by
 # number of tests). A file not listed goes after them.
-LONGEST_FIRST = ("test_notebooks.py", "test_sweep.py", "test_train.py", "test_env_api.py",
-                 "test_observation.py", "test_tasks.py", "test_episodes.py", "test_brax.py",
-                 "test_episode_starts.py", "test_pretrained.py", "test_dpg.py",
-                 "test_new_agent.py", "test_mpo.py", "test_export.py", "test_gymnasium.py",
-                 "test_checkpoint.py", "test_notebook_helpers.py")
+LONGEST_FIRST = ("test_notebooks.py", "tiny trainers", "test_sweep.py", "hopper programs",
+                 "test_tasks.py", "test_episodes.py", "test_pretrained.py", "test_dpg.py",
+                 "test_new_agent.py", "test_mpo.py", "test_checkpoint.py")
+# Files that build the same programs, run in one worker in this order (scripts/test.sh's
+# `--dist loadgroup`; any other file is a group of its own): a trainer or env program is
+# then traced once (`shared_builds`, `make_env`) and compiled once, never by both workers at
+# once, and the files that train in processes of their own find its programs in the cache.
+GROUPS = {"tiny trainers": ("test_train.py", "test_run_folder.py", "test_runlock.py",
+                            "test_presets.py", "test_logger.py", "test_notebook_helpers.py",
+                            "test_export.py", "test_terminal.py", "test_start.py",
+                            "test_compile_cache.py", "test_packaging.py"),
+          "hopper programs": ("test_env_api.py", "test_episode_starts.py", "test_gymnasium.py",
+                              "test_brax.py", "test_observation.py")}
+_GROUP_OF = {name: group for group, names in GROUPS.items() for name in names}
 
 
+@pytest.hookimpl(tryfirst=True)  # before xdist reads the groups
 def pytest_collection_modifyitems(items):
   rank = {name: i for i, name in enumerate(LONGEST_FIRST)}
-  items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: tests keep order
+
+  def order(item):
+    name = item.path.name
+    group = _GROUP_OF.get(name, name)
+    return rank.get(group, len(rank)), GROUPS.get(group, (name,)).index(name)
+  items.sort(key=order)  # stable: tests keep their order
+  for item in items:
+    item.add_marker(pytest.mark.xdist_group(_GROUP_OF.get(item.path.name, item.path.name)))
 
 
 ROBOTS = ("Hopper", "Walker2D", "HalfCheetah", "Ant", "Humanoid")

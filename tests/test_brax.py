@@ -126,6 +126,7 @@ def test_eval_wrapper_sums_each_first_episode(episodes):
   np.testing.assert_array_equal(states.metrics["reward"], states.reward)
 
 
+@pytest.mark.slow  # its own programs: a second task under the stack the Hopper's tests cover
 def test_a_task_of_ones_own_under_brax_training_stack():
   """The high jump (mjx_hopper.envs.events) under Brax's EpisodeWrapper, AutoResetWrapper and
   EvalWrapper: its own terms are summed per episode, and Brax's limit ends its episodes."""

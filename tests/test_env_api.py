@@ -31,24 +31,24 @@ def test_wrong_action_shape(hopper, hopper_reset):
     hopper.step(state, jnp.zeros((8, 3)))
 
 
-def test_termination_and_truncation_are_separate(hopper_reset):
-  short = envs.make("Hopper", episode_steps=5)
-  state = jax.jit(short.reset)(jax.random.PRNGKey(0))
-  step = jax.jit(short.step)
-  for t in range(5):
-    state = step(state, jnp.zeros(3))
+def test_termination_and_truncation_are_separate(hopper, hopper_reset, hopper_step):
+  # Five steps before the time limit (the episode's step count set ahead): a truncation.
+  state = hopper_reset(jax.random.PRNGKey(0))
+  limit = hopper.episode_steps
+  state = state.replace(info={**state.info, "steps": state.info["steps"] + limit - 5})
+  for t in range(limit - 5, limit):
+    state = hopper_step(state, jnp.zeros(3))
     assert int(state.info["steps"]) == t + 1
-    assert float(state.done) == (1.0 if t == 4 else 0.0)
+    assert float(state.done) == (1.0 if t == limit - 1 else 0.0)
   assert float(state.info["truncation"]) == 1.0  # time limit: learners bootstrap here
   assert float(state.metrics["alive"]) == 1.0
 
-  long = envs.make("Hopper", episode_steps=1000)
-  state, step = jax.jit(long.reset)(jax.random.PRNGKey(0)), jax.jit(long.step)
+  state = hopper_reset(jax.random.PRNGKey(0))
   while float(state.done) == 0.0:
-    state = step(state, jnp.zeros(3))
+    state = hopper_step(state, jnp.zeros(3))
   assert float(state.metrics["alive"]) == -1.0  # it fell: a termination
   assert float(state.info["truncation"]) == 0.0
-  assert int(state.info["steps"]) < 1000
+  assert int(state.info["steps"]) < limit
 
 
 def test_non_finite_state_terminates_with_finite_outputs(hopper, hopper_reset, hopper_step):
@@ -60,10 +60,9 @@ def test_non_finite_state_terminates_with_finite_outputs(hopper, hopper_reset, h
   assert np.isfinite(state.obs).all() and np.isfinite(float(state.reward))
 
 
-def test_auto_reset_keeps_final_observation(hopper):
+def test_auto_reset_keeps_final_observation(hopper, hopper_step):
   env = envs.AutoReset(hopper)
-  reset, step = jax.jit(env.reset), jax.jit(env.step)
-  raw_step = jax.jit(hopper.step)
+  reset, step, raw_step = jax.jit(env.reset), jax.jit(env.step), hopper_step
   state = reset(jax.random.PRNGKey(3))
   for _ in range(200):
     expected = raw_step(state, jnp.zeros(3))
@@ -103,7 +102,7 @@ def seed_style_task(base):
   return Custom(episode_steps=40)
 
 
-def test_edit_model_changes_the_physics(hopper):
+def test_edit_model_changes_the_physics(hopper, hopper_step):
   class MoonHopper(type(hopper)):
     def edit_model(self, model):
       model.opt.gravity[2] = -1.62
@@ -114,7 +113,7 @@ def test_edit_model_changes_the_physics(hopper):
     qpos = np.array(env.mj_model.qpos0)
     qpos[1] += 1.0  # the root's z slide
     state = jax.jit(env.init_state)(qpos, np.zeros(env.mj_model.nv))
-    state = jax.jit(env.step)(state, jnp.zeros(env.action_size))
+    state = (hopper_step if env is hopper else jax.jit(env.step))(state, jnp.zeros(3))
     np.testing.assert_allclose(state.pipeline_state.qvel[:3], [0, -g * env.control_dt, 0],
                                rtol=1e-3, atol=1e-4)
 
@@ -142,7 +141,8 @@ def test_custom_task_by_subclassing_jits_and_vmaps(robot):
       forty_steps(jax.random.split(jax.random.PRNGKey(0), 8)))
   assert set(terms) == set(envs.REWARD_TERMS) | {"height"}
   # The new terms are what the subclass says, and the others are the robot's own.
-  base_terms = jax.vmap(jax.vmap(base_env.reward), (0, 0, None))(before, after, actions)
+  base_terms = jax.jit(jax.vmap(jax.vmap(base_env.reward), (0, 0, None)))(before, after,
+                                                                          actions)
   np.testing.assert_allclose(terms["progress"], 2 * base_terms["progress"], rtol=1e-5, atol=1e-5)
   np.testing.assert_allclose(terms["height"], after.body_xyz[..., 2] - 1.0, atol=1e-6)
   for name in set(envs.REWARD_TERMS) - {"progress"}:
@@ -152,7 +152,7 @@ def test_custom_task_by_subclassing_jits_and_vmaps(robot):
   ended = np.argmax(done > 0, axis=0)
   assert (done > 0).any(0).all()
   pitch = np.abs(after.body_rpy[..., 1])
-  own_rule = np.asarray(jax.vmap(jax.vmap(base_env.is_done))(after, base_terms))  # robot's own
+  own_rule = np.asarray(jax.jit(jax.vmap(jax.vmap(base_env.is_done)))(after, base_terms))
   why = (pitch > 0.3) | own_rule | (truncation > 0)
   assert why[ended, np.arange(8)].all()
   for env_index, t in enumerate(ended):
@@ -174,8 +174,9 @@ def test_batch_is_sharded_across_devices(hopper, hopper_step):
   actions = jnp.linspace(-1, 1, 24).reshape(8, 3)
   sharded = jax.jit(jax.vmap(hopper.step))(state, actions)
   assert len(sharded.obs.sharding.device_set) == 2
+  host = jax.device_get(state)
   for i in range(8):
-    alone = hopper_step(jax.tree.map(lambda x: x[i], state), actions[i])
+    alone = hopper_step(jax.tree.map(lambda x: x[i], host), actions[i])
     np.testing.assert_allclose(sharded.obs[i], alone.obs, atol=5e-4)
 
 

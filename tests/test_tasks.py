@@ -218,13 +218,16 @@ def test_a_set_value_of_the_wrong_type_is_a_one_line_error(command, value, messa
   assert not (tmp_path / "checkpoints").exists()
 
 
+# The notebook's Ant event as its short mode trains it, one member (a sweep of a task of one's
+# own is the notebook's population of high jumps): the notebook's programs, which the compile
+# cache shares between the two.
 @pytest.mark.slow
-def test_a_sweep_trains_an_ant_event(tmp_path):
-  cfg = dataclasses.replace(
-      notebook.tiny(presets.agent_run_config(AntLongJump, "cpu", "d4pg")),
-      seeds=(0, 1), grid={"sigma": (0.2, 0.4)}, log_every=0.0, out_dir=str(tmp_path))
+def test_an_ant_event_trains(tmp_path):
+  cfg = dataclasses.replace(notebook.tiny(presets.agent_run_config(AntLongJump, "gpu", "d4pg")),
+                            log_every=0.0, out_dir=str(tmp_path))
   result = loop.run(cfg, progress=False)
   assert isinstance(result.trainer.env, AntLongJump)
   evals = [row for row in result.history if row["kind"] == "eval"]
-  assert sorted({row["member"] for row in evals}) == [0, 1, 2, 3]
+  assert [row["env_steps"] for row in evals] == [40, 80]
   assert np.isfinite([row["eval_return"] for row in evals]).all()
+  assert "flight" in result.evaluation

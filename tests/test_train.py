@@ -159,8 +159,11 @@ def test_run_logs_checkpoints_and_resumes(tmp_path, capsys):
     assert trainer is longer.trainer  # conftest's shared builds cover runs.load_policy too
   assert f"return {longer.best_return[0]:.1f} at {int(best['env_steps']):,} env steps" in (
       capsys.readouterr().out)
-  # Another config is refused, naming what differs, and the checkpoint is left alone.
-  with pytest.raises(ValueError, match="from another config .*agent_config"):
+  # Another config is refused, naming what differs, before a trainer is built for it, and the
+  # checkpoint is left alone.
+  with pytest.MonkeyPatch.context() as patch, pytest.raises(
+      ValueError, match="from another config .*agent_config"):
+    patch.setattr(runs, "build", lambda *_: pytest.fail("a trainer was built"))
     loop.run(dataclasses.replace(cfg, agent_overrides={**cfg.agent_overrides, "n_step": 2}),
              progress=False)
   assert max(int(p) for p in os.listdir(tmp_path / "run" / "checkpoints") if p.isdigit()) == (
@@ -176,10 +179,11 @@ def test_run_logs_checkpoints_and_resumes(tmp_path, capsys):
 
 # D4PG's CLI run is test_checkpoint.py's bit-exact test (the same settings, in fresh processes).
 # Each agent's tiny run, as the notebook's short mode trains it (tests/configs.py).
+# Slow: MPO's and DMPO's, trainers of their own (their learners are test_mpo.py's; evaluations
+# on the host are test_evaluations_on_the_host_run_beside_training's).
 @pytest.mark.parametrize("agent, extra", [
     ("ddpg", []),
-    ("mpo", ["--eval-on", "host"]),  # (evaluated beside training)
-    # Slow: DMPO's trainer differs from MPO's by its critic, whose loss test_mpo.py checks.
+    pytest.param("mpo", ["--eval-on", "host"], marks=pytest.mark.slow),
     pytest.param("dmpo", [], marks=pytest.mark.slow),
 ])
 def test_every_agent_trains_from_the_same_cli(tmp_path, capsys, agent, extra):

@@ -227,6 +227,14 @@ def _open(cfg: RunConfig, checkpoint_dir: str | None, say, progress_fn):
   folder = RunFolder.of(cfg)
   os.makedirs(folder.path, exist_ok=True)
   checkpoint_dir = checkpoint_dir or folder.checkpoints
+  saved_config = config_item(cfg, indices, distributed.count())
+  defaults = {"agent_config": _field_defaults(cfg.agent_config()), "env_settings": {}}
+  mngr = None
+  if os.path.isdir(checkpoint_dir) and os.listdir(checkpoint_dir):
+    # A checkpoint of another run is refused before anything is built or compiled for it.
+    mngr = store.manager(checkpoint_dir, cfg.keep_checkpoints)
+    check_processes(mngr, distributed.count())
+    store.check_config(mngr, saved_config, defaults)
   trainer = runs.build(cfg, len(mine))
   members = Members(mine, indices, single=len(mine) == 1, pbt=cfg.pbt is not None,
                     target=cfg.stop_at_return, say=say)
@@ -235,20 +243,15 @@ def _open(cfg: RunConfig, checkpoint_dir: str | None, say, progress_fn):
                         cfg.evaluates_on_host(jax.default_backend())
                         and distributed.count() == 1)
   fresh = functools.partial(runs.init, cfg, trainer, mine)
-  started = None
-  if not os.path.isdir(checkpoint_dir) or not os.listdir(checkpoint_dir):
-    # A fresh run: compiling from here, while the checkpoints and the log open.
-    started = start.start(trainer, fresh, evaluator)
-  saved_config = config_item(cfg, indices, distributed.count())
+  # A fresh run: compiling from here, while the checkpoints and the log open.
+  started = None if mngr is not None else start.start(trainer, fresh, evaluator)
   per_iteration = trainer.config.steps_per_iteration
-  saver = store.Saver(store.manager(checkpoint_dir, cfg.keep_checkpoints), saved_config,
+  saver = store.Saver(mngr or store.manager(checkpoint_dir, cfg.keep_checkpoints), saved_config,
                       cfg.checkpoint_minutes, per_iteration, say)
-  check_processes(saver.mngr, distributed.count())
   if started is None and (saver.mngr.latest_step() or 0) * per_iteration < cfg.total_env_steps:
     started = start.start(trainer, fresh, evaluator)  # a resumed run that trains on
   resumed = store.read_latest(
-      saver.mngr, started.state.result() if started else fresh(), saved_config, say,
-      defaults={"agent_config": _field_defaults(cfg.agent_config()), "env_settings": {}})
+      saver.mngr, started.state.result() if started else fresh(), saved_config, say, defaults)
   members.load_record(resumed.record)
   evaluator.best = resumed.best
   if primary:

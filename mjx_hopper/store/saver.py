@@ -66,29 +66,50 @@ def read_latest(mngr: ocp.CheckpointManager, fresh: train.TrainState, config: di
   from a saved config's dict had: an older version, which lacked the setting, ran as its default
   (such as the agents' `compute_dtype`, "float32").
   """
-  config = json.loads(json.dumps(config))  # as saved: tuples become lists
-  defaults = json.loads(json.dumps(defaults or {}))
   if not mngr.all_steps():
     print_fn(f"no checkpoint in {mngr.directory}: starting a fresh run")
     return Resumed(fresh, None, None, {})
 
   def load(step):
-    saved = read_config(mngr, step)
-    for key, values in defaults.items():
-      if isinstance(saved.get(key, {}), dict):
-        saved[key] = {**values, **saved.get(key, {})}
-    differ = [k for k in MUST_MATCH if saved.get(k) != config.get(k)]
-    if differ:
-      details = "; ".join(f"{k}: saved {saved.get(k)!r}, now {config.get(k)!r}" for k in differ)
-      raise ConfigMismatch(f"the checkpoint in {mngr.directory} is from another config "
-                           f"({details}); use another checkpoint directory, or the saved "
-                           "settings")
+    saved = _matching(read_config(mngr, step), config, defaults, mngr.directory)
     return (read_state(mngr, step, fresh), read_best(mngr, step, fresh.agent),
             saved.get("record", {}))
 
   step, (state, best, record) = load_newest(mngr, load, print_fn)
   print_fn(f"resumed from {mngr.directory}, step {step}")
   return Resumed(state, step, best, record)
+
+
+def check_config(mngr: ocp.CheckpointManager, config: dict, defaults: dict | None = None
+                 ) -> None:
+  """A ConfigMismatch, as `read_latest` raises it, where the newest checkpoint whose config
+  reads is of another config: checked before anything is compiled for a run that would be
+  refused. A step whose config does not read is left to `read_latest`."""
+  for step in sorted(mngr.all_steps(), reverse=True):
+    try:
+      saved = read_config(mngr, step)
+    except ConfigMismatch:
+      raise
+    except Exception:  # noqa: BLE001 - read_latest names what is wrong with it
+      continue
+    _matching(saved, config, defaults, mngr.directory)
+    return
+
+
+def _matching(saved: dict, config: dict, defaults: dict | None, directory) -> dict:
+  """`saved` (a config item), with `defaults` ({config key: {setting: value}}) filled in where
+  an older version lacked a setting, once its settings in MUST_MATCH are `config`'s; else a
+  ConfigMismatch naming those that differ."""
+  config = json.loads(json.dumps(config))  # as saved: tuples become lists
+  for key, values in json.loads(json.dumps(defaults or {})).items():
+    if isinstance(saved.get(key, {}), dict):
+      saved[key] = {**values, **saved.get(key, {})}
+  differ = [k for k in MUST_MATCH if saved.get(k) != config.get(k)]
+  if differ:
+    details = "; ".join(f"{k}: saved {saved.get(k)!r}, now {config.get(k)!r}" for k in differ)
+    raise ConfigMismatch(f"the checkpoint in {directory} is from another config ({details}); "
+                         "use another checkpoint directory, or the saved settings")
+  return saved
 
 
 class Saver:
