@@ -25,12 +25,12 @@ def trainer():
 
 @pytest.fixture(scope="module")
 def two_chunks(trainer):
-  """Host copies of the (one member's) state after one and two chunks, and the second chunk's
-  metrics."""
+  """Host copies of the (one member's) state after one and two chunks and the second chunk's
+  metrics, and the state after two chunks on the devices."""
   first, _ = trainer.train_chunk(trainer.init([0]))
   first_host = member(first)
   second, metrics = trainer.train_chunk(first)  # donates `first`
-  return first_host, member(second), member(metrics)
+  return first_host, member(second), member(metrics), second
 
 
 def member(tree, i=0):
@@ -39,7 +39,7 @@ def member(tree, i=0):
 
 
 def test_counters_and_replay_fill(two_chunks):
-  first, second, metrics = two_chunks
+  first, second, metrics, _ = two_chunks
   assert int(first.iteration) == 5 and int(second.iteration) == 10
   rows = TINY.train.replay_rows()
   assert rows == 16  # 64 transitions / 4 envs
@@ -53,7 +53,7 @@ def test_counters_and_replay_fill(two_chunks):
 
 
 def test_stored_steps_chain_within_episodes(two_chunks):
-  _, state, _ = two_chunks
+  _, state, _, _ = two_chunks
   steps = state.replay.steps
   order = (state.replay.position + np.arange(16)) % 16        # oldest row first
   obs, next_obs = steps.obs[order], steps.next_obs[order]
@@ -66,9 +66,8 @@ def test_stored_steps_chain_within_episodes(two_chunks):
   assert set(np.unique(discount)) <= {0.0, 1.0}
 
 
-def test_state_is_sharded_and_params_replicated(trainer):
-  state = trainer.init([0])
-  state, _ = trainer.train_chunk(state)
+def test_state_is_sharded_and_params_replicated(two_chunks):
+  state = two_chunks[-1]
   assert len(jax.devices()) == 2
   assert state.env.obs.addressable_shards[0].data.shape == (1, 2, 15)
   assert state.replay.steps.obs.addressable_shards[0].data.shape == (1, 16, 2, 15)
@@ -78,7 +77,7 @@ def test_state_is_sharded_and_params_replicated(trainer):
 
 
 def test_same_seed_same_run(trainer, two_chunks):
-  first, _, _ = two_chunks
+  first, _, _, _ = two_chunks
   again, _ = trainer.train_chunk(trainer.init([0]))
   jax.tree.map(np.testing.assert_array_equal, member(again), first)
 
