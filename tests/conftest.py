@@ -91,9 +91,9 @@ def shared_builds():
 # longest first: the two test workers take them in this order, so that neither is left with a
 # long file at the end while the other idles (scripts/test.sh turns off xdist's own order, by
 # number of tests). A file not listed goes after them.
-LONGEST_FIRST = ("test_notebooks.py", "tiny trainers", "test_sweep.py", "hopper programs",
-                 "test_tasks.py", "test_episodes.py", "test_pretrained.py", "test_dpg.py",
-                 "test_new_agent.py", "test_mpo.py", "test_checkpoint.py")
+LONGEST_FIRST = ("test_notebooks.py", "hopper programs", "tiny trainers", "test_sweep.py",
+                 "test_episodes.py", "test_tasks.py", "test_pretrained.py", "test_dpg.py",
+                 "test_mpo.py", "test_new_agent.py", "test_crashes.py", "test_checkpoint.py")
 # Files that build the same programs, run in one worker in this order (scripts/test.sh's
 # `--dist loadgroup`; any other file is a group of its own): a trainer or env program is
 # then traced once (`shared_builds`, `make_env`) and compiled once, never by both workers at
