@@ -65,9 +65,11 @@ NOTEBOOK = "notebook_time_cpu.json"
 FIDELITY = "fidelity.json"
 ITERATION = {"XLA's": "cpu_iteration_cpu.json", "YNNPACK's": "cpu_iteration_cpu_ynn.json"}
 # CI's jobs, in its order.
-SUITE = {"scripts/test.sh": "suite_time_quick.json",
-         "scripts/test.sh -m slow": "suite_time_slow.json",
-         ".ci/floor": "suite_time_floor_py311.json"}
+# CI's jobs, and the quick tier at an earlier commit, measured in turns with this one's.
+SUITE = {"suite_time_quick.json": "`scripts/test.sh`",
+         "suite_time_quick_before.json": "`scripts/test.sh`, before",
+         "suite_time_slow.json": "`scripts/test.sh -m slow`",
+         "suite_time_floor_py311.json": "`.ci/floor`"}
 COMPILE_FLAGS = "compile_flags_cpu.json"
 TRAINERS = {"ours": "our D4PG", "sac": "Brax SAC", "ppo": "Brax PPO", "sb3": "SB3 SAC on PyBullet"}
 MARK = "<!-- report.py: {} -->"
@@ -277,15 +279,15 @@ def sections() -> list[tuple[str, str, str, list[str]]]:
               [NOTEBOOK]))
   out.append(pretrained_section(sorted(p.name for p in RESULTS.glob("pretrained_*.json"))))
   rows = []
-  for job, name in SUITE.items():
+  for name, job in SUITE.items():
     s = load(name)["figures"]
-    rows.append([f"`{job}`", s["tests"] - s["skipped"], s["failed"], num(s["pytest_s"] / 60, 1),
+    rows.append([job, s["tests"] - s["skipped"], s["failed"], num(s["pytest_s"] / 60, 1),
                  num(s["with_setup_s"] / 60, 1), num(s["ledger"]["compiled"]),
                  num(s["ledger"]["compile_s"] / 60, 1)])
   out.append(("Test suite", "CI's jobs in turn, 2 cores, empty cache, in minutes; "
               "compiled: per the ledger. " + compile_flags_line(),
               table(["job", "tests", "failed", "pytest", "with set-up", "compiled",
-                     "compiling"], rows), [*SUITE.values(), COMPILE_FLAGS]))
+                     "compiling"], rows), [*SUITE, COMPILE_FLAGS]))
   return out
 
 
@@ -430,7 +432,8 @@ def code(commit: str) -> str:
 def benchmarks_page() -> str:
   parts = ["# Benchmarks", "Made by `python benchmarks/report.py` from the "
            "`benchmarks/results/` files under each table (date, machine, code, `python "
-           "benchmarks/COMMAND`); do not edit. Machines are noisy: compare rows of one run.",
+           "benchmarks/COMMAND`; `gpu.sh`: `bash benchmarks/gpu.sh`); do not edit. Machines are "
+           "noisy: compare rows of one run.",
            "## Summary", summary()]
   for title, method, text, names in sections():
     parts += [f"## {title}", method, text, sources(names)]
@@ -445,6 +448,7 @@ def sources(names: list[str]) -> str:
   for n in dict.fromkeys(names):
     r = load(n)
     command = re.sub(r" --out \S+", "", r["command"]).removeprefix("python benchmarks/")
+    command = command.replace('bash benchmarks/gpu.sh "python benchmarks/', 'gpu.sh "')
     made.setdefault((r["date"], machine(n), code(r["commit"]), command), []).append(n)
   lines = []
   for (date, where, commit, command), files in made.items():
