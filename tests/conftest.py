@@ -87,10 +87,10 @@ def shared_builds():
     yield
 
 
-# The test files that take longest from an empty compile cache (`pytest --durations=0`),
-# longest first: the two test workers take them in this order, so that neither is left with a
-# long file at the end while the other idles (scripts/test.sh turns off xdist's own order, by
-# number of tests). A file not listed goes after them.
+# The test files, or groups of them (GROUPS), that take longest from an empty compile cache
+# (`pytest --durations=0`), longest first: the two test workers take them in this order, so
+# that neither is left with a long one at the end while the other idles (scripts/test.sh turns
+# off xdist's own order, by number of tests). A file not listed goes after them.
 LONGEST_FIRST = ("test_notebooks.py", "hopper programs", "tiny trainers", "test_sweep.py",
                  "test_episodes.py", "test_tasks.py", "test_pretrained.py", "test_dpg.py",
                  "test_mpo.py", "test_new_agent.py", "test_crashes.py", "test_checkpoint.py")

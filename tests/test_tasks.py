@@ -190,8 +190,9 @@ def test_a_notebook_class_is_passed_again_in_a_new_process(jump_run, tmp_path, m
 def test_the_cli_trains_evaluates_and_records_a_task_by_path(tmp_path, capsys):
   args = [a for a in TINY_ARGS if a != "Hopper"]
   args[args.index("--env")] = "--env=mjx_hopper.envs.events:HighJump"
+  # JUMP on the command line: its trainer is reused.
   cli.main([*args, "--env-set", "height_weight=10.0",
-            "--total-env-steps", "80", "--out-dir", str(tmp_path)])  # JUMP on the command line: its trainer is reused
+            "--total-env-steps", "80", "--out-dir", str(tmp_path)])
   saved = json.loads((tmp_path / "config.json").read_text())
   assert (saved["env"], saved["env_settings"]) == ("mjx_hopper.envs.events:HighJump",
                                                     {"height_weight": 10.0})

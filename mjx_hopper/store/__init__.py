@@ -14,6 +14,5 @@ from mjx_hopper.store.manifests import damage, wait_and_record
 from mjx_hopper.store.saver import Resumed, Saver, check_config, load_newest, read_latest
 
 __all__ = ["ConfigMismatch", "FormatMismatch", "Resumed", "SaveFailed", "Saver", "check_config",
-           "check_format",
-           "damage", "has_best", "load_newest", "manager", "read_agent", "read_best", "read_config",
-           "read_latest", "read_state", "save", "wait_and_record"]
+           "check_format", "damage", "has_best", "load_newest", "manager", "read_agent",
+           "read_best", "read_config", "read_latest", "read_state", "save", "wait_and_record"]
