@@ -229,12 +229,7 @@ def _open(cfg: RunConfig, checkpoint_dir: str | None, say, progress_fn):
   checkpoint_dir = checkpoint_dir or folder.checkpoints
   saved_config = config_item(cfg, indices, distributed.count())
   defaults = {"agent_config": _field_defaults(cfg.agent_config()), "env_settings": {}}
-  mngr = None
-  if os.path.isdir(checkpoint_dir) and os.listdir(checkpoint_dir):
-    # A checkpoint of another run is refused before anything is built or compiled for it.
-    mngr = store.manager(checkpoint_dir, cfg.keep_checkpoints)
-    check_processes(mngr, distributed.count())
-    store.check_config(mngr, saved_config, defaults)
+  mngr = _checked_manager(cfg, checkpoint_dir, saved_config, defaults)
   trainer = runs.build(cfg, len(mine))
   members = Members(mine, indices, single=len(mine) == 1, pbt=cfg.pbt is not None,
                     target=cfg.stop_at_return, say=say)
@@ -274,6 +269,18 @@ def _open(cfg: RunConfig, checkpoint_dir: str | None, say, progress_fn):
   parts = _Parts(cfg, trainer, members, evaluator, _Chunk(started, evaluator, members), pbt_step,
                  saver, logger, display, _Until(cfg, t_start), progress_fn, say)
   return parts, resumed.state
+
+
+def _checked_manager(cfg: RunConfig, checkpoint_dir: str, saved_config: dict, defaults: dict):
+  """The checkpoint manager of a folder that holds checkpoints, once they are of this run (its
+  config and number of processes), before anything is built or compiled for it; None for a
+  fresh folder. A checkpoint of another run is a ConfigMismatch."""
+  if not (os.path.isdir(checkpoint_dir) and os.listdir(checkpoint_dir)):
+    return None
+  mngr = store.manager(checkpoint_dir, cfg.keep_checkpoints)
+  check_processes(mngr, distributed.count())
+  store.check_config(mngr, saved_config, defaults)
+  return mngr
 
 
 class _Chunk:
