@@ -64,7 +64,8 @@ GYMNASIUM = "gymnasium_throughput_cpu.json"
 NOTEBOOK = "notebook_time_cpu.json"
 FIDELITY = "fidelity.json"
 ITERATION = {"XLA's": "cpu_iteration_cpu.json", "YNNPACK's": "cpu_iteration_cpu_ynn.json"}
-# CI's jobs in its order, and the quick tier at an earlier commit, measured in turns with this one's.
+# CI's jobs in its order, and the quick tier at an earlier commit, measured in turns with
+# this one's.
 SUITE = {"suite_time_quick.json": "`scripts/test.sh`",
          "suite_time_quick_before.json": "`scripts/test.sh`, before",
          "suite_time_slow.json": "`scripts/test.sh -m slow`",
