@@ -21,7 +21,10 @@ LOOP_EMITTERS = ("--xla_cpu_use_fusion_emitters=false"
                  if tuple(map(int, version("jaxlib").split(".")[:2])) < (0, 11) else "")
 TEST_XLA_FLAGS = (f"--xla_force_host_platform_device_count=2 {LOOP_EMITTERS} "
                   "--xla_cpu_multi_thread_eigen=false --xla_backend_optimization_level=0")
-os.environ["XLA_FLAGS"] = TEST_XLA_FLAGS + " " + os.environ.get("XLA_FLAGS", "")
+# Once: xdist's workers inherit the controller's flags, and JAX's cache key holds every flag,
+# repeats too, so a repeat would set the workers' programs apart from those of other processes.
+if not os.environ.get("XLA_FLAGS", "").startswith(TEST_XLA_FLAGS):
+  os.environ["XLA_FLAGS"] = TEST_XLA_FLAGS + " " + os.environ.get("XLA_FLAGS", "")
 # The compile options of a program that runs long: `jax.jit(f, compiler_options=LONG_RUNNING)`.
 LONG_RUNNING = {"xla_backend_optimization_level": 1}
 

@@ -3,12 +3,12 @@
 CI, never on our own machines) is replaced, and its file goes on in the new worker from the
 test it died in. A run whose only failures are such crashes, at most MAX_CRASHES of them and
 each test passing when run again, passes, and says so; a test that crashes every time fails.
-Its scheduler keeps a crash from stalling the run (LoadFileAfterCrashes)."""
+Its schedulers keep a crash from stalling the run (AfterCrashes)."""
 
 import collections
 
 import pytest
-from xdist.scheduler import LoadFileScheduling
+from xdist.scheduler import LoadFileScheduling, LoadGroupScheduling
 
 MAX_CRASHES = 2
 _crashes: collections.Counter = collections.Counter()
@@ -16,11 +16,12 @@ _failed: set[str] = set()
 _passed: set[str] = set()
 
 
-class LoadFileAfterCrashes(LoadFileScheduling):
-  """xdist's `--dist loadfile`, less two ways in which a crash stalls the run for good
-  (pytest-xdist issues 1327 and 1378; 3.8.0, the newest release, has both): the dead worker's
-  finished files went back on the queue as empty units of work, and a worker could be left
-  holding one test, which it runs only once it is sent the next test or told to stop."""
+class AfterCrashes:
+  """xdist's schedulers by file or by group (`--dist loadfile`, `loadgroup`: both share the
+  code changed here), less two ways in which a crash stalls the run for good (pytest-xdist
+  issues 1327 and 1378; 3.8.0, the newest release, has both): the dead worker's finished
+  files went back on the queue as empty units of work, and a worker could be left holding one
+  test, which it runs only once it is sent the next test or told to stop."""
 
   def remove_node(self, node):
     workload = self.assigned_work[node]
@@ -39,11 +40,19 @@ class LoadFileAfterCrashes(LoadFileScheduling):
       node.shutdown()
 
 
+class LoadFileAfterCrashes(AfterCrashes, LoadFileScheduling):
+  pass
+
+
+class LoadGroupAfterCrashes(AfterCrashes, LoadGroupScheduling):
+  pass
+
+
 @pytest.hookimpl(optionalhook=True)
 def pytest_xdist_make_scheduler(config, log):
-  if config.getvalue("dist") == "loadfile":
-    return LoadFileAfterCrashes(config, log)
-  return None
+  scheduler = {"loadfile": LoadFileAfterCrashes,
+               "loadgroup": LoadGroupAfterCrashes}.get(config.getvalue("dist"))
+  return scheduler and scheduler(config, log)
 
 
 @pytest.hookimpl(optionalhook=True)

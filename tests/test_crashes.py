@@ -6,6 +6,8 @@ import resource
 import subprocess
 import sys
 
+import pytest
+
 HERE = os.path.dirname(os.path.abspath(__file__))
 CRASHING = """
 import ctypes, os, time
@@ -27,16 +29,16 @@ def test_fails():
 """
 
 
-def run(tmp_path, crash: str, fail: str = "0", files_before: int = 0
+def run(tmp_path, crash: str, fail: str = "0", files_before: int = 0, dist: str = "loadgroup"
         ) -> subprocess.CompletedProcess:
-  """pytest on two workers as scripts/test.sh runs it, over `files_before` files of one quick
-  test each and then CRASHING."""
+  """pytest on two workers as scripts/test.sh runs it (.ci/floor: `dist` loadfile), over
+  `files_before` files of one quick test each and then CRASHING."""
   (tmp_path / "pytest.ini").write_text("[pytest]\n")
   for i in range(files_before):
     (tmp_path / f"test_a{i:02}.py").write_text("def test_quick():\n  pass\n")
   (tmp_path / "test_crashing.py").write_text(CRASHING)
   return subprocess.run(
-      [sys.executable, "-m", "pytest", "-n", "2", "--dist", "loadfile", "--no-loadscope-reorder",
+      [sys.executable, "-m", "pytest", "-n", "2", "--dist", dist, "--no-loadscope-reorder",
        "-p", "crashes", "-p", "no:cacheprovider", "--max-worker-restart", "2", "-q",
        "-o", "addopts="], cwd=tmp_path, capture_output=True, text=True, timeout=120,
       env={**os.environ, "PYTHONPATH": HERE, "CRASH": crash, "FAIL": fail},
@@ -63,10 +65,11 @@ def test_a_crash_every_time_fails_the_run(tmp_path):
   assert "did not pass when run again" in done.stdout
 
 
-def test_a_crash_after_finished_files_runs_to_the_end(tmp_path):
-  # xdist's own scheduler put the dead worker's finished files back as empty work, on which
+@pytest.mark.parametrize("dist", ["loadgroup", "loadfile"])
+def test_a_crash_after_finished_files_runs_to_the_end(tmp_path, dist):
+  # xdist's own schedulers put the dead worker's finished files back as empty work, on which
   # the workers then waited for good (a TimeoutExpired here).
-  done = run(tmp_path, "once", files_before=30)
+  done = run(tmp_path, "once", files_before=30, dist=dist)
   assert done.returncode == 0, done.stdout
   assert "34 passed" in done.stdout and "a worker died in test_crashing.py::test_crashes" \
       in done.stdout
