@@ -13,7 +13,7 @@ start=$SECONDS
 bash scripts/setup.sh test
 .venv/bin/python -c 'import sys, jax; print(f"Python {sys.version.split()[0]}, jax {jax.__version__}")'
 status=0
-.venv/bin/python -m pytest -n 2 --dist loadgroup --no-loadscope-reorder --max-worker-restart 2 \
+.venv/bin/python -m pytest -n 2 --dist loadfile --no-loadscope-reorder --max-worker-restart 2 \
   -m "not slow" "$@" ||
   status=$?
 echo "scripts/test.sh: $((SECONDS - start)) s, pytest's exit status $status"

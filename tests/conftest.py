@@ -41,6 +41,8 @@ import mjx_hopper  # noqa: E402
 
 pytest_plugins = ["crashes", "ledger"]
 
+import crashes  # noqa: E402
+
 mjx_hopper.setup()  # before MuJoCo is imported, which reads MUJOCO_GL once
 
 from mjx_hopper.process import ledger  # noqa: E402
@@ -97,10 +99,11 @@ def shared_builds():
 LONGEST_FIRST = ("test_notebooks.py", "hopper programs", "tiny trainers", "test_sweep.py",
                  "test_episodes.py", "test_tasks.py", "test_pretrained.py", "test_dpg.py",
                  "test_mpo.py", "test_new_agent.py", "test_crashes.py", "test_checkpoint.py")
-# Files that build the same programs, run in one worker in this order (scripts/test.sh's
-# `--dist loadgroup`; any other file is a group of its own): a trainer or env program is
-# then traced once (`shared_builds`, `make_env`) and compiled once, never by both workers at
-# once, and the files that train in processes of their own find its programs in the cache.
+# Files that build the same programs, run in one worker in this order (tests/crashes.py's
+# scheduler takes each group as one unit of work; any other file is a unit of its own): a
+# trainer or env program is then traced once (`shared_builds`, `make_env`) and compiled once,
+# never by both workers at once, and the files that train in processes of their own find its
+# programs in the cache.
 GROUPS = {"tiny trainers": ("test_train.py", "test_run_folder.py", "test_runlock.py",
                             "test_presets.py", "test_logger.py", "test_notebook_helpers.py",
                             "test_export.py", "test_terminal.py", "test_start.py",
@@ -110,7 +113,10 @@ GROUPS = {"tiny trainers": ("test_train.py", "test_run_folder.py", "test_runlock
 _GROUP_OF = {name: group for group, names in GROUPS.items() for name in names}
 
 
-@pytest.hookimpl(tryfirst=True)  # before xdist reads the groups
+def pytest_configure(config):
+  config.stash[crashes.UNIT_OF_FILE] = lambda path: _GROUP_OF.get(os.path.basename(path), path)
+
+
 def pytest_collection_modifyitems(items):
   rank = {name: i for i, name in enumerate(LONGEST_FIRST)}
 
@@ -119,8 +125,6 @@ def pytest_collection_modifyitems(items):
     group = _GROUP_OF.get(name, name)
     return rank.get(group, len(rank)), GROUPS.get(group, (name,)).index(name)
   items.sort(key=order)  # stable: tests keep their order
-  for item in items:
-    item.add_marker(pytest.mark.xdist_group(_GROUP_OF.get(item.path.name, item.path.name)))
 
 
 ROBOTS = ("Hopper", "Walker2D", "HalfCheetah", "Ant", "Humanoid")

@@ -3,12 +3,14 @@
 CI, never on our own machines) is replaced, and its file goes on in the new worker from the
 test it died in. A run whose only failures are such crashes, at most MAX_CRASHES of them and
 each test passing when run again, passes, and says so; a test that crashes every time fails.
-Its schedulers keep a crash from stalling the run (AfterCrashes)."""
+Its scheduler keeps a crash from stalling the run, and the files of a group together in one
+worker (LoadFileAfterCrashes)."""
 
 import collections
+from collections.abc import Callable
 
 import pytest
-from xdist.scheduler import LoadFileScheduling, LoadGroupScheduling
+from xdist.scheduler import LoadFileScheduling
 
 MAX_CRASHES = 2
 _crashes: collections.Counter = collections.Counter()
@@ -16,12 +18,22 @@ _failed: set[str] = set()
 _passed: set[str] = set()
 
 
-class AfterCrashes:
-  """xdist's schedulers by file or by group (`--dist loadfile`, `loadgroup`: both share the
-  code changed here), less two ways in which a crash stalls the run for good (pytest-xdist
-  issues 1327 and 1378; 3.8.0, the newest release, has both): the dead worker's finished
-  files went back on the queue as empty units of work, and a worker could be left holding one
-  test, which it runs only once it is sent the next test or told to stop."""
+# What the scheduler runs as one unit in one worker, from a test file's path: conftest puts
+# its groups of files here (any file not in one is a unit of its own).
+UNIT_OF_FILE = pytest.StashKey[Callable[[str], str]]()
+
+
+class LoadFileAfterCrashes(LoadFileScheduling):
+  """xdist's `--dist loadfile` with a file's unit of work as UNIT_OF_FILE names it (xdist's
+  own `loadgroup` names none under pytest 9.2: it sets `item._nodeid`, which pytest no longer
+  reads), less two ways in which a crash stalls the run for good (pytest-xdist issues 1327 and
+  1378; 3.8.0, the newest release, has both): the dead worker's finished files went back on
+  the queue as empty units of work, and a worker could be left holding one test, which it
+  runs only once it is sent the next test or told to stop."""
+
+  def _split_scope(self, nodeid):
+    path = super()._split_scope(nodeid)
+    return self.config.stash.get(UNIT_OF_FILE, lambda path: path)(path)
 
   def remove_node(self, node):
     workload = self.assigned_work[node]
@@ -40,19 +52,11 @@ class AfterCrashes:
       node.shutdown()
 
 
-class LoadFileAfterCrashes(AfterCrashes, LoadFileScheduling):
-  pass
-
-
-class LoadGroupAfterCrashes(AfterCrashes, LoadGroupScheduling):
-  pass
-
-
 @pytest.hookimpl(optionalhook=True)
 def pytest_xdist_make_scheduler(config, log):
-  scheduler = {"loadfile": LoadFileAfterCrashes,
-               "loadgroup": LoadGroupAfterCrashes}.get(config.getvalue("dist"))
-  return scheduler and scheduler(config, log)
+  if config.getvalue("dist") == "loadfile":
+    return LoadFileAfterCrashes(config, log)
+  return None
 
 
 @pytest.hookimpl(optionalhook=True)
