@@ -49,13 +49,7 @@ if [ ${#missing[@]} -gt 0 ]; then
   DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq "${missing[@]}" >/dev/null
 fi
 
-pip_install() {  # quiet on success, the whole log on failure
-  local log; log=$(mktemp)
-  if ! .venv/bin/python -m pip install -q "$@" >"$log" 2>&1; then cat "$log" >&2; exit 1; fi
-  rm -f "$log"
-}
 [ -x .venv/bin/python ] || "$python" -m venv .venv
 extra=""; [ -n "${1:-}" ] && extra="[$1]"
-pip_install --upgrade pip
-# Eager: every dependency at the newest release in its range, not what the venv already holds.
-pip_install --upgrade --upgrade-strategy eager -e ".${extra}"
+# Every dependency at the newest release in its range, not what the venv already holds.
+bash scripts/install.sh .venv -e ".${extra}"
