@@ -96,8 +96,8 @@ def shared_builds():
 # (`pytest --durations=0`), longest first: the two test workers take them in this order, so
 # that neither is left with a long one at the end while the other idles (scripts/test.sh turns
 # off xdist's own order, by number of tests). A file not listed goes after them.
-LONGEST_FIRST = ("test_notebooks.py", "hopper programs", "tiny trainers", "test_sweep.py",
-                 "test_episodes.py", "test_tasks.py", "test_pretrained.py", "test_dpg.py",
+LONGEST_FIRST = ("the notebook's programs", "hopper programs", "tiny trainers", "test_sweep.py",
+                 "test_episodes.py", "test_pretrained.py", "test_dpg.py",
                  "test_mpo.py", "test_new_agent.py", "test_crashes.py", "test_checkpoint.py")
 # Files that build the same programs, run in one worker in this order (tests/crashes.py's
 # scheduler takes each group as one unit of work; any other file is a unit of its own): a
@@ -108,6 +108,8 @@ GROUPS = {"tiny trainers": ("test_train.py", "test_run_folder.py", "test_runlock
                             "test_presets.py", "test_logger.py", "test_notebook_helpers.py",
                             "test_export.py", "test_terminal.py", "test_start.py",
                             "test_compile_cache.py", "test_packaging.py"),
+          # The notebook's Ant event and high jump, trained by test_tasks.py first.
+          "the notebook's programs": ("test_tasks.py", "test_notebooks.py"),
           "hopper programs": ("test_env_api.py", "test_episode_starts.py", "test_gymnasium.py",
                               "test_brax.py", "test_observation.py")}
 _GROUP_OF = {name: group for group, names in GROUPS.items() for name in names}

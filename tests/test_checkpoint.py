@@ -5,6 +5,7 @@ continues bit for bit, in fresh processes."""
 import csv
 import dataclasses
 import errno
+import json
 import os
 import re
 import shutil
@@ -306,20 +307,41 @@ def test_a_checkpoint_without_a_format_is_format_1(monkeypatch):
 # A tiny D4PG run: 2 chunks of 5 iterations (40 env steps each); learning starts at iteration 3.
 TRAIN = TINY_ARGS
 
+# The CLI (argv[2:]) in a fresh process, on the suite's compile cache, which writes to argv[1]
+# how many programs XLA compiled and how many came from the cache.
+COUNTED = """
+import atexit, json, sys
+import jax
+events = []
+jax.monitoring.register_event_listener(lambda name, **kwargs: events.append(name))
+atexit.register(lambda: json.dump({
+    "compiled": events.count("/jax/compilation_cache/cache_misses"),
+    "loaded": events.count("/jax/compilation_cache/cache_hits")}, open(sys.argv[1], "w")))
+from mjx_hopper.faces import cli
+cli.main(sys.argv[2:])
+"""
 
-def train_in_fresh_process(out, steps):
-  subprocess.run([sys.executable, "-m", "mjx_hopper.faces.cli", *TRAIN, "--total-env-steps",
+
+def train_in_fresh_process(out, steps) -> dict:
+  """`mjx-hopper train` of TRAIN to `steps` env steps in a fresh process: what it compiled and
+  what it loaded from the compile cache."""
+  counts = out.parent / f"{out.name}_{steps}.json"
+  subprocess.run([sys.executable, "-c", COUNTED, str(counts), *TRAIN, "--total-env-steps",
                   str(steps), "--out-dir", str(out)], check=True, stdout=subprocess.DEVNULL)
+  return json.loads(counts.read_text())
 
 
 @pytest.mark.slow
 def test_resume_is_bit_exact_in_fresh_processes(tmp_path):
-  # The straight run here (it compiles the programs, which the compile cache then gives the
-  # fresh processes); the split run in two fresh processes, the second resuming the first's.
-  # The straight run's trainer (conftest.shared_builds) restores both checkpoints.
+  # The straight run here (it compiles the programs, and the compile cache then gives them to
+  # the fresh processes); the split run in two fresh processes, the second resuming the
+  # first's. Neither compiles a program, small ones included: a second run of a configuration,
+  # and its resume after a restart, load every program from the cache. The straight run's
+  # trainer (conftest.shared_builds) restores both checkpoints.
   cli.main([*TRAIN, "--total-env-steps", "160", "--out-dir", str(tmp_path / "straight")])
-  train_in_fresh_process(tmp_path / "split", 80)
-  train_in_fresh_process(tmp_path / "split", 160)   # resumes at 80 env steps
+  for counts in (train_in_fresh_process(tmp_path / "split", 80),
+                 train_in_fresh_process(tmp_path / "split", 160)):  # resumes at 80 env steps
+    assert counts["compiled"] == 0 and counts["loaded"] >= 6, counts
   straight = runs.restore(str(tmp_path / "straight" / "checkpoints"))[1]
   split = runs.restore(str(tmp_path / "split" / "checkpoints"))[1]
   assert train.iterations(straight) == train.iterations(split) == 20
