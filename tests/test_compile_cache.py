@@ -6,7 +6,6 @@ import os
 import subprocess
 import sys
 
-
 import mjx_hopper
 from mjx_hopper.run import runtime
 
