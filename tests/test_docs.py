@@ -110,7 +110,7 @@ def problems(words: list[str], top: set[str]) -> list[str]:
         f"no extra {given!r}"]
   if program == "python" and args[:2] == ["-m", "build"]:  # pyproject's wheel, into dist/
     return []
-  if program == "python" and args and args[0].startswith(("benchmarks/", "tests/")):
+  if program == "python" and args and args[0].startswith(("benchmarks/", "tests/", "scripts/")):
     return sorted(used - script_flags(args[0]))
   if program.endswith("pip") and args[:1] == ["install"]:
     named = re.findall(r"\.\[([\w,]+)\]", " ".join(args))
