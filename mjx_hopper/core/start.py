@@ -10,6 +10,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from mjx_hopper.core import train
 
@@ -30,8 +31,8 @@ class Started(NamedTuple):
 
 
 def start(trainer: train.Trainer, init, evaluator) -> Started:
-  """Starts making the fresh state (`init()`, whose envs begin in the trainer's refill; the
-  blank `init(begin=False)` gives its shapes) and compiling the chunk, the finiteness check and
+  """Starts making the fresh state (the blank `init(begin=False)`, whose envs begin in the
+  trainer's refill, as `init()` does) and compiling the chunk, the finiteness check and
   `evaluator`'s evaluation. The first training row needs the chunk, the state and the check,
   which come first, side by side: the chunk in one thread, the state and the check in the
   other. The evaluation follows, on a small CPU after the chunk in its thread, so as not to
@@ -49,10 +50,11 @@ def start(trainer: train.Trainer, init, evaluator) -> Started:
   # first row waits for.
   lines = [concurrent.futures.ThreadPoolExecutor(1), concurrent.futures.ThreadPoolExecutor(1)]
   chunk = lines[0].submit(trainer.chunk.lower(shapes).compile)
-  state = lines[1].submit(init)
-  finite = lines[1].submit(finite_members.lower(shapes.agent).compile)
-  # init compiled the refill: this finds it in JAX's caches.
+  # The refill compiled from the shapes, then run on the blank state: traced once (`init()`
+  # would trace it again, for its arguments' shardings).
   refill = lines[1].submit(trainer.refill.lower(shapes.env, BEGIN).compile)
+  state = lines[1].submit(lambda: _begun(init(begin=False), refill.result()))
+  finite = lines[1].submit(finite_members.lower(shapes.agent).compile)
   lowered = evaluator.lower(shapes.agent) if _cores() >= TRACE_BESIDE_FROM_CORES else None
 
   def evaluation_after_the_first_row():
@@ -64,6 +66,11 @@ def start(trainer: train.Trainer, init, evaluator) -> Started:
   for line in lines:
     line.shutdown(wait=False)
   return Started(state, chunk, refill, finite, evaluation)
+
+
+def _begun(blank: train.TrainState, refill) -> train.TrainState:
+  """`blank` with its envs begun by the compiled `refill`."""
+  return blank._replace(env=refill(blank.env, np.True_))
 
 
 @jax.jit
