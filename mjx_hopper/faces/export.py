@@ -285,13 +285,15 @@ def evaluate_file(path: str, episodes: int = 16, seed: int = 0, video_path: str 
   task = make_env(policy, env)
   arrays = {k: jnp.asarray(v) for k, v in policy.arrays.items()}
 
-  def act(obs, key):
-    # reduce_precision, not a cast to bfloat16 and back, which XLA may drop (excess precision)
-    return forward(arrays, policy.meta, obs, jnp,
-                   lambda x: jax.lax.reduce_precision(x, exponent_bits=8, mantissa_bits=7))
+  def run(arrays, key):
+    def act(obs, key):
+      # reduce_precision, not a cast to bfloat16 and back, which XLA may drop (excess precision)
+      return forward(arrays, policy.meta, obs, jnp,
+                     lambda x: jax.lax.reduce_precision(x, exponent_bits=8, mantissa_bits=7))
+    return rollout.episodes(task, act, key, episodes, record_qpos=video_path is not None)
 
-  result = jax.device_get(jax.jit(lambda k: rollout.episodes(
-      task, act, k, episodes, record_qpos=video_path is not None))(jax.random.PRNGKey(seed)))
+  # The weights are arguments, not constants folded into the program.
+  result = jax.device_get(jax.jit(run)(arrays, jax.random.PRNGKey(seed)))
   returns = np.asarray(result["return"])
   print_fn(f"{policy.meta['task']['env']} / {policy.meta['agent']} ({path}): return "
            f"{returns.mean():.1f} +- {returns.std():.1f}, length "
