@@ -295,6 +295,19 @@ def test_a_checkpoint_of_another_format_is_refused_in_one_line(tmp_path, monkeyp
   assert store.manifests.files(str(directory)) == files
 
 
+def test_an_old_format_names_the_newest_version_that_reads_it():
+  # 0.2.0 saved format 1; this version reads format 2 only. Before formats were recorded
+  # (late 0.1.0), neither format nor version was saved: 0.2.0 still reads those too.
+  for saved in ({"env": "Hopper", "checkpoint_format": 1, "versions": {"mjx_hopper": "0.2.0"}},
+                {"env": "Hopper"}):
+    with pytest.raises(store.FormatMismatch) as error:
+      store.check_format(saved, "DIR")
+    assert (f"mjx_hopper {mjx_hopper.__version__} reads format 2: use mjx_hopper 0.2.0 to "
+            "resume or evaluate it, or to export its policy; nothing was written"
+            ) in str(error.value)
+  assert mjx_hopper.__version__ != "0.2.0"  # a format change is a version change
+
+
 def test_a_checkpoint_without_a_format_is_format_1(monkeypatch):
   monkeypatch.setattr(store.items, "OLDEST_FORMAT", 1)
   store.check_format({"env": "Hopper"}, "DIR")  # saved before formats were recorded

@@ -27,6 +27,8 @@ from mjx_hopper.store.manifests import wait_and_record
 # were recorded count as format 1. Format 2: the env states hold their episode starts.
 FORMAT = 2
 OLDEST_FORMAT = 2
+# The newest mjx_hopper that reads each format older than OLDEST_FORMAT.
+READ_BY = {1: "0.2.0"}
 
 
 class ConfigMismatch(ValueError):
@@ -143,7 +145,8 @@ def check_format(saved: dict, directory: str) -> None:
   reads = (f"format {FORMAT}" if OLDEST_FORMAT == FORMAT
            else f"formats {OLDEST_FORMAT} to {FORMAT}")
   todo = (f"use mjx_hopper {by} or newer" if found > FORMAT else
-          f"use mjx_hopper {by} to resume or evaluate it, or to export its policy")
+          f"use mjx_hopper {READ_BY.get(found, by)} to resume or evaluate it, or to export its "
+          "policy")
   raise FormatMismatch(f"the checkpoint in {directory} has format {found} (saved by mjx_hopper "
                        f"{by}), and mjx_hopper {mjx_hopper.__version__} reads {reads}: {todo}; "
                        "nothing was written")
