@@ -317,5 +317,5 @@ def test_tensorboard_without_its_writer_says_so_in_one_line(tmp_path, monkeypatc
   monkeypatch.setitem(sys.modules, "tensorboardX", None)
   with pytest.raises(Unavailable, match=r"^logging to TensorBoard needs tensorboardX: pip "
                                                r"install tensorboardX, or leave out "
-                                               r"--tensorboard$"):
+                                               r"--tensorboard-dir \(tensorboard_dir\)$"):
     Logger(None, tensorboard_dir=str(tmp_path / "tb"))

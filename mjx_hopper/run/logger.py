@@ -174,7 +174,7 @@ def _summary_writer_class():
     from tensorboardX import SummaryWriter
   except ImportError:
     raise Unavailable("logging to TensorBoard needs tensorboardX: pip install tensorboardX, or "
-                      "leave out --tensorboard") from None
+                      "leave out --tensorboard-dir (tensorboard_dir)") from None
   return SummaryWriter
 
 
