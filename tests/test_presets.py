@@ -128,6 +128,12 @@ def test_cli_starts_from_the_robot_preset():
                                   "critic_layers": (128, 128)}
   assert dmpo.agent_config().critic_layers == (128, 128)
   assert run_config("--env", "Hopper", "--agent", "mpo").agent_overrides == {}
+  # --agent-preset acme: acme's values (the NMA notebook's), not the robot's over them; --set
+  # still wins.
+  acme = run_config("--env", "Hopper", "--agent-preset", "acme", "--set", "sigma=0.25")
+  assert (acme.agent_preset, acme.agent_overrides) == ("acme", {"sigma": 0.25})
+  assert acme.agent_config() == dataclasses.replace(agents.config("d4pg", "acme"), sigma=0.25)
+  assert run_config("--env", "Hopper", "--agent-preset", "cpu").agent_overrides == hopper
   # With no flags: D4PG's cpu preset and the trainer's defaults (the README's main job).
   cfg = run_config()
   assert (cfg.agent, cfg.agent_preset, cfg.train, cfg.eval_every) == (

@@ -123,10 +123,13 @@ def run_config(args: argparse.Namespace, command: str = "train") -> RunConfig:
     seeds = (tuple(range(seed, seed + args.seeds)) if args.seeds is not None
              else base.seeds or (seed,))
     sweep = dict(seeds=seeds, grid={**base.grid, **grid}, pbt=pbt(args) or base.pbt)
+  # Another agent preset (acme's values) is that preset's settings, not the robot's over them.
+  kept = (base.agent_overrides if run_given.get("agent_preset", base.agent_preset)
+          == base.agent_preset else {})
   return dataclasses.replace(
       base, **run_given, **sweep, train=dataclasses.replace(base.train, **train_given),
       env_settings={**base.env_settings, **overrides(args.env_set, "--env-set")},
-      agent_overrides={**base.agent_overrides, **fixed})
+      agent_overrides={**kept, **fixed})
 
 
 def overrides(pairs: list[str], flag: str = "--set") -> dict:
