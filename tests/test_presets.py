@@ -152,3 +152,8 @@ def test_run_stops_once_every_member_reaches_the_target(tmp_path, capsys):
   env_steps = train.iterations(result.state) * cfg.train.steps_per_iteration
   assert (f"every member reached -1e+09 by the evaluation at 40 env steps: {env_steps:,} env "
           "steps") in capsys.readouterr().out
+
+
+def test_the_gpu_preset_on_a_cpu_says_so():
+  assert "bash scripts/setup.sh cuda" in loop.preset_warning("gpu", "cpu")
+  assert loop.preset_warning("gpu", "gpu") is None and loop.preset_warning("cpu", "cpu") is None

@@ -265,6 +265,8 @@ def _open(cfg: RunConfig, checkpoint_dir: str | None, say, progress_fn):
                   wandb_project=cfg.wandb if primary else None,
                   wandb_config=saved_config)
   say(_header(cfg, trainer, len(mine), members.single))
+  if warning := preset_warning(cfg.agent_preset, jax.devices()[0].platform):
+    say(warning)
   pbt_step = cfg.pbt and pbt.make_step(cfg.pbt, cfg.grid, trainer, cfg.seed, say)
   parts = _Parts(cfg, trainer, members, evaluator, _Chunk(started, evaluator, members), pbt_step,
                  saver, logger, display, _Until(cfg, t_start), progress_fn, say)
@@ -443,6 +445,15 @@ def _finish(p: _Parts, state: train.TrainState, stop) -> Result:
   p.say("; ".join(parts))
   return Result(state, p.trainer, p.logger.rows, evaluation, p.evaluator.best,
                 p.members.best_return)
+
+
+def preset_warning(agent_preset: str, platform: str) -> str | None:
+  """A line for a run of the gpu preset where JAX has no GPU (a CPU install, as on Colab's CPU
+  runtime): its sizes would train slowly."""
+  if agent_preset == "gpu" and platform == "cpu":
+    return ("the gpu preset's sizes are a GPU's, and JAX runs on the CPU here: install JAX's GPU "
+            "build (bash scripts/setup.sh cuda), or train with --preset cpu")
+  return None
 
 
 def _header(cfg: RunConfig, trainer: train.Trainer, count: int, single: bool) -> str:
