@@ -24,6 +24,8 @@ import jax
 import numpy as np
 from jax.experimental import multihost_utils
 
+from mjx_hopper.process import runlock
+
 # How long the processes wait for each other to start, in seconds.
 START_TIMEOUT_S = 300
 # JAX's own time-out, in seconds: a process that sends its coordinator no heartbeat for this long
@@ -243,26 +245,11 @@ def _watch(marks: str, me: int, mine: dict, stop: threading.Event) -> None:
       who = f"process {index} (pid {last['pid']} on {last['host']})"
       if last["state"] == "failed":
         _end(f"{who} ended with an error, which its own line names")
-      elif last["state"] == "running" and last["host"] == mine["host"] and not _alive(
+      elif last["state"] == "running" and last["host"] == mine["host"] and not runlock.alive(
           last["pid"]):
         _end(f"{who} is gone")
       elif last["state"] == "running" and time.monotonic() - seen[index][1] > STOPPED_S:
         _end(f"{who} has not answered for {STOPPED_S:.0f} s")
-
-
-def _alive(pid: int) -> bool:
-  """Whether process `pid` of this host runs (a zombie, dead and not yet reaped, does not)."""
-  try:
-    os.kill(pid, 0)
-  except ProcessLookupError:
-    return False
-  except OSError:
-    return True
-  try:
-    with open(f"/proc/{pid}/stat") as f:
-      return f.read().rsplit(")", 1)[1].split()[0] != "Z"
-  except (OSError, IndexError):
-    return True
 
 
 def _end(why: str) -> None:

@@ -105,21 +105,27 @@ def _stale(path: str, found: dict) -> str | None:
   if found.get("host") == socket.gethostname() and isinstance(found.get("pid"), int):
     if found["pid"] == os.getpid():
       return None if path in _held else "is this process, which no longer holds it"
-    if not _alive(found["pid"]):
+    if not alive(found["pid"]):
       return "has ended"
   return None
 
 
-def _alive(pid: int) -> bool:
+def alive(pid: int) -> bool:
+  """Whether process `pid` of this host runs (a zombie, dead and not yet reaped, does not;
+  another user's does)."""
   if os.name == "nt":  # no signal 0 there: the heartbeat decides
     return True
   try:
     os.kill(pid, 0)
   except ProcessLookupError:
     return False
-  except PermissionError:  # another user's
+  except OSError:
     return True
-  return True
+  try:
+    with open(f"/proc/{pid}/stat") as f:
+      return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+  except (OSError, IndexError):  # no /proc (macOS): it runs
+    return True
 
 
 def _who(found: dict) -> str:
