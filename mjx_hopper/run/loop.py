@@ -452,7 +452,7 @@ def preset_warning(agent_preset: str, platform: str) -> str | None:
   runtime): its sizes would train slowly."""
   if agent_preset == "gpu" and platform == "cpu":
     return ("the gpu preset's sizes are a GPU's, and JAX runs on the CPU here: install JAX's GPU "
-            "build (bash scripts/setup.sh cuda), or train with --preset cpu")
+            "build (bash scripts/setup.sh cuda), or train the cpu preset (--preset cpu)")
   return None
 
 
