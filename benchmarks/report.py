@@ -64,12 +64,16 @@ GYMNASIUM = "gymnasium_throughput_cpu.json"
 NOTEBOOK = "notebook_time_cpu.json"
 FIDELITY = "fidelity.json"
 ITERATION = {"XLA's": "cpu_iteration_cpu.json", "YNNPACK's": "cpu_iteration_cpu_ynn.json"}
-# CI's jobs in its order, and the quick tier at an earlier commit, measured in turns with
-# this one's.
+# CI's jobs in its order, each tier also at an earlier commit, measured the same day.
 SUITE = {"suite_time_quick.json": "`scripts/test.sh`",
          "suite_time_quick_before.json": "`scripts/test.sh`, before",
          "suite_time_slow.json": "`scripts/test.sh -m slow`",
+         "suite_time_slow_before.json": "`scripts/test.sh -m slow`, before",
          "suite_time_floor_py311.json": "`.ci/floor`"}
+# The tiers' results files, after and before, for the seconds of each test file.
+SUITE_FILES = {"quick": ("suite_time_quick.json", "suite_time_quick_before.json"),
+               "slow": ("suite_time_slow.json", "suite_time_slow_before.json")}
+HEAVIEST_FILES = 8
 COMPILE_FLAGS = "compile_flags_cpu.json"
 TRAINERS = {"ours": "our D4PG", "sac": "Brax SAC", "ppo": "Brax PPO", "sb3": "SB3 SAC on PyBullet"}
 MARK = "<!-- report.py: {} -->"
@@ -287,8 +291,23 @@ def sections() -> list[tuple[str, str, str, list[str]]]:
   out.append(("Test suite", "CI's jobs in turn, 2 cores, empty cache, in minutes; "
               "compiled: per the ledger. " + compile_flags_line(),
               table(["job", "tests", "failed", "pytest", "with set-up", "compiled",
-                     "compiling"], rows), [*SUITE, COMPILE_FLAGS]))
+                     "compiling"], rows) + "\n\n" + suite_files_table(),
+              [*SUITE, COMPILE_FLAGS]))
   return out
+
+
+def suite_files_table() -> str:
+  """Each tier's heaviest test files (worker-seconds: their tests' summed seconds), before and
+  after."""
+  rows = []
+  for tier, (after, before) in SUITE_FILES.items():
+    now, then = load(after)["figures"]["file_s"], load(before)["figures"]["file_s"]
+    heaviest = sorted(set(now) | set(then), key=lambda f: -max(now.get(f, 0), then.get(f, 0)))
+    rows += [[tier, f"`{name}`", num(then.get(name, 0)), num(now.get(name, 0))]
+             for name in heaviest[:HEAVIEST_FILES]]
+    rows.append([tier, "all files", num(sum(then.values())), num(sum(now.values()))])
+  return ("Worker-seconds by test file, the heaviest of each tier:\n\n"
+          + table(["tier", "file", "before", "after"], rows))
 
 
 def compile_flags_line() -> str:
