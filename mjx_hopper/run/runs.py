@@ -18,7 +18,10 @@ from mjx_hopper.store.run_folder import RunFolder, Saved, config_item, open_chec
 
 def build(cfg: RunConfig, num_members: int | None = None) -> train.Trainer:
   """The compiled trainer of `cfg`'s members (or of `num_members` of them), after checking its
-  task's reward."""
+  task's reward. JAX's in-memory caches are emptied first: once full, they change how the next
+  programs are traced, and so their keys in the compile cache, and a run after other work in
+  the same process (a notebook's earlier cells) would compile what the cache holds."""
+  jax.clear_caches()
   env = cfg.make_env()
   envs.check_task(env)
   agent = agents.make(cfg.agent, env.observation_size, env.action_size, cfg.agent_config())
