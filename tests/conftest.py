@@ -1,7 +1,6 @@
 """Test set-up: two XLA CPU devices (so batches are sharded), a persistent compile cache, and
 one trainer per config for each test worker."""
 
-import dataclasses
 import functools
 import hashlib
 import os
@@ -47,42 +46,23 @@ mjx_hopper.setup()  # before MuJoCo is imported, which reads MUJOCO_GL once
 
 from mjx_hopper.process import ledger  # noqa: E402
 from mjx_hopper.run import runs  # noqa: E402
-from mjx_hopper.settings import config  # noqa: E402
 
 
-def _frozen(x):
-  """`x` with its dicts and lists made tuples, so that a config read back from JSON compares
-  equal to the one it was written from."""
-  if isinstance(x, dict):
-    return tuple(sorted((k, _frozen(v)) for k, v in x.items()))
-  if isinstance(x, (list, tuple)):
-    return tuple(_frozen(v) for v in x)
-  return x
-
-
-def build_key(cfg: config.RunConfig, num_members: int | None = None) -> tuple:
-  """Everything `runs.build(cfg, num_members)` builds its trainer from: the task's class (given
-  as the class, an instance or a name) and its settings with the episode length, the agent and
-  its config, the train config, the evaluation's episodes, the number of members and whether
-  their update counts are dynamic (out_dir, budgets and seeds are not)."""
-  from mjx_hopper import envs
-  return (envs.task_class(cfg.env), _frozen(cfg.task_settings()), cfg.agent,
-          _frozen(dataclasses.asdict(cfg.agent_config())), cfg.train_config(), cfg.eval_episodes,
-          num_members or len(cfg.member_settings()), "replay_ratio" in cfg.grid)
+REAL_BUILD = runs.build  # `shared_builds` memoises it for the tests
 
 
 @pytest.fixture(scope="session", autouse=True)
 def shared_builds():
   """`runs.build`, through which every path builds its trainer (`loop.run` and `loop.resume`,
   `runs.restore`, `runs.load_policy`, `runs.extract`, `export.export_checkpoint` and the
-  in-process CLI), memoised on `build_key` for a test worker's whole session: each config's
+  in-process CLI), memoised on `runs.trainer_key` for a test worker's whole session: each config's
   trainer is traced once, across the test files that the worker runs (tracing one takes about
   15 s of CPU, even when its programs come from the compile cache). A trainer is pure
   functions, so a run is the same with a trainer built once or again."""
-  built, build = {}, runs.build
+  built, build = {}, REAL_BUILD
 
   def cached(cfg, num_members=None):
-    key = build_key(cfg, num_members)
+    key = runs.trainer_key(cfg, num_members)
     if key not in built:
       built[key] = build(cfg, num_members)
       ledger.note("trainer", hashlib.sha256(repr(key).encode()).hexdigest()[:16])

@@ -6,7 +6,11 @@ import os
 import subprocess
 import sys
 
+import jax
+
+import configs
 import mjx_hopper
+from conftest import REAL_BUILD
 from mjx_hopper.run import runtime
 
 # Compiles one small program with the cache in argv[1], as a CPU with features argv[2] when
@@ -56,3 +60,37 @@ def test_another_cpu_compiles_afresh(tmp_path):
   assert other["directory"] != first["directory"]
   assert other["misses"] >= 1 and other["hits"] == 0
   assert os.listdir(other["directory"])  # the other CPU's programs are kept apart
+
+
+def test_a_trainer_of_another_config_is_traced_from_empty_caches():
+  # runs.build empties JAX's in-memory caches (which, once full, change how programs are
+  # traced, and so their compile-cache keys) for a trainer other than the last one built, and
+  # keeps them for the same one again (a resume: its programs are traced again quickly). A
+  # jitted function of the process's own shows which: traced again after its caches emptied.
+  traces = []
+
+  def listen(event, secs, fun_name="", **_):
+    if event == "/jax/core/compile/jaxpr_trace_duration" and fun_name == "doubled":
+      traces.append(fun_name)
+  jax.monitoring.register_event_duration_secs_listener(listen)
+
+  @jax.jit
+  def doubled(x):
+    return 2 * x
+
+  def traced_again():
+    traces.clear()
+    doubled(1.0)
+    return len(traces)
+  try:
+    a, b = configs.tiny("d4pg"), configs.tiny("ddpg")
+    REAL_BUILD(a)
+    doubled(1.0)
+    REAL_BUILD(b)
+    assert traced_again() == 1
+    REAL_BUILD(b)
+    assert traced_again() == 0
+    REAL_BUILD(a)
+    assert traced_again() == 1
+  finally:
+    jax.monitoring.unregister_event_duration_listener(listen)

@@ -3,6 +3,8 @@ budgets, nothing installed, no network), and every step of its workflow leaves i
 
 import json
 import pathlib
+import subprocess
+import sys
 
 import nbformat
 import pytest
@@ -13,10 +15,24 @@ from nbclient import NotebookClient
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(1500)]
 NOTEBOOK = pathlib.Path(__file__).parent.parent / "notebooks" / "robolympics.ipynb"
 
+# The hash of the text of a DDPG run's training chunk, as `runs.build` traces it: in the
+# notebook's kernel after all its cells, and in a fresh process.
+CHUNK_TEXT = """
+import hashlib
+import jax
+from mjx_hopper.run import runs
+
+
+def chunk_text(cfg):
+  trainer = runs.build(cfg, 1)
+  state = jax.eval_shape(lambda: runs.init(cfg, trainer, [{"seed": 0}], begin=False))
+  return hashlib.sha256(trainer.chunk.lower(state).as_text(debug_info=False).encode()).hexdigest()
+"""
 # Run in the notebook's kernel after its own cells: what its workflow left behind.
-FACTS = """
+FACTS = CHUNK_TEXT + """
 import json
 print("FACTS " + json.dumps({
+    "ddpg_chunk": chunk_text(ddpg),
     "commands": [" ".join(c) for c in commands],
     "high_jump_terms": sorted(jumps),
     "d4pg_log": {kind: columns["env_steps"].tolist()
@@ -108,3 +124,15 @@ def test_section_7_trains_a_population(executed):
   assert facts["pbt"] == {"every": 2, "fraction": 0.25, "factors": [0.8, 1.25], "bounds": {}}
   assert facts["pbt_members"] == [0, 1, 2, 3]
   assert "ranking by the best evaluation:" in text(cells) and "| copied from |" in text(cells)
+
+
+def test_a_run_after_its_cells_is_traced_as_in_a_fresh_process(executed):
+  # So that a run after other work in the kernel (the notebook's DDPG after its PBT cell) loads
+  # its programs from the compile cache: JAX's in-memory caches, once full, changed how it was
+  # traced (runs.build empties them).
+  _, facts = executed
+  fresh = subprocess.run(
+      [sys.executable, "-c", CHUNK_TEXT + "import sys\nsys.path.insert(0, 'tests')\n"
+       "import configs\nprint(chunk_text(configs.tiny('ddpg')))"],
+      capture_output=True, text=True, check=True, cwd=NOTEBOOK.parent.parent)
+  assert facts["ddpg_chunk"] == fresh.stdout.split()[-1]

@@ -16,18 +16,46 @@ from mjx_hopper.settings.config import TRAINER_DYNAMIC, RunConfig
 from mjx_hopper.store.run_folder import RunFolder, Saved, config_item, open_checkpoints
 
 
+_last_built: list = [None]  # the trainer_key of the trainer this process built last
+
+
 def build(cfg: RunConfig, num_members: int | None = None) -> train.Trainer:
   """The compiled trainer of `cfg`'s members (or of `num_members` of them), after checking its
-  task's reward. JAX's in-memory caches are emptied first: once full, they change how the next
-  programs are traced, and so their keys in the compile cache, and a run after other work in
-  the same process (a notebook's earlier cells) would compile what the cache holds."""
-  jax.clear_caches()
+  task's reward. Where the trainer built last in this process was another, JAX's in-memory
+  caches are emptied first: once full, they change how the next programs are traced, and so
+  their keys in the compile cache, and a run after other work in the same process (a
+  notebook's earlier cells) would compile what the cache holds. The same trainer again (a
+  resume, another seed) keeps them, so its programs are traced again quickly."""
+  key = trainer_key(cfg, num_members)
+  if key != _last_built[0]:
+    jax.clear_caches()
+  _last_built[0] = key
   env = cfg.make_env()
   envs.check_task(env)
   agent = agents.make(cfg.agent, env.observation_size, env.action_size, cfg.agent_config())
   return train.make_trainer(env, agent, cfg.train_config(), eval_episodes=cfg.eval_episodes,
                             num_members=num_members or len(cfg.member_settings()),
                             dynamic_updates="replay_ratio" in cfg.grid)
+
+
+def trainer_key(cfg: RunConfig, num_members: int | None = None) -> tuple:
+  """Everything `build(cfg, num_members)` makes its trainer from, comparable and hashable: the
+  task's class (given as the class, an instance or a name) and its settings with the episode
+  length, the agent and its config, the train config, the evaluation's episodes, the number of
+  members and whether their update counts are dynamic (not out_dir, budgets or seeds)."""
+  return (envs.task_class(cfg.env), _frozen(cfg.task_settings()), cfg.agent,
+          _frozen(dataclasses.asdict(cfg.agent_config())), cfg.train_config(), cfg.eval_episodes,
+          num_members or len(cfg.member_settings()), "replay_ratio" in cfg.grid)
+
+
+def _frozen(x):
+  """`x` with its dicts and lists made tuples, so that a config read back from JSON compares
+  equal to the one it was written from."""
+  if isinstance(x, dict):
+    return tuple(sorted((k, _frozen(v)) for k, v in x.items()))
+  if isinstance(x, (list, tuple)):
+    return tuple(_frozen(v) for v in x)
+  return x
 
 
 def init(cfg: RunConfig, trainer: train.Trainer, members: list[dict], begin: bool = True
