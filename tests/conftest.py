@@ -48,9 +48,6 @@ from mjx_hopper.process import ledger  # noqa: E402
 from mjx_hopper.run import runs  # noqa: E402
 
 
-REAL_BUILD = runs.build  # `shared_builds` memoises it for the tests
-
-
 @pytest.fixture(scope="session", autouse=True)
 def shared_builds():
   """`runs.build`, through which every path builds its trainer (`loop.run` and `loop.resume`,
@@ -58,13 +55,17 @@ def shared_builds():
   in-process CLI), memoised on `runs.trainer_key` for a test worker's whole session: each config's
   trainer is traced once, across the test files that the worker runs (tracing one takes about
   15 s of CPU, even when its programs come from the compile cache). A trainer is pure
-  functions, so a run is the same with a trainer built once or again."""
-  built, build = {}, REAL_BUILD
+  functions, so a run is the same with a trainer built once or again. JAX's caches are kept
+  (`runs.assemble`), not emptied for each new trainer as `runs.build` empties them: the
+  memoised trainers and envs would be traced again, which made the quick tier trace far longer.
+  `runs.build.__wrapped__` is the product's."""
+  built = {}
 
+  @functools.wraps(runs.build)
   def cached(cfg, num_members=None):
     key = runs.trainer_key(cfg, num_members)
     if key not in built:
-      built[key] = build(cfg, num_members)
+      built[key] = runs.assemble(cfg, num_members)
       ledger.note("trainer", hashlib.sha256(repr(key).encode()).hexdigest()[:16])
     return built[key]
   with pytest.MonkeyPatch.context() as patch:

@@ -30,6 +30,11 @@ def build(cfg: RunConfig, num_members: int | None = None) -> train.Trainer:
   if key != _last_built[0]:
     jax.clear_caches()
   _last_built[0] = key
+  return assemble(cfg, num_members)
+
+
+def assemble(cfg: RunConfig, num_members: int | None = None) -> train.Trainer:
+  """`build`'s trainer, JAX's in-memory caches as they are."""
   env = cfg.make_env()
   envs.check_task(env)
   agent = agents.make(cfg.agent, env.observation_size, env.action_size, cfg.agent_config())
