@@ -47,8 +47,7 @@ LEARNER = ("learner_robots_h100.json", "learner_robots_bf16_h100.json")
 SWEEPS = ("sweep_throughput_h100.json", "sweep_throughput_2gpu_h200.json",
           "sweep_throughput_cpu.json")
 PBT = "pbt_quality_halfcheetah_h100x2.json"
-START = {"one H200": "start_time_h200.json", "2 CPU cores": "start_time_cpu.json",
-         "2 CPU cores, this code on two JAX releases": "start_time_cpu_jax.json"}
+START = {"one H200": "start_time_h200.json", "2 CPU cores": "start_time_cpu.json"}
 DISTRIBUTED = ("distributed_gpu2.json", "distributed_cpu2.json")
 # The training chunk as a program, before and after a change (chunk_program.py).
 CHUNK = {"one H100": "chunk_program_h100.json", "2 CPU cores": "chunk_program_cpu.json"}
@@ -73,7 +72,7 @@ SUITE = {"suite_time_quick.json": "`scripts/test.sh`",
 # The tiers' results files, after and before, for the seconds of each test file.
 SUITE_FILES = {"quick": ("suite_time_quick.json", "suite_time_quick_before.json"),
                "slow": ("suite_time_slow.json", "suite_time_slow_before.json")}
-HEAVIEST_FILES = 8
+HEAVIEST_FILES = 3
 COMPILE_FLAGS = "compile_flags_cpu.json"
 TRAINERS = {"ours": "our D4PG", "sac": "Brax SAC", "ppo": "Brax PPO", "sb3": "SB3 SAC on PyBullet"}
 MARK = "<!-- report.py: {} -->"
@@ -297,17 +296,21 @@ def sections() -> list[tuple[str, str, str, list[str]]]:
 
 
 def suite_files_table() -> str:
-  """Each tier's heaviest test files (worker-seconds: their tests' summed seconds), before and
-  after."""
-  rows = []
-  for tier, (after, before) in SUITE_FILES.items():
-    now, then = load(after)["figures"]["file_s"], load(before)["figures"]["file_s"]
-    heaviest = sorted(set(now) | set(then), key=lambda f: -max(now.get(f, 0), then.get(f, 0)))
-    rows += [[tier, f"`{name}`", num(then.get(name, 0)), num(now.get(name, 0))]
-             for name in heaviest[:HEAVIEST_FILES]]
-    rows.append([tier, "all files", num(sum(then.values())), num(sum(now.values()))])
+  """The heaviest test files of each tier in worker-seconds (their tests' summed seconds), each
+  tier before and after ("–": not in the tier), and the sum over all files."""
+  columns = [(tier, when) for tier in SUITE_FILES for when in ("before", "after")]
+  seconds = {(tier, when): load(SUITE_FILES[tier][when == "before"])["figures"]["file_s"]
+             for tier, when in columns}
+  names = []
+  for tier in SUITE_FILES:
+    now, then = seconds[tier, "after"], seconds[tier, "before"]
+    names += sorted(set(now) | set(then),
+                    key=lambda f: -max(now.get(f, 0), then.get(f, 0)))[:HEAVIEST_FILES]
+  rows = [[f"`{name}`", *(num(seconds[c][name]) if name in seconds[c] else "–" for c in columns)]
+          for name in dict.fromkeys(names)]
+  rows.append(["all files", *(num(sum(seconds[c].values())) for c in columns)])
   return ("Worker-seconds by test file, the heaviest of each tier:\n\n"
-          + table(["tier", "file", "before", "after"], rows))
+          + table(["file", *(f"{tier}, {when}" for tier, when in columns)], rows))
 
 
 def compile_flags_line() -> str:
