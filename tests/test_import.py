@@ -60,23 +60,26 @@ def test_the_settings_before_start_per_platform(monkeypatch):
   assert "MUJOCO_GL" not in choose("Linux", {"DISPLAY": ":0"})
   assert "MUJOCO_GL" not in choose("Linux", {"MUJOCO_GL": "osmesa"})
   no_ynn = "--xla_cpu_experimental_ynn_fusion_type="
-  assert choose("Linux", {})["XLA_FLAGS"] == f"--xla_gpu_enable_triton_gemm=false {no_ynn}"
+  cores = f"--xla_force_host_platform_device_count={os.cpu_count()}"  # the default: one per core
+  assert choose("Linux", {})["XLA_FLAGS"] == f"{cores} --xla_gpu_enable_triton_gemm=false {no_ynn}"
   assert choose("Linux", {"XLA_FLAGS": "--xla_gpu_enable_triton_gemm=true"})[
-      "XLA_FLAGS"] == f"--xla_gpu_enable_triton_gemm=true {no_ynn}"
-  assert choose("Darwin", {}) == {"XLA_FLAGS": no_ynn}
-  assert choose("Darwin", {"XLA_FLAGS": f"{no_ynn}dot"}) == {}  # a user's choice stays
+      "XLA_FLAGS"] == f"--xla_gpu_enable_triton_gemm=true {cores} {no_ynn}"
+  assert choose("Darwin", {}) == {"XLA_FLAGS": f"{cores} {no_ynn}"}
+  mine = f"--xla_force_host_platform_device_count=5 {no_ynn}dot"
+  assert choose("Darwin", {"XLA_FLAGS": mine}) == {}  # a user's choices stay
   assert choose("Darwin", {"XLA_FLAGS": "--a --xla_force_host_platform_device_count=8"}, 3)[
       "XLA_FLAGS"] == f"--a --xla_force_host_platform_device_count=3 {no_ynn}"
   monkeypatch.setattr(runtime, "_shardy_crashes", lambda: True)  # GSPMD's warnings go
-  assert choose("Darwin", {"XLA_FLAGS": no_ynn}) == {"TF_CPP_MIN_LOG_LEVEL": "2"}
-  assert choose("Darwin", {"XLA_FLAGS": no_ynn, "TF_CPP_MIN_LOG_LEVEL": "0"}) == {}
+  assert choose("Darwin", {"XLA_FLAGS": mine}) == {"TF_CPP_MIN_LOG_LEVEL": "2"}
+  assert choose("Darwin", {"XLA_FLAGS": mine, "TF_CPP_MIN_LOG_LEVEL": "0"}) == {}
 
 
 SETUP = """
 import json, os, jax, mjx_hopper
-first = mjx_hopper.setup(cpu_devices=3)
+from mjx_hopper.faces import cli
+first = mjx_hopper.setup()  # as loop.run calls it
 environ = dict(os.environ)
-again = mjx_hopper.setup()
+again = mjx_hopper.setup(cpu_devices=cli._cpu_devices([]))  # as the CLI calls it
 print(json.dumps({"same": first == again and environ == dict(os.environ), "dir": first,
                   "devices": len(jax.devices("cpu")), "gl": os.environ.get("MUJOCO_GL"),
                   "flags": os.environ["XLA_FLAGS"],
@@ -88,10 +91,13 @@ print(json.dumps({"same": first == again and environ == dict(os.environ), "dir":
 
 def test_setup_sets_the_process_once(tmp_path):
   out = json.loads(run(SETUP, {**CLEAN, "MJX_HOPPER_JAX_CACHE": str(tmp_path)}))
-  assert out["same"]  # a second call (loop.run's) keeps what the first set
+  # Python's first call and the CLI's, which keeps what the first set: a device per core, so
+  # that `loop.run` trains as fast as `mjx-hopper train`.
+  assert out["same"]
   assert out["dir"] == out["cache"] == str(tmp_path / mjx_hopper.cpu_key())
-  assert out["devices"] == 3 and out["min_s"] == 0.0 and out["collectives"] == "gloo"
-  assert "--xla_force_host_platform_device_count=3" in out["flags"]
+  assert out["devices"] == os.cpu_count() and out["min_s"] == 0.0
+  assert out["collectives"] == "gloo"
+  assert f"--xla_force_host_platform_device_count={os.cpu_count()}" in out["flags"]
   if sys.platform == "linux":
     assert out["gl"] == "egl" and "--xla_gpu_enable_triton_gemm=false" in out["flags"]
   assert "--xla_cpu_experimental_ynn_fusion_type=" in out["flags"]

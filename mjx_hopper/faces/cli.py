@@ -263,16 +263,13 @@ COMMANDS = {
 
 
 def _cpu_devices(argv: list[str]) -> int | None:
-  """--cpu-devices's value in `argv`, read before the parser, which imports JAX. Unless given,
-  one per core, where JAX has not started (`main` called in a process that used it keeps its
-  devices). None where it is not an integer >= 1, which the parser then refuses."""
+  """--cpu-devices's value in `argv`, read before the parser, which imports JAX. None where it
+  is not given (`setup`'s default: one per core, as `loop.run` gets) or not an integer >= 1,
+  which the parser then refuses."""
   pre = argparse.ArgumentParser(add_help=False)
   pre.add_argument("--cpu-devices", default=None)
   value = pre.parse_known_args(argv)[0].cpu_devices
-  if value is None:
-    from mjx_hopper.process import jax_private
-    return None if jax_private.backends_started() else os.cpu_count() or 1
-  return int(value) if value.isdigit() and int(value) >= 1 else None
+  return int(value) if value and value.isdigit() and int(value) >= 1 else None
 
 
 if __name__ == "__main__":

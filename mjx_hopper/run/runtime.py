@@ -21,7 +21,8 @@ def setup(compile_cache: str | None = None, cpu_devices: int | None = None) -> s
   Before JAX starts its backends (else left as they are): MuJoCo's EGL rendering on Linux
   without a display, cuBLAS rather than Triton for a GPU's matrix products, XLA:CPU's own
   kernels rather than YNNPACK's for a CPU's, XLA's CPU split
-  into `cpu_devices` devices, and where this JAX's Shardy crashes (`SHARDY_CRASHES`), XLA's
+  into `cpu_devices` devices (None: one per core, unless $XLA_FLAGS sets a count: the CLI and
+  `loop.run` alike), and where this JAX's Shardy crashes (`SHARDY_CRASHES`), XLA's
   C++ log at errors. Then JAX's config: the persistent compile cache, keeping every
   program, in `compile_cache` (None: the folder already set, else $MJX_HOPPER_JAX_CACHE, else
   ~/.cache/mjx_hopper/jax) per `cpu_key()`, GSPMD where Shardy crashes, and gloo's CPU
@@ -64,11 +65,12 @@ def setup(compile_cache: str | None = None, cpu_devices: int | None = None) -> s
 def settings_before_start(system: str, environ, cpu_devices: int | None = None
                           ) -> dict[str, str]:
   """The environment variables `setup` sets before JAX and MuJoCo start, for `system` (as
-  `platform.system()` names it) and the current `environ`: values already set win."""
+  `platform.system()` names it) and the current `environ`: values already set win, but for the
+  CPU's device count where `cpu_devices` is given."""
   out = {}
   flags = environ.get("XLA_FLAGS", "")
-  if cpu_devices is not None:
-    flags = xla_flags_with_cpu_devices(cpu_devices, flags)
+  if cpu_devices is not None or DEVICES_FLAG not in flags:
+    flags = xla_flags_with_cpu_devices(cpu_devices or os.cpu_count() or 1, flags)
   if system == "Linux":
     if ("MUJOCO_GL" not in environ and not environ.get("DISPLAY")
         and not environ.get("WAYLAND_DISPLAY")):
@@ -98,8 +100,10 @@ def xla_flags_with_cpu_devices(count: int, flags: str | None = None) -> str:
   """`flags` (default $XLA_FLAGS) with XLA:CPU split into `count` devices, replacing any count
   it sets: for `setup`, or for a process to be started."""
   flags = os.environ.get("XLA_FLAGS", "") if flags is None else flags
-  kept = [f for f in flags.split() if not f.startswith(DEVICES_FLAG)]
-  return " ".join(kept + [f"{DEVICES_FLAG}={count}"])
+  mine = f"{DEVICES_FLAG}={count}"
+  if DEVICES_FLAG not in flags:
+    return f"{flags} {mine}".strip()
+  return " ".join(mine if f.startswith(DEVICES_FLAG) else f for f in flags.split())
 
 
 def _cpu_features() -> str:
