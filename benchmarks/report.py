@@ -100,6 +100,11 @@ def time_to_score(names: list[str], scale: float = 1.0) -> dict:
   """The seeds of `names`: how many reached the target, and the median, fastest and slowest
   time to it (divided by `scale`: 60 for minutes), a seed that missed counting as slowest."""
   figures = [load(n)["figures"] for n in names]
+  for name, f in zip(names, figures):
+    if f.get("method") not in METHODS:
+      raise SystemExit(f"report.py: {name} does not say how its seeds were run: its method is "
+                       f"{f.get('method')!r}, not one of {sorted(METHODS)}; run "
+                       "benchmarks/time_to_score.py again, which runs each in a fresh process")
   runs = [s for f in figures for s in f["seeds"].values()]
   times = [math.inf if s["target_wall_s"] is None else s["target_wall_s"] / scale for s in runs]
   hit = [t for t in times if t < math.inf] or [math.inf]
@@ -107,9 +112,18 @@ def time_to_score(names: list[str], scale: float = 1.0) -> dict:
   return {"target": figures[0]["target"], "agent": figures[0]["agent"].upper(),
           "seeds": len(runs), "reached": sum(t < math.inf for t in times),
           "median": statistics.median(times), "fastest": min(hit), "slowest": max(hit),
-          "env_steps": statistics.median(steps) if steps else None}
+          "env_steps": statistics.median(steps) if steps else None,
+          "method": "; ".join(sorted({f["method"] for f in figures}))}
 
 
+# How a time-to-score file's seeds were run (its "method"), as a page explains it.
+METHODS = {
+    "a process each, cold": "each seed by `mjx-hopper train` in a fresh process from an empty "
+                            "compile cache, timed from process start",
+    "a process each, warm": "each seed by `mjx-hopper train` in a fresh process from a cache "
+                            "that the same settings filled, timed from process start",
+    "one process, in turn": "seeds one after another in one process, only the first timed "
+                            "from process start"}
 MARGIN = 1.5  # a preset's budget over its slowest seed's need (mjx_hopper/settings/presets.py)
 
 
@@ -185,8 +199,8 @@ def summary() -> str:
                  num(e["mjx"] / e["pybullet"], 1), num(published.get("sac")),
                  num(published.get("tqc"))])
   return "\n\n".join([
-      "Each robot's score, median time to it from process start (compile included) and seeds "
-      "reaching it: gpu preset on one GPU, cpu preset on 2 CPU cores. "
+      "Each robot's score, median time to it (compile included, timed as the sections below "
+      "say) and seeds reaching it: gpu preset on one GPU, cpu preset on 2 CPU cores. "
       "× PyBullet: MJX's env steps/s over PyBullet's. rl-zoo: rl-baselines3-zoo's "
       f"published SAC and TQC on PyBullet after 1M env steps (`{RL_ZOO}`).",
       table(["robot", "one GPU", "2 CPU cores", "× PyBullet", "rl-zoo SAC", "rl-zoo TQC"],
@@ -195,25 +209,28 @@ def summary() -> str:
 
 def time_section(title: str, method: str, runs: dict, unit: str, scale: float, digits: int):
   """A time-to-score section: each task's seeds, in `unit` (seconds over `scale`)."""
-  rows = []
+  rows, methods = [], []
   for label, names in runs.items():
     t = time_to_score(names, scale)
     steps, minutes = budget(names)
+    methods.append(t["method"])
     rows.append([label, num(t["target"]), t["agent"], t["seeds"], t["reached"],
                  *(num(t[k], digits) for k in ("median", "fastest", "slowest")),
                  num(t["env_steps"], 2), f"{steps / 1e6:g}M, {minutes:g} min"])
-  return (title, method, table(
-      ["task", "score", "agent", "seeds", "reached", f"median ({unit})", f"fastest ({unit})",
-       f"slowest ({unit})", "env steps to it (M, median)", "budget"], rows),
-          [n for v in runs.values() for n in v])
+  head = ["task", "score", "agent", "seeds", "reached", f"median ({unit})", f"fastest ({unit})",
+          f"slowest ({unit})", "env steps to it (M, median)", "budget"]
+  if len(set(methods)) > 1:
+    head.append("seeds run")
+    rows = [row + [m] for row, m in zip(rows, methods)]
+  method += " Seeds run " + "; ".join(f"{m}: {METHODS[m]}" for m in sorted(set(methods))) + "."
+  return (title, method, table(head, rows), [n for v in runs.values() for n in v])
 
 
 def sections() -> list[tuple[str, str, str, list[str]]]:
   """(title, method, table, results files) of each question after the summary."""
-  out = [time_section("Time to score on one GPU", "Each robot's gpu preset, seeds in turn, "
-                      "compiled afresh and timed from start until an evaluation (20 "
-                      f"episodes) reaches the score. Budget: the preset's, {MARGIN:g} × the "
-                      "slowest seed's env steps and minutes.", GPU, "s", 1, 0),
+  out = [time_section("Time to score on one GPU", "Each robot's gpu preset, compiled afresh and "
+                      "timed until an evaluation reaches the score. Budget: the preset's, "
+                      f"{MARGIN:g} × the slowest seed's env steps and minutes.", GPU, "s", 1, 0),
          time_section("Time to score on 2 CPU cores", "Each robot's cpu preset (another agent: "
                       "its own with the robot's settings), timed as above.", CPU, "min", 60, 1),
          ("Peers", "Hopper: our D4PG beside Brax's SAC and PPO on our env (one after another, "

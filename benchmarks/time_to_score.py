@@ -25,8 +25,8 @@ import numpy as np
 
 import common
 
-# How each seed was run, as report.py prints it: a results file without it is refused there.
-METHOD = "a fresh process per seed, from process start, {cache} cache"
+# How the seeds were run, in report.py's words (its METHODS): a file without it is refused there.
+METHOD = "a process each, {cache}"
 
 
 def summarise(rows: list[dict], target: float) -> dict:

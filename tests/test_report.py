@@ -7,6 +7,8 @@ import re
 import subprocess
 import sys
 
+import pytest
+
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "benchmarks" / "results"
 sys.path.insert(0, str(ROOT / "benchmarks"))
@@ -42,10 +44,40 @@ def test_every_results_file_records_how_it_was_made():
 def test_time_to_score_is_the_median_over_seeds_with_misses_slowest(tmp_path, monkeypatch):
   seeds = {str(i): {"target_wall_s": t, "target_env_steps": None if t is None else 10**6}
            for i, t in enumerate([30.0, None, 10.0, 20.0])}
-  (tmp_path / "a.json").write_text(json.dumps(
-      {"figures": {"target": 2500.0, "agent": "d4pg", "seeds": seeds}}))
+  figures = {"method": "a process each, cold", "target": 2500.0, "agent": "d4pg", "seeds": seeds}
+  (tmp_path / "a.json").write_text(json.dumps({"figures": figures}))
   monkeypatch.setattr(report, "RESULTS", tmp_path)
   t = report.time_to_score(["a.json"])
   assert (t["seeds"], t["reached"], t["median"], t["fastest"], t["slowest"]) == (4, 3, 25.0,
                                                                                  10.0, 30.0)
+  assert t["method"] == "a process each, cold"
+
+
+@pytest.mark.parametrize("method", [None, "seeds in turn"])
+def test_a_time_to_score_file_that_does_not_say_how_its_seeds_ran_is_refused(
+    tmp_path, monkeypatch, method):
+  figures = {"target": 2500.0, "agent": "d4pg", "seeds": {}, "method": method}
+  (tmp_path / "b.json").write_text(json.dumps({"figures": {
+      k: v for k, v in figures.items() if v is not None}}))
+  monkeypatch.setattr(report, "RESULTS", tmp_path)
+  with pytest.raises(SystemExit, match=rf"b.json does not say how its seeds were run: its "
+                     rf"method is {method!r}, not one of"):
+    report.time_to_score(["b.json"])
+
+
+def test_a_time_section_names_each_rows_method_where_they_differ(tmp_path, monkeypatch):
+  seeds = {"0": {"target_wall_s": 30.0, "target_env_steps": 10**6}}
+  for name, method in (("a.json", "a process each, cold"), ("b.json", "one process, in turn")):
+    (tmp_path / name).write_text(json.dumps({"figures": {
+        "method": method, "target": 2500.0, "agent": "d4pg", "seeds": seeds}}))
+  monkeypatch.setattr(report, "RESULTS", tmp_path)
+  _, text, rows, _ = report.time_section("t", "Timed.", {"A": ["a.json"], "B": ["b.json"]},
+                                         "s", 1, 0)
+  assert rows.splitlines()[0].endswith("| seeds run |")
+  assert rows.splitlines()[2].endswith("| a process each, cold |")
+  assert rows.splitlines()[3].endswith("| one process, in turn |")
+  assert text.startswith("Timed. Seeds run a process each, cold: each seed by `mjx-hopper "
+                         "train` in a fresh process")
+  _, text, rows, _ = report.time_section("t", "Timed.", {"A": ["a.json"]}, "s", 1, 0)
+  assert "seeds run" not in rows and "a process each, cold:" in text
 
