@@ -68,6 +68,40 @@ def test_the_budget_is_the_presets_unless_a_run_says_otherwise():
   assert sweep.total_env_steps == presets.get("Hopper", "gpu").env_steps
 
 
+def test_other_agents_train_for_their_measured_budget_or_say_that_none_is_measured():
+  for (robot, kind, agent), budget in presets.AGENT_BUDGETS.items():
+    names = {"cpu": report.CPU, "gpu": report.GPU}[kind][f"{robot}, {agent.upper()}"]
+    ran = report.load(names[0])["figures"]
+    assert ran["target"] == presets.get(robot, kind).target
+    assert [ran["agent"], ran["agent_overrides"]] == json.loads(json.dumps(
+        [agent, presets.AGENT_OVERRIDES[robot, kind, agent]]))
+    assert budget == report.budget(names), (robot, kind, agent)
+    cfg = presets.agent_run_config(robot, kind, agent)
+    assert (cfg.total_env_steps, cfg.max_minutes) == budget
+    cfg = presets.agent_run_config(robot, kind, agent, max_minutes=1.0)
+    assert (cfg.total_env_steps, cfg.max_minutes) == (budget[0], 1.0)
+    assert presets.unmeasured_budget(robot, kind, agent) is None
+  cfg = presets.agent_run_config("Walker2D", "cpu", "ddpg")
+  assert (cfg.total_env_steps, cfg.max_minutes) == (1_000_000, None)
+  lines = {tuple(argv): flags.unmeasured_budget(cli.build_parser().parse_args(["train", *argv]))
+           for argv in (["--agent", "ddpg"], ["--env", "Walker2D", "--agent", "ddpg"],
+                        ["--env", "Walker2D", "--agent", "ddpg", "--max-minutes", "3"],
+                        ["--env", "mjx_hopper.envs.events:HighJump"], ["--agent-preset", "acme"],
+                        ["--preset", "gpu"])}
+  assert lines == {
+      ("--agent", "ddpg"): None, ("--env", "Walker2D", "--agent", "ddpg", "--max-minutes", "3"):
+      None, ("--preset", "gpu"): None,
+      ("--env", "Walker2D", "--agent", "ddpg"):
+      "no budget is measured for ddpg on Walker2D (cpu): it trains 1,000,000 env steps, "
+      "RunConfig's default, which may not reach a score; set --total-env-steps or --max-minutes",
+      ("--env", "mjx_hopper.envs.events:HighJump"):
+      "mjx_hopper.envs.events:HighJump trains for its robot's budget (Hopper's cpu preset), "
+      "measured on Hopper's own task; set --total-env-steps or --max-minutes to choose another",
+      ("--agent-preset", "acme"):
+      "no budget is measured for the acme agent preset: it trains for the cpu preset's budget; "
+      "set --total-env-steps or --max-minutes"}
+
+
 def test_every_agents_robot_settings_are_valid():
   for (robot, kind, agent), overrides in presets.AGENT_OVERRIDES.items():
     assert presets.get(robot, kind).agent != agent  # the robot's preset would shadow them

@@ -161,8 +161,10 @@ def train(args: argparse.Namespace) -> None:
   """Trains an agent: progress, log.csv, checkpoints, evaluations and curves.png."""
   from mjx_hopper.run import loop
   from mjx_hopper.settings import flags
-  loop.run(flags.run_config(args, "train"), checkpoint_dir=args.checkpoint_dir,
-           progress=not args.no_progress)
+  cfg = flags.run_config(args, "train")
+  if line := flags.unmeasured_budget(args):
+    print(f"mjx-hopper train: {line}")
+  loop.run(cfg, checkpoint_dir=args.checkpoint_dir, progress=not args.no_progress)
 
 
 def sweep(args: argparse.Namespace) -> None:
@@ -177,8 +179,11 @@ def sweep(args: argparse.Namespace) -> None:
   if any(v is not None for v in cluster) and not args.distributed:
     raise ValueError("--coordinator, --num-processes and --process-id place a process of a "
                      "--distributed sweep: add --distributed")
-  loop.run(flags.run_config(args, "sweep"), checkpoint_dir=args.checkpoint_dir,
-           progress=not args.no_progress, distributed_run=args.distributed and cluster)
+  cfg = flags.run_config(args, "sweep")
+  if line := flags.unmeasured_budget(args):
+    print(f"mjx-hopper sweep: {line}")
+  loop.run(cfg, checkpoint_dir=args.checkpoint_dir, progress=not args.no_progress,
+           distributed_run=args.distributed and cluster)
 
 
 def settings(args: argparse.Namespace) -> None:

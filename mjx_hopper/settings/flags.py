@@ -98,6 +98,20 @@ def base_config(args: argparse.Namespace, command: str) -> RunConfig:
   return dataclasses.replace(base, out_dir="runs/sweep") if command == "sweep" else base
 
 
+def unmeasured_budget(args: argparse.Namespace) -> str | None:
+  """`presets.unmeasured_budget`'s line for a run started from a preset whose budget no flag
+  (--total-env-steps, --max-minutes) replaces; else None."""
+  if args.config is not None or any(hasattr(args, name)
+                                    for name in ("total_env_steps", "max_minutes")):
+    return None
+  kind = args.preset or "cpu"
+  if getattr(args, "agent_preset", kind) != kind:
+    return (f"no budget is measured for the {args.agent_preset} agent preset: it trains for the "
+            f"{kind} preset's budget; set --total-env-steps or --max-minutes")
+  return presets.unmeasured_budget(getattr(args, "env", "Hopper"), kind,
+                                   getattr(args, "agent", "d4pg"))
+
+
 def run_config(args: argparse.Namespace, command: str = "train") -> RunConfig:
   """The RunConfig of train's (and sweep's) flags: the base config (`base_config`), then every
   flag given explicitly, --set and --env-set."""

@@ -113,6 +113,12 @@ AGENT_OVERRIDES: dict[tuple[str, str, str], dict] = {
     ("Hopper", "cpu", "ddpg"): _HOPPER_CPU,  # evidence: 2c5cb5a
     ("Hopper", "cpu", "dmpo"): {"learning_rate": 1e-3, **_SMALL_NETWORKS},  # evidence: d3c32d9
 }
+# Their budgets, (env steps, minutes), where measured, as the robots' are (report.budget); the
+# robot preset's target is theirs too.
+AGENT_BUDGETS: dict[tuple[str, str, str], tuple[int, float]] = {
+    ("Hopper", "cpu", "ddpg"): (4_000_000, 7.0),
+    ("Hopper", "cpu", "dmpo"): (6_500_000, 13.0),
+}
 
 
 def agent_run_config(env, kind: str, agent: str, **changes):
@@ -126,8 +132,28 @@ def agent_run_config(env, kind: str, agent: str, **changes):
     return run_config(env, kind, **changes)
   overrides = {**AGENT_OVERRIDES.get((robot, kind, agent), {}),
                **changes.pop("agent_overrides", {})}
+  if (robot, kind, agent) in AGENT_BUDGETS and "total_env_steps" not in changes:
+    steps, minutes = AGENT_BUDGETS[robot, kind, agent]
+    changes = {"total_env_steps": steps, "max_minutes": minutes, **changes}
   return RunConfig(env=env, agent=agent, agent_preset=kind, agent_overrides=overrides,
                    **changes)
+
+
+def unmeasured_budget(env, kind: str, agent: str) -> str | None:
+  """A line for a run whose budget was not measured to reach a score (None where it was): an
+  agent other than the robot's with no budget of its own (`AGENT_BUDGETS`), or a task of your
+  own, which takes its robot's."""
+  cls = envs.task_class(env)
+  robot = envs.robot_of(cls)
+  name = envs.task_id(cls)
+  if PRESETS[robot, kind].agent != agent and (robot, kind, agent) not in AGENT_BUDGETS:
+    return (f"no budget is measured for {agent} on {robot} ({kind}): it trains "
+            f"{RunConfig.total_env_steps:,} env steps, RunConfig's default, which may not reach "
+            "a score; set --total-env-steps or --max-minutes")
+  if name != robot:
+    return (f"{name} trains for its robot's budget ({robot}'s {kind} preset), measured on "
+            f"{robot}'s own task; set --total-env-steps or --max-minutes to choose another")
+  return None
 
 
 def run_config(env, kind: str, **changes):
