@@ -2,8 +2,9 @@
 alone on the GPU; or, with --cpu-baseline MINUTES, SB3's SAC with
 rl-baselines3-zoo's HopperBulletEnv-v0 settings on PyBullet, then our D4PG cpu preset, MINUTES
 each, on the CPU (the `peers` extra). Evaluations: 16 deterministic 1,000-step episodes of our
-Hopper (SB3's on PyBullet with its clock paused, and on ours at the end), timed from each
-process's start. Results: benchmarks/results/peers_LABEL.json, with every curve.
+Hopper (SB3's on PyBullet, and on ours at the end), each run timed from its process's start,
+evaluations included, and stopped at the same minutes. Results:
+benchmarks/results/peers_LABEL.json, with every curve.
 
 --grid TRAINER:NAME=V1,V2 replaces one of the settings the Brax trainers start from (BRAX);
 every combination of the --grid values is a run.
@@ -91,8 +92,7 @@ def plan(args) -> list[dict]:
   for i, (trainer, settings) in enumerate(specs):
     if trainer == "ours":
       settings = settings.split() + ["--seed", str(SEED)]
-    # SB3's clock leaves out its evaluations (on PyBullet, sequential), so it runs longer.
-    limit_s = 60 * minutes * (1.5 if trainer == "sb3" else 1) + args.grace
+    limit_s = 60 * minutes + args.grace  # every run on its process's clock
     python = args.ours_python if trainer == "ours" and args.ours_python else sys.executable
     runs.append({"name": f"{i}_{trainer}", "trainer": trainer, "settings": settings,
                  "minutes": minutes, "eval_episodes": EVAL_EPISODES, "limit_s": limit_s,
@@ -301,8 +301,9 @@ def returns_on_ours(model, episodes: int, seed: int) -> list[float]:
 
 
 def worker_sb3(run: dict, folder: str) -> None:
-  """SB3 SAC with rl-zoo's settings on PyBullet, `minutes` of training; evaluations (on
-  PyBullet, paused clock) at each quarter, and on our Hopper at the end."""
+  """SB3 SAC with rl-zoo's settings on PyBullet for `minutes` from its process's start, as our
+  runs are timed (start-up and evaluations included); evaluations on PyBullet at each quarter,
+  and on our Hopper at the end."""
   import numpy as np
   import stable_baselines3
   from stable_baselines3.common.callbacks import BaseCallback
@@ -316,28 +317,21 @@ def worker_sb3(run: dict, folder: str) -> None:
   budget, checks = 60 * run["minutes"], [0.25, 0.5, 0.75, 1.0]
 
   class Clock(BaseCallback):
-    """Counts training time only; evaluates at each check, stops at the last."""
-
-    def _on_training_start(self):
-      self.train_s, self.t0 = 0.0, time.time()
+    """Evaluates at each check of the process's clock, and stops at the last."""
 
     def _on_step(self):
-      self.train_s += time.time() - self.t0
-      if self.train_s >= checks[0] * budget:
+      if time.time() - run["launch_time"] >= checks[0] * budget:
         returns, lengths = evaluate_policy(model, eval_env, run["eval_episodes"],
                                            deterministic=True, return_episode_rewards=True)
-        log_eval(folder, self.train_s, self.num_timesteps, float(np.mean(returns)),
-                 float(np.std(returns)), float(np.mean(lengths)))
+        log_eval(folder, time.time() - run["launch_time"], self.num_timesteps,
+                 float(np.mean(returns)), float(np.std(returns)), float(np.mean(lengths)))
         checks.pop(0)
-      self.t0 = time.time()
       return bool(checks)
 
-  clock = Clock()
-  model.learn(total_timesteps=total, callback=clock)
+  model.learn(total_timesteps=total, callback=Clock())
   ours = returns_on_ours(model, run["eval_episodes"], seed)
   final = evaluations(folder)[-1]
-  write_meta(folder, device="cpu", sb3=stable_baselines3.__version__, train_s=clock.train_s,
-             train_steps_per_s=model.num_timesteps / clock.train_s,
+  write_meta(folder, device="cpu", sb3=stable_baselines3.__version__, clock="process start",
              final_return_pybullet=final["eval_return"], final_return_ours=float(np.mean(ours)),
              final_returns_ours=ours)
 

@@ -181,7 +181,9 @@ def peer_settings(run: dict) -> str:
     flags = [w for i, w in enumerate(s) if "--seed" not in s[max(i - 1, 0):i + 1]]
     return f"`{' '.join(flags)}`"
   if run["trainer"] == "sb3":
-    return f"rl-zoo's: gamma {s['gamma']}, learning rate {s['learning_rate']:g}"
+    clock = ("" if run["meta"].get("clock") == "process start" else
+             "; its clock: training only, to 1.5 × the minutes")
+    return f"rl-zoo's: gamma {s['gamma']}, learning rate {s['learning_rate']:g}{clock}"
   return f"reward scaling {s['reward_scaling']}, discount {s['discounting']}"
 
 
