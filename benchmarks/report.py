@@ -88,12 +88,16 @@ def num(x, digits: int = 0) -> str:
 
 
 def machine(name: str) -> str:
-  """A results file's machine in a few words: "1 H100", "2 H200", "2 CPU cores"."""
+  """A results file's machine in a few words: "1 H100", "2 H200", "2 Intel cores" (a 2-core
+  CPU's maker, where the file names it)."""
   text = load(name)["machine"]
   chip = next((c for c in ("H100", "H200") if c in text), None)
   if chip:
     return f"{text.split(' x ')[0]} {chip}"
-  return "2 CPU cores" if "2-core" in text or text.endswith(" 2 cores") else text
+  if "2-core" in text or text.endswith(" 2 cores"):
+    vendor = next((v for v in ("Intel", "AMD") if v in text), None)
+    return f"2 {vendor} cores" if vendor else "2 CPU cores"
+  return text
 
 
 def time_to_score(names: list[str], scale: float = 1.0) -> dict:
@@ -149,12 +153,13 @@ def score_in(cells: list[str], unit: str) -> str:
 
 
 def env_rates(robot: str) -> dict:
-  """PyBullet's, MuJoCo C's and MJX's best (on 2 devices) env steps/s of one robot."""
+  """PyBullet's (one core), MuJoCo C's (2 threads) and MJX's best env steps/s of one robot, MJX's
+on one device (one core, "mjx1") and on 2."""
   rows = [r for r in load(ENV.get(robot, ENV_OTHERS))["figures"]["rows"] if r["env"] == robot]
   best = lambda engine, devices: max(r["env_steps_per_s"] for r in rows if r["engine"].startswith(
       engine) and r["devices"] in devices)
   return {"pybullet": best("PyBullet", (1,)), "mujoco": best("MuJoCo C", (2,)),
-          "mjx": best("MJX", (2,))}
+          "mjx1": best("MJX", (1,)), "mjx": best("MJX", (2,))}
 
 
 def reach(run: dict, score: int) -> float:
@@ -198,12 +203,13 @@ def summary() -> str:
     e, published = env_rates(robot), zoo.get(robot, {})
     cells = score_cells(robot)
     rows.append([robot, score_in(cells[:3], "s"), score_in(cells[3:], "min"),
-                 num(e["mjx"] / e["pybullet"], 1), num(published.get("sac")),
+                 num(e["mjx1"] / e["pybullet"], 1), num(published.get("sac")),
                  num(published.get("tqc"))])
   return "\n\n".join([
       "Each robot's score, median time to it (compile included, timed as the sections below "
       "say) and seeds reaching it: gpu preset on one GPU, cpu preset on 2 CPU cores. "
-      "× PyBullet: MJX's env steps/s over PyBullet's. rl-zoo: rl-baselines3-zoo's "
+      "× PyBullet: MJX's env steps/s over PyBullet's, on one core each. rl-zoo: "
+      "rl-baselines3-zoo's "
       f"published SAC and TQC on PyBullet after 1M env steps (`{RL_ZOO}`).",
       table(["robot", "one GPU", "2 CPU cores", "× PyBullet", "rl-zoo SAC", "rl-zoo TQC"],
             rows)])
@@ -240,14 +246,16 @@ def sections() -> list[tuple[str, str, str, list[str]]]:
           "from process start; 16-episode evaluations.",
           table(PEER_HEAD, peer_rows()), list(PEERS))]
   rates = {robot: env_rates(robot) for robot in ROBOTS}
+  env_files = sorted({ENV.get(robot, ENV_OTHERS) for robot in ROBOTS})
+  cpus = sorted({load(name)["machine"] for name in env_files})
   out.append(("Env throughput on 2 CPU cores", "Auto-resetting envs, random actions: MJX's "
-              "best of 64, 256 and 4,096 envs on 2 XLA devices; MuJoCo C, the same model on 2 "
-              "threads (physics only); PyBullet's env on one core.",
-              table(["robot", "PyBullet", "MuJoCo C", "MJX", "MJX ÷ MuJoCo C"],
-                    [[robot, num(e["pybullet"]), num(e["mujoco"]), num(e["mjx"]),
-                      num(e["mjx"] / e["mujoco"], 2)]
-                     for robot, e in rates.items()]),
-              sorted({ENV.get(robot, ENV_OTHERS) for robot in ROBOTS})))
+              "best of 64, 256 and 4,096 envs on 1 and 2 XLA devices; MuJoCo C, the same model "
+              f"on 2 threads (physics only); PyBullet's env on one core. On {' and '.join(cpus)}.",
+              table(["robot", "PyBullet", "MJX, 1 core", "MJX, 2 cores", "MuJoCo C, 2 cores",
+                     "MJX ÷ MuJoCo C"],
+                    [[robot, num(e["pybullet"]), num(e["mjx1"]), num(e["mjx"]),
+                      num(e["mujoco"]), num(e["mjx"] / e["mujoco"], 2)]
+                     for robot, e in rates.items()]), env_files))
   f32, bf16 = (load(n)["figures"] for n in LEARNER)
   half = {r["robot"]: r["updates_per_s"] for r in bf16["rows"]}
   rows = []
@@ -488,7 +496,8 @@ def sources(names: list[str]) -> str:
   made = {}
   for n in dict.fromkeys(names):
     r = load(n)
-    command = re.sub(r" --out \S+", "", r["command"]).removeprefix("python benchmarks/")
+    command = re.sub(r" --out \S+", "", r["command"])
+    command = re.sub(r"^python \S*?benchmarks/", "", command)
     command = command.replace('bash benchmarks/gpu.sh "python benchmarks/', 'gpu.sh "')
     made.setdefault((r["date"], machine(n), code(r["commit"]), command), []).append(n)
   lines = []
