@@ -4,8 +4,8 @@
     python benchmarks/distributed.py --devices 2 --gpus                   # 2 GPUs of one host
 
 Runs `mjx-hopper sweep` twice: one process on --devices devices, then --devices processes of
-one device each (`--distributed`, a local coordinator). Records the time from the launch to the
-first train row, and the env steps/s (all members) of the train rows after the first, as
+one device each (`--distributed`, a local coordinator), each from an empty compile cache of
+its own. Records the time from the launch to the first train row, and the env steps/s (all members) of the train rows after the first, as
 log.csv gives them. Extra sweep flags follow `--`.
 """
 
@@ -33,7 +33,8 @@ def launch(out_dir: str, processes: int, devices: int, gpus: bool, extra: list[s
   start = time.perf_counter()
   per_process = devices // processes
   for i in range(processes):
-    env = dict(os.environ, XLA_FLAGS=mjx_hopper.xla_flags_with_cpu_devices(per_process))
+    env = dict(os.environ, XLA_FLAGS=mjx_hopper.xla_flags_with_cpu_devices(per_process),
+               MJX_HOPPER_JAX_CACHE=os.path.join(out_dir, "jax_cache"))  # cold, each sweep
     if gpus:
       env["CUDA_VISIBLE_DEVICES"] = ",".join(
           str(i * per_process + d) for d in range(per_process))

@@ -3,9 +3,11 @@ Colab user runs it, with each section's wall-clock time (its first cell's start 
 
     python benchmarks/notebook_time.py --out runs/notebook_full
 
-Runs in OUT with an empty compile cache (OUT/jax_cache) and keeps OUT/robolympics.ipynb; the
-times go to benchmarks/results/notebook_time_LABEL.json. With --first-video it stops after the
-first cell that films (a newcomer's first wait), and writes notebook_first_video_LABEL.json.
+Runs in OUT with an empty compile cache (OUT/jax_cache, refused where it or OUT/runs holds
+anything), in this interpreter's kernel, which has the project: the install cell finds it
+installed, so its time leaves out an install. Keeps OUT/robolympics.ipynb; the times go to
+benchmarks/results/notebook_time_LABEL.json. With --first-video it stops after the first cell
+that films (a newcomer's first wait), and writes notebook_first_video_LABEL.json.
 """
 
 from __future__ import annotations
@@ -40,6 +42,11 @@ def main() -> None:
   import nbformat
   from nbclient import NotebookClient
 
+  for left in ("jax_cache", "runs"):  # an earlier run's programs or checkpoints
+    folder = os.path.join(args.out, left)
+    if os.path.isdir(folder) and os.listdir(folder):
+      raise SystemExit(f"notebook_time: {args.out}/{left} is not empty: choose another --out, "
+                       "as the notebook would load or resume what it holds")
   os.makedirs(args.out, exist_ok=True)
   os.environ.pop("MJX_HOPPER_SHORT", None)
   os.environ["MJX_HOPPER_JAX_CACHE"] = os.path.abspath(os.path.join(args.out, "jax_cache"))

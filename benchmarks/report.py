@@ -281,9 +281,10 @@ def sections() -> list[tuple[str, str, str, list[str]]]:
     rows += [[machine(name), r["devices"], r["members"], num(r["env_steps_per_s"]),
               num(r["updates_per_s"]), num(r["env_steps_per_s"] / base["env_steps_per_s"], 2)]
              for r in found]
-  out.append(("Sweeps", "S seeds of D4PG on Hopper in one program "
-              "(`mjx-hopper sweep`), each S in a fresh process; × one run: over one member on one "
-              "device.",
+  out.append(("Sweeps", "S seeds of D4PG on Hopper in one program, each S in a fresh "
+              "process: the compiled chunk alone, timed after a warm-up chunk, with the "
+              "command's sizes (not `mjx-hopper sweep` from process start); × one run: over one "
+              "member on one device.",
               table(["machine", "devices", "members", "env steps/s", "updates/s", "× one run"],
                     rows), list(SWEEPS)))
   rows = [[machine(name), r["processes"], r["devices"], num(r["first_row_s"], 1),
@@ -300,8 +301,8 @@ def sections() -> list[tuple[str, str, str, list[str]]]:
               [PBT]))
   nb = load(NOTEBOOK)["figures"]
   out.append(("The notebook on 2 CPU cores", "`notebooks/robolympics.ipynb` in full mode "
-              "from an empty compile cache (sections under 30 s left out); first video from "
-              "the kernel's start.",
+              "from an empty compile cache, in a kernel that had the project (no install timed; "
+              "sections under 30 s left out); first video from the kernel's start.",
               table(["section", "minutes"], [[t, num(s / 60, 1)] for t, s in
                                              nb["sections_s"].items() if s >= 30]
                     + [["all", num(nb["total_s"] / 60, 1)],
@@ -401,7 +402,7 @@ def iteration_section() -> tuple[str, str, str, list[str]]:
                             ("learner (replay samples in it)", "learner_s"),
                             ("whole chunk", "chunk_s"))]
   rows += [[name, *(num(d["run"][key], digits) for d in data.values())]
-           for name, key, digits in (("run: first row (s)", "first_row_run_s", 1),
+           for name, key, digits in (("run: first row, from loop.run (s)", "first_row_run_s", 1),
                                      ("run: chunks' env steps/s", "chunk_env_steps_per_s", 0),
                                      ("run: wall clock's env steps/s", "wall_env_steps_per_s", 0))]
   rows.append(["run: pauses after the first row (evaluations, logs, saves)",
