@@ -5,8 +5,8 @@
 
 Runs `mjx-hopper sweep` twice: one process on --devices devices, then --devices processes of
 one device each (`--distributed`, a local coordinator), each from an empty compile cache of
-its own. Records the time from the launch to the first train row, and the env steps/s (all members) of the train rows after the first, as
-log.csv gives them. Extra sweep flags follow `--`.
+its own. Records the time from the launch to the first train row, and the env steps/s (all
+members) of the train rows after the first, as log.csv gives them. Extra sweep flags follow `--`.
 """
 
 from __future__ import annotations
