@@ -109,6 +109,10 @@ def time_to_score(names: list[str], scale: float = 1.0) -> dict:
       raise SystemExit(f"report.py: {name} does not say how its seeds were run: its method is "
                        f"{f.get('method')!r}, not one of {sorted(METHODS)}; run "
                        "benchmarks/time_to_score.py again, which runs each in a fresh process")
+    held_out = all(int(seed) >= 100 for seed in f["seeds"])
+    if f["method"].startswith("a process each") and not held_out:
+      raise SystemExit(f"report.py: {name}'s seeds {sorted(map(int, f['seeds']))} are not all "
+                       "held out (100 up): the presets were tuned on seeds 0-9")
   runs = [s for f in figures for s in f["seeds"].values()]
   times = [math.inf if s["target_wall_s"] is None else s["target_wall_s"] / scale for s in runs]
   hit = [t for t in times if t < math.inf] or [math.inf]
@@ -122,10 +126,11 @@ def time_to_score(names: list[str], scale: float = 1.0) -> dict:
 
 # How a time-to-score file's seeds were run (its "method"), as a page explains it.
 METHODS = {
-    "a process each, cold": "each seed by `mjx-hopper train` in a fresh process from an empty "
-                            "compile cache, timed from process start",
-    "a process each, warm": "each seed by `mjx-hopper train` in a fresh process from a cache "
-                            "that the same settings filled, timed from process start",
+    "a process each, cold": "each held-out seed (100 up) by `mjx-hopper train` in a fresh "
+                            "process from an empty compile cache, timed from process start",
+    "a process each, warm": "each held-out seed (100 up) by `mjx-hopper train` in a fresh "
+                            "process from a cache that the same settings filled, timed from "
+                            "process start",
     "one process, in turn": "seeds one after another in one process, only the first timed "
                             "from process start"}
 MARGIN = 1.5  # a preset's budget over its slowest seed's need (mjx_hopper/settings/presets.py)
