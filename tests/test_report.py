@@ -86,8 +86,8 @@ def test_a_time_section_names_each_rows_method_where_they_differ(tmp_path, monke
   assert rows.splitlines()[0].endswith("| seeds run |")
   assert rows.splitlines()[2].endswith("| a process each, cold |")
   assert rows.splitlines()[3].endswith("| one process, in turn |")
-  assert text.startswith("Timed. Seeds run a process each, cold: each seed by `mjx-hopper "
-                         "train` in a fresh process")
+  assert text.startswith("Timed. Seeds run a process each, cold: each held-out seed (100 up) "
+                         "by `mjx-hopper train` in a fresh process")
   _, text, rows, _ = report.time_section("t", "Timed.", {"A": ["a.json"]}, "s", 1, 0)
   assert "seeds run" not in rows and "a process each, cold:" in text
 
