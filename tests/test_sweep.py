@@ -5,6 +5,7 @@ import contextlib
 import csv
 import dataclasses
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -284,36 +285,50 @@ def test_bad_pbt_specs():
     cli.main([*TINY_ARGS[:2], "sweep", *TINY_ARGS[3:], "--pbt-every", "3"])
 
 
-ABSURD = dataclasses.replace(TINY, seeds=(0,), grid={"learning_rate": (1e-3, 1e30)},
-                             total_env_steps=120)
+# Four members, two to a device under vmap, each device holding a sane learning rate beside an
+# absurd one (members 1 and 3): the trainer of test_sweep_writes_results_resumes_exactly_and_
+# extracts (four members; their sigmas and learning rates are data).
+ABSURD = dataclasses.replace(TINY, seeds=(0,), total_env_steps=120,
+                             grid={"sigma": (0.1, 0.3), "learning_rate": (1e-3, 1e30)})
 
 
-def test_a_diverged_member_is_frozen_and_the_others_go_on_unchanged(single, tmp_path, capsys):
-  # One member per device: member 0 runs its single run's program, whatever member 1 does.
+def test_a_diverged_member_is_frozen_and_the_others_go_on_unchanged(tmp_path, capsys):
   cfg = dataclasses.replace(ABSURD, out_dir=str(tmp_path))
   result = loop.run(cfg, progress=False)
   out = capsys.readouterr().out
-  assert ("[diverged] member 1 at 40 env steps: " in out and "parameters not finite; frozen "
-          "at its last finite agent" in out)
-  sane, _ = single_run(single, cfg.member_settings()[0], chunks=3)
-  assert_as_its_single_run(member(result.state, 0), member(sane))
-  # Member 1 diverged in its first chunk: its agent stays the one it started with.
+  for m in (1, 3):
+    assert (f"[diverged] member {m} at 40 env steps: " in out and "parameters not finite; "
+            "frozen at its last finite agent" in out)
+  # Members 0 and 2 run as they do beside sane neighbours, bit for bit (the same program): a
+  # diverged member leaves the members vmapped with it alone.
   trainer = runs.build(cfg)
-  assert_same(member(result.state.agent, 1),
-              member(runs.init(cfg, trainer, cfg.member_settings()).agent, 1))
+  sane = dataclasses.replace(cfg, grid={"sigma": (0.1, 0.3), "learning_rate": (1e-3, 3e-4)})
+  beside_sane, _ = run_chunks(trainer, runs.init(sane, trainer, sane.member_settings()), 3)
+  for m in (0, 2):
+    assert_same(member(result.state, m), member(beside_sane, m))
+  # Members 1 and 3 diverged in their first chunk: their agents stay the ones they started with.
+  start = runs.init(cfg, trainer, cfg.member_settings())
+  for m in (1, 3):
+    assert_same(member(result.state.agent, m), member(start.agent, m))
   with open(tmp_path / "log.csv") as f:
     rows = list(csv.DictReader(f))
-  assert {r["diverged"] for r in rows if r["member"] == "1"} == {"1"}
-  assert {r["diverged"] for r in rows if r["member"] == "0"} == {"0"}
-  assert "| 2 | learning_rate=1e+30 |" in out and "| 1 of 1 |" in out  # ranked last, marked
-  assert "1 diverged" in out
+  assert {r["member"]: r["diverged"] for r in rows} == {"0": "0", "1": "1", "2": "0", "3": "1"}
+  assert "| 3 | sigma=0.1 learning_rate=1e+30 | -inf |" in out  # ranked last, marked
+  assert "| 4 | sigma=0.3 learning_rate=1e+30 | -inf |" in out and "| 1 of 1 |" in out
+  assert "2 diverged" in out
 
 
 def test_pbt_replaces_a_diverged_member_resumes_exactly_and_extracts(tmp_path, capsys):
   cfg = dataclasses.replace(ABSURD, pbt=PBT(every=1), out_dir=str(tmp_path / "straight"))
   straight = loop.run(cfg, progress=False)
   out = capsys.readouterr().out
-  assert "[pbt] 40 env steps: member 1 copies member 0, with learning_rate=0.001" in out
+  # At the first evaluation the diverged members 1 and 3 each take a copy of a healthy one (the
+  # best), its settings moved by a factor within the grid's bounds.
+  first = next(line for line in out.splitlines() if line.startswith("[pbt] 40 env steps: "))
+  copies = re.findall(r"member (\d) copies member (\d), with sigma=(\S+) "
+                      r"learning_rate=(\S+?)(?:;|$)", first)
+  assert [c[0] for c in copies] == ["1", "3"] and {c[1] for c in copies} <= {"0", "2"}
+  assert all(0.1 <= float(c[2]) <= 0.3 and 1e-3 <= float(c[3]) <= 1.25e-3 for c in copies)
   split = dataclasses.replace(cfg, out_dir=str(tmp_path / "split"))
   loop.run(split, progress=False, print_fn=stop_after_first_chunk)
   resumed = loop.run(split, progress=False)
@@ -326,10 +341,11 @@ def test_pbt_replaces_a_diverged_member_resumes_exactly_and_extracts(tmp_path, c
       logs[name] = [(r["kind"], r["member"], r["env_steps"], r["learning_rate"], r["parent"],
                      r["diverged"]) for r in csv.DictReader(f)]
   assert logs["split"] == logs["straight"]
-  evals = [r for r in logs["straight"] if r[0] == "eval" and r[1] == "1"]
-  # Diverged at 40 (frozen, evaluated, then replaced by a copy of member 0), healthy after.
-  assert [(r[4], r[5]) for r in evals] == [("1", "1"), ("0", "0"), ("0", "0")]
-  assert all(1e-3 <= float(r[3]) <= 1.25e-3 for r in evals[1:])
+  for m in ("1", "3"):  # diverged at 40 (frozen, evaluated, then replaced), healthy after
+    evals = [r for r in logs["straight"] if r[0] == "eval" and r[1] == m]
+    assert [(r[2], r[4], r[5]) for r in evals[:1]] == [("40", m, "1")]
+    assert evals[1][4] in ("0", "2") and 1e-3 <= float(evals[1][3]) <= 1.25e-3 * (1 + 1e-6)
+    assert [r[5] for r in evals[1:]] == ["0", "0"]
   assert (tmp_path / "straight" / "pbt.png").stat().st_size > 10_000
   # The best member becomes a single run that eval and train take.
   target = runs.extract(str(tmp_path / "straight" / "checkpoints"), "best",
@@ -337,7 +353,8 @@ def test_pbt_replaces_a_diverged_member_resumes_exactly_and_extracts(tmp_path, c
   best = int(np.argmax(straight.best_return))
   one_cfg, agent, _ = runs.load_policy(target)
   assert one_cfg.grid == {} and one_cfg.pbt is None
-  assert one_cfg.agent_overrides["learning_rate"] == float(logs["straight"][-1 - (1 - best)][3])
+  last = [r for r in logs["straight"] if r[1] == str(best)][-1]
+  assert one_cfg.agent_overrides["learning_rate"] == float(last[3])
   assert_same(agent, member(straight.best, best))
 
 
