@@ -30,7 +30,7 @@ GPU = {"Hopper": [TTS.format("Hopper_gpu_seeds23-32")],
        "Ant": [TTS.format("Ant_h100_cold5_2026-11-26")],
        "Humanoid": [TTS.format("Humanoid_gpu_seeds23-24"), TTS.format("Humanoid_gpu_seed25")],
        "AntLongJump (an event)": [TTS.format("AntLongJump_h100")]}
-CPU = {"Hopper": [TTS.format("Hopper_cpu_128")],
+CPU = {"Hopper": [TTS.format("Hopper_cpu_heldout")],
        "Walker2D": [TTS.format("Walker2D_cpu_tuned_2026-11-26")],
        "HalfCheetah": [TTS.format("HalfCheetah_cpu_seeds1-3")],
        "Ant": [TTS.format("Ant_cpu_tuned_2026-11-26"), TTS.format("Ant_cpu_seeds1-2")],
@@ -44,8 +44,7 @@ ENV_OTHERS = "env_throughput_cpu_4robots.json"
 PEERS = ("peers_h200.json", "peers_cpu.json")
 RL_ZOO = "rl_zoo.json"
 LEARNER = ("learner_robots_h100.json", "learner_robots_bf16_h100.json")
-SWEEPS = ("sweep_throughput_h100.json", "sweep_throughput_2gpu_h200.json",
-          "sweep_throughput_cpu.json")
+SWEEPS = ("sweep_throughput_2gpu_h200.json", "sweep_throughput_cpu.json")
 PBT = "pbt_quality_halfcheetah_h100x2.json"
 START = {"one H200": "start_time_h200.json", "2 CPU cores": "start_time_cpu.json"}
 DISTRIBUTED = ("distributed_gpu2.json", "distributed_cpu2.json")
@@ -110,7 +109,7 @@ def time_to_score(names: list[str], scale: float = 1.0) -> dict:
                        f"{f.get('method')!r}, not one of {sorted(METHODS)}; run "
                        "benchmarks/time_to_score.py again, which runs each in a fresh process")
     held_out = all(int(seed) >= 100 for seed in f["seeds"])
-    if f["method"].startswith("a process each") and not held_out:
+    if f["method"].startswith("own process") and not held_out:
       raise SystemExit(f"report.py: {name}'s seeds {sorted(map(int, f['seeds']))} are not all "
                        "held out (100 up): the presets were tuned on seeds 0-9")
   runs = [s for f in figures for s in f["seeds"].values()]
@@ -126,13 +125,11 @@ def time_to_score(names: list[str], scale: float = 1.0) -> dict:
 
 # How a time-to-score file's seeds were run (its "method"), as a page explains it.
 METHODS = {
-    "a process each, cold": "each held-out seed (100 up) by `mjx-hopper train` in a fresh "
-                            "process from an empty compile cache, timed from process start",
-    "a process each, warm": "each held-out seed (100 up) by `mjx-hopper train` in a fresh "
-                            "process from a cache that the same settings filled, timed from "
-                            "process start",
-    "one process, in turn": "seeds one after another in one process, only the first timed "
-                            "from process start"}
+    "own process, cold": "each held-out seed (100 up) by `mjx-hopper train` in a fresh process "
+                         "from an empty compile cache, from process start",
+    "own process, warm": "each held-out seed (100 up) by `mjx-hopper train` in a fresh process "
+                         "from a cache the same settings filled, from process start",
+    "in turn": "seeds one after another in one process, only the first from process start"}
 MARGIN = 1.5  # a preset's budget over its slowest seed's need (mjx_hopper/settings/presets.py)
 
 
@@ -220,8 +217,11 @@ def summary() -> str:
             rows)])
 
 
-def time_section(title: str, method: str, runs: dict, unit: str, scale: float, digits: int):
-  """A time-to-score section: each task's seeds, in `unit` (seconds over `scale`)."""
+def time_section(title: str, method: str, runs: dict, unit: str, scale: float, digits: int,
+                 explained: set | None = None):
+  """A time-to-score section: each task's seeds, in `unit` (seconds over `scale`); its methods
+  explained but for those in `explained` (an earlier section's), which it adds to."""
+  explained = set() if explained is None else explained
   rows, methods = [], []
   for label, names in runs.items():
     t = time_to_score(names, scale)
@@ -231,21 +231,27 @@ def time_section(title: str, method: str, runs: dict, unit: str, scale: float, d
                  *(num(t[k], digits) for k in ("median", "fastest", "slowest")),
                  num(t["env_steps"], 2), f"{steps / 1e6:g}M, {minutes:g} min"])
   head = ["task", "score", "agent", "seeds", "reached", f"median ({unit})", f"fastest ({unit})",
-          f"slowest ({unit})", "env steps to it (M, median)", "budget"]
+          f"slowest ({unit})", "M env steps to it", "budget"]
   if len(set(methods)) > 1:
     head.append("seeds run")
     rows = [row + [m] for row, m in zip(rows, methods)]
-  method += " Seeds run " + "; ".join(f"{m}: {METHODS[m]}" for m in sorted(set(methods))) + "."
+  new = sorted(set(methods) - explained)
+  explained.update(new)
+  if new:
+    method += " Seeds run " + "; ".join(f"{m}: {METHODS[m]}" for m in new) + "."
   return (title, method, table(head, rows), [n for v in runs.values() for n in v])
 
 
 def sections() -> list[tuple[str, str, str, list[str]]]:
   """(title, method, table, results files) of each question after the summary."""
+  explained = set()
   out = [time_section("Time to score on one GPU", "Each robot's gpu preset, compiled afresh and "
                       "timed until an evaluation reaches the score. Budget: the preset's, "
-                      f"{MARGIN:g} × the slowest seed's env steps and minutes.", GPU, "s", 1, 0),
+                      f"{MARGIN:g} × the slowest seed's env steps and minutes.", GPU, "s", 1, 0,
+                      explained),
          time_section("Time to score on 2 CPU cores", "Each robot's cpu preset (another agent: "
-                      "its own with the robot's settings), timed as above.", CPU, "min", 60, 1),
+                      "its own with the robot's settings), timed as above.", CPU, "min", 60, 1,
+                      explained),
          ("Peers", "Hopper: our D4PG beside Brax's SAC and PPO on our env (one after another, "
           "each alone on the GPU) and SB3's SAC on PyBullet (2 cores), each for its minutes, "
           "from process start; 16-episode evaluations.",
@@ -477,10 +483,10 @@ def gymnasium_section() -> tuple[str, str, str, list[str]]:
 
 def code(commit: str) -> str:
   """A results file's code commit, its hash cut to 7 digits; an older file that does not know it
-  says where its figures were filed ("unknown; results committed in C": "filed in C")."""
+  says where its figures were filed ("unknown; results committed in C": "in C")."""
   text = commit.removeprefix("unknown; ")
   if text != commit:
-    return text.replace("results committed in", "filed in")
+    return text.replace("results committed in", "in")
   return re.sub(r"\b([0-9a-f]{7})[0-9a-f]+", r"\1", commit)
 
 

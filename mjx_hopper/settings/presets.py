@@ -63,7 +63,7 @@ _GPU_WHY = "1,024 envs, 8 updates of 8,192 per iteration, mixed noise (evidence:
 _CPU_TUNED_WHY = "Hopper's cpu settings, 128-128 networks (evidence: {})"
 
 PRESETS: dict[tuple[str, str], Preset] = {
-    ("Hopper", "cpu"): Preset(**_CPU_TUNED, target=2000.0, env_steps=4_500_000, minutes=5.0,
+    ("Hopper", "cpu"): Preset(**_CPU_TUNED, target=2000.0, env_steps=5_500_000, minutes=11.0,
                               why=_CPU_TUNED_WHY.format("e19d40f")),
     ("Hopper", "gpu"): Preset(**{**_GPU, "agent_overrides": {**_GPU["agent_overrides"],
                                                              "action_penalty": 0.1,
