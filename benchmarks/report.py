@@ -99,6 +99,15 @@ def machine(name: str) -> str:
   return text
 
 
+# How a time-to-score file's seeds were run (its "method"), as a page explains it.
+METHODS = {
+    "own process, cold": "each held-out seed (100 up) by `mjx-hopper train` in a fresh process "
+                         "from an empty compile cache, from process start",
+    "own process, warm": "each held-out seed (100 up) by `mjx-hopper train` in a fresh process "
+                         "from a cache the same settings filled, from process start",
+    "in turn": "seeds one after another in one process, only the first from process start"}
+
+
 def time_to_score(names: list[str], scale: float = 1.0) -> dict:
   """The seeds of `names`: how many reached the target, and the median, fastest and slowest
   time to it (divided by `scale`: 60 for minutes), a seed that missed counting as slowest."""
@@ -123,13 +132,6 @@ def time_to_score(names: list[str], scale: float = 1.0) -> dict:
           "method": "; ".join(sorted({f["method"] for f in figures}))}
 
 
-# How a time-to-score file's seeds were run (its "method"), as a page explains it.
-METHODS = {
-    "own process, cold": "each held-out seed (100 up) by `mjx-hopper train` in a fresh process "
-                         "from an empty compile cache, from process start",
-    "own process, warm": "each held-out seed (100 up) by `mjx-hopper train` in a fresh process "
-                         "from a cache the same settings filled, from process start",
-    "in turn": "seeds one after another in one process, only the first from process start"}
 MARGIN = 1.5  # a preset's budget over its slowest seed's need (mjx_hopper/settings/presets.py)
 
 
@@ -156,7 +158,7 @@ def score_in(cells: list[str], unit: str) -> str:
 
 def env_rates(robot: str) -> dict:
   """PyBullet's (one core), MuJoCo C's (2 threads) and MJX's best env steps/s of one robot, MJX's
-on one device (one core, "mjx1") and on 2."""
+  on one device (one core, "mjx1") and on 2."""
   rows = [r for r in load(ENV.get(robot, ENV_OTHERS))["figures"]["rows"] if r["env"] == robot]
   best = lambda engine, devices: max(r["env_steps_per_s"] for r in rows if r["engine"].startswith(
       engine) and r["devices"] in devices)
@@ -211,8 +213,7 @@ def summary() -> str:
       "Each robot's score, median time to it (compile included, timed as the sections below "
       "say) and seeds reaching it: gpu preset on one GPU, cpu preset on 2 CPU cores. "
       "× PyBullet: MJX's env steps/s over PyBullet's, on one core each. rl-zoo: "
-      "rl-baselines3-zoo's "
-      f"published SAC and TQC on PyBullet after 1M env steps (`{RL_ZOO}`).",
+      f"rl-baselines3-zoo's published SAC and TQC on PyBullet after 1M env steps (`{RL_ZOO}`).",
       table(["robot", "one GPU", "2 CPU cores", "× PyBullet", "rl-zoo SAC", "rl-zoo TQC"],
             rows)])
 
