@@ -80,7 +80,7 @@ def train_in_a_process(command: list[str], cache: str) -> tuple[list[float], str
   seconds from process start at which it printed each `[eval]` line, and what it printed."""
   env = dict(ENVIRON, MJX_HOPPER_JAX_CACHE=cache, PYTHONUNBUFFERED="1")
   start = time.perf_counter()
-  proc = subprocess.Popen([sys.executable, "-m", "mjx_hopper.faces.cli", *command], env=env,
+  proc = subprocess.Popen([sys.executable, "-P", "-m", "mjx_hopper.faces.cli", *command], env=env,
                           text=True, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
   lines = [(time.perf_counter() - start, line) for line in proc.stdout]
   printed = "".join(line for _, line in lines)
