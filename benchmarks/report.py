@@ -24,10 +24,11 @@ ROOT = pathlib.Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "benchmarks" / "results"
 ROBOTS = ("Hopper", "Walker2D", "HalfCheetah", "Ant", "Humanoid")
 TTS = "time_to_score_{}.json"
-GPU = {"Hopper": [TTS.format("Hopper_gpu_seeds23-32")],
-       "Walker2D": [TTS.format("Walker2D_h100_cold5_2026-11-26")],
-       "HalfCheetah": [TTS.format("HalfCheetah_h100_small_batch")],
-       "Ant": [TTS.format("Ant_h100_cold5_2026-11-26")],
+GPU = {"Hopper": [TTS.format("Hopper_gpu_heldout")],
+       "Walker2D": [TTS.format("Walker2D_h100_cold5_2026-11-26"), TTS.format("Walker2D_gpu_heldout")],
+       "HalfCheetah": [TTS.format("HalfCheetah_h100_small_batch"),
+                       TTS.format("HalfCheetah_gpu_heldout")],
+       "Ant": [TTS.format("Ant_h100_cold5_2026-11-26"), TTS.format("Ant_gpu_heldout")],
        "Humanoid": [TTS.format("Humanoid_gpu_seeds23-24"), TTS.format("Humanoid_gpu_seed25")],
        "AntLongJump (an event)": [TTS.format("AntLongJump_h100")]}
 CPU = {"Hopper": [TTS.format("Hopper_cpu_heldout")],
@@ -101,10 +102,10 @@ def machine(name: str) -> str:
 
 # How a time-to-score file's seeds were run (its "method"), as a page explains it.
 METHODS = {
-    "own process, cold": "each held-out seed (100 up) by `mjx-hopper train` in a fresh process "
-                         "from an empty compile cache, from process start",
-    "own process, warm": "each held-out seed (100 up) by `mjx-hopper train` in a fresh process "
-                         "from a cache the same settings filled, from process start",
+    "fresh, cold": "held-out seeds (100 up), each by `mjx-hopper train` in a fresh process "
+                   "from an empty compile cache, timed from process start",
+    "fresh, warm": "held-out seeds (100 up), each by `mjx-hopper train` in a fresh process "
+                   "from a cache the same settings filled, timed from process start",
     "in turn": "seeds one after another in one process, only the first from process start"}
 
 
@@ -118,7 +119,7 @@ def time_to_score(names: list[str], scale: float = 1.0) -> dict:
                        f"{f.get('method')!r}, not one of {sorted(METHODS)}; run "
                        "benchmarks/time_to_score.py again, which runs each in a fresh process")
     held_out = all(int(seed) >= 100 for seed in f["seeds"])
-    if f["method"].startswith("own process") and not held_out:
+    if f["method"].startswith("fresh") and not held_out:
       raise SystemExit(f"report.py: {name}'s seeds {sorted(map(int, f['seeds']))} are not all "
                        "held out (100 up): the presets were tuned on seeds 0-9")
   runs = [s for f in figures for s in f["seeds"].values()]
@@ -236,7 +237,7 @@ def time_section(title: str, method: str, runs: dict, unit: str, scale: float, d
   if len(set(methods)) > 1:
     head.append("seeds run")
     rows = [row + [m] for row, m in zip(rows, methods)]
-  new = sorted(set(methods) - explained)
+  new = sorted({m for cell in methods for m in cell.split("; ")} - explained)
   explained.update(new)
   if new:
     method += " Seeds run " + "; ".join(f"{m}: {METHODS[m]}" for m in new) + "."
@@ -429,15 +430,15 @@ def iteration_section() -> tuple[str, str, str, list[str]]:
 
 
 def chunk_section() -> tuple[str, str, str, list[str]]:
-  """The training chunk's program, before and after: its size, compile and steady pace."""
+  """The training chunk's program at this code (the commits its results files compared it with
+  are in the page's history): its size, compile and steady pace."""
   rows = []
   for where, name in CHUNK.items():
     data = load(name)
-    for which, f in data["figures"]["medians"].items():
-      rows.append([where, data["commit"] if which == "this checkout" else which,
-                   num(f["compiled_instructions"]), num(f["compile_s"], 1),
-                   num(f.get("refill_instructions")) if "refill_instructions" in f else "–",
-                   num(f["env_steps_per_s"])])
+    f = data["figures"]["medians"]["this checkout"]
+    rows.append([where, code(data["commit"]), num(f["compiled_instructions"]),
+                 num(f["compile_s"], 1), num(f["refill_instructions"]),
+                 num(f["env_steps_per_s"])])
   split = []
   for where, name in SPLIT.items():
     data = load(name)
@@ -446,9 +447,9 @@ def chunk_section() -> tuple[str, str, str, list[str]]:
                   num(f["collection_compile_s"], 1), num(f["learning_compile_s"], 1),
                   num(f["split_compile_s"], 1)])
   return ("The training chunk", "Hopper's preset: the chunk's HLO instructions, "
-          "cold compile and env steps/s over the chunks its command names, each code in a "
-          "fresh process; then compiled as one program, or as its collection and its "
-          "learning at once.",
+          "cold compile and env steps/s over the chunks its command names, in a fresh "
+          "process; then compiled as one program, or as its collection and its learning at "
+          "once.",
           table(["machine", "code", "instructions", "compile (s)", "refill's instructions",
                  "env steps/s"], rows) + "\n\n" + table(
               ["machine", "code", "one program (s)", "collection (s)", "learning (s)",
@@ -493,9 +494,8 @@ def code(commit: str) -> str:
 
 def benchmarks_page() -> str:
   parts = ["# Benchmarks", "Made by `python benchmarks/report.py` from the "
-           "`benchmarks/results/` files under each table (date, machine, code, `python "
-           "benchmarks/COMMAND`; `gpu.sh`: `bash benchmarks/gpu.sh`); do not edit. Machines are "
-           "noisy: compare rows of one run.",
+           "`benchmarks/results/` files under each table (date, machine, code, command in "
+           "benchmarks/); do not edit. Machines are noisy: compare rows of one run.",
            "## Summary", summary()]
   for title, method, text, names in sections():
     parts += [f"## {title}", method, text, sources(names)]
@@ -504,12 +504,12 @@ def benchmarks_page() -> str:
 
 def sources(names: list[str]) -> str:
   """The lines naming the results files `names` under a table: files made by one command on
-  one machine, day and commit share a line. A command's --out (where it left its episodes) is
-  left out."""
+  one machine, day and commit share a line. A command's --out (where it left its episodes) and
+  --label (in its file's name) are left out."""
   made = {}
   for n in dict.fromkeys(names):
     r = load(n)
-    command = re.sub(r" --out \S+", "", r["command"])
+    command = re.sub(r" --(out|label) \S+", "", r["command"])
     command = re.sub(r"^python \S*?benchmarks/", "", command)
     command = command.replace('bash benchmarks/gpu.sh "python benchmarks/', 'gpu.sh "')
     made.setdefault((r["date"], machine(n), code(r["commit"]), command), []).append(n)

@@ -26,7 +26,7 @@ import numpy as np
 import common
 
 # How the seeds were run, in report.py's words (its METHODS): a file without it is refused there.
-METHOD = "own process, {cache}"
+METHOD = "fresh, {cache}"
 
 
 def summarise(rows: list[dict], target: float) -> dict:

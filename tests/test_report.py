@@ -44,17 +44,17 @@ def test_every_results_file_records_how_it_was_made():
 def test_time_to_score_is_the_median_over_seeds_with_misses_slowest(tmp_path, monkeypatch):
   seeds = {str(100 + i): {"target_wall_s": t, "target_env_steps": None if t is None else 10**6}
            for i, t in enumerate([30.0, None, 10.0, 20.0])}
-  figures = {"method": "own process, cold", "target": 2500.0, "agent": "d4pg", "seeds": seeds}
+  figures = {"method": "fresh, cold", "target": 2500.0, "agent": "d4pg", "seeds": seeds}
   (tmp_path / "a.json").write_text(json.dumps({"figures": figures}))
   monkeypatch.setattr(report, "RESULTS", tmp_path)
   t = report.time_to_score(["a.json"])
   assert (t["seeds"], t["reached"], t["median"], t["fastest"], t["slowest"]) == (4, 3, 25.0,
                                                                                  10.0, 30.0)
-  assert t["method"] == "own process, cold"
+  assert t["method"] == "fresh, cold"
 
 
 def test_a_time_to_score_file_of_fresh_processes_holds_held_out_seeds(tmp_path, monkeypatch):
-  figures = {"method": "own process, warm", "target": 2500.0, "agent": "d4pg",
+  figures = {"method": "fresh, warm", "target": 2500.0, "agent": "d4pg",
              "seeds": {"100": {"target_wall_s": 1.0, "target_env_steps": 1},
                        "3": {"target_wall_s": 1.0, "target_env_steps": 1}}}
   (tmp_path / "c.json").write_text(json.dumps({"figures": figures}))
@@ -77,17 +77,20 @@ def test_a_time_to_score_file_that_does_not_say_how_its_seeds_ran_is_refused(
 
 def test_a_time_section_names_each_rows_method_where_they_differ(tmp_path, monkeypatch):
   seeds = {"100": {"target_wall_s": 30.0, "target_env_steps": 10**6}}
-  for name, method in (("a.json", "own process, cold"), ("b.json", "in turn")):
+  for name, method in (("a.json", "fresh, cold"), ("b.json", "in turn")):
     (tmp_path / name).write_text(json.dumps({"figures": {
         "method": method, "target": 2500.0, "agent": "d4pg", "seeds": seeds}}))
   monkeypatch.setattr(report, "RESULTS", tmp_path)
   _, text, rows, _ = report.time_section("t", "Timed.", {"A": ["a.json"], "B": ["b.json"]},
                                          "s", 1, 0)
   assert rows.splitlines()[0].endswith("| seeds run |")
-  assert rows.splitlines()[2].endswith("| own process, cold |")
+  assert rows.splitlines()[2].endswith("| fresh, cold |")
   assert rows.splitlines()[3].endswith("| in turn |")
-  assert text.startswith("Timed. Seeds run in turn: seeds one after another in one process")
-  assert "; own process, cold: each held-out seed (100 up) by `mjx-hopper train`" in text
+  assert text.startswith("Timed. Seeds run fresh, cold: held-out seeds (100 up), each by "
+                         "`mjx-hopper train` in a fresh process")
+  assert "; in turn: seeds one after another in one process" in text
+  _, _, rows, _ = report.time_section("t", "Timed.", {"A": ["a.json", "b.json"]}, "s", 1, 0)
+  assert "| 2 | 2 |" in rows  # a row of two files' seeds, one each way, explained
   _, text, rows, _ = report.time_section("t", "Timed.", {"A": ["a.json"]}, "s", 1, 0)
-  assert "seeds run" not in rows and "own process, cold:" in text
+  assert "seeds run" not in rows and "fresh, cold:" in text
 
