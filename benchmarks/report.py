@@ -39,7 +39,7 @@ CPU = {"Hopper": [TTS.format("Hopper_cpu_heldout")],
                     TTS.format("Humanoid_cpu_seed2")],
        "Hopper, DDPG": [TTS.format("Hopper_ddpg_cpu")],
        "Hopper, DMPO": [TTS.format("Hopper_dmpo128_cpu_2026-11-26")],
-       "HighJump (an event)": [TTS.format("HighJump_cpu")]}
+       "HighJump (an event)": [TTS.format("HighJump_cpu_heldout")]}
 ENV = {"Hopper": "env_throughput_hopper_cpu.json", "Humanoid": "env_throughput_humanoid_cpu.json"}
 ENV_OTHERS = "env_throughput_cpu_4robots.json"
 PEERS = ("peers_h200.json", "peers_cpu.json")
