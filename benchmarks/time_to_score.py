@@ -75,19 +75,18 @@ def render(out: str) -> list[str]:
 ENVIRON = dict(os.environ)
 
 
-def train_in_a_process(command: list[str], cache: str) -> tuple[list[float], str]:
+def train_in_a_process(command: list[str], cache: str) -> list[float]:
   """Runs `mjx-hopper` `command` in a fresh process on compile cache folder `cache`. Returns the
-  seconds from process start at which it printed each `[eval]` line, and what it printed."""
+  seconds from process start at which it printed each `[eval]` line."""
   env = dict(ENVIRON, MJX_HOPPER_JAX_CACHE=cache, PYTHONUNBUFFERED="1")
   start = time.perf_counter()
   proc = subprocess.Popen([sys.executable, "-P", "-m", "mjx_hopper.faces.cli", *command], env=env,
                           text=True, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
   lines = [(time.perf_counter() - start, line) for line in proc.stdout]
-  printed = "".join(line for _, line in lines)
   if proc.wait():
     raise SystemExit(f"time_to_score: the run failed (exit {proc.returncode}):\n"
-                     + printed[-3000:])
-  return [t for t, line in lines if line.startswith("[eval]")], printed
+                     + "".join(line for _, line in lines)[-3000:])
+  return [t for t, line in lines if line.startswith("[eval]")]
 
 
 def on_process_clock(rows: list[dict], eval_times: list[float]) -> list[dict]:
@@ -146,7 +145,7 @@ def main() -> None:
       raise SystemExit(f"time_to_score: {out}/seed_{seed} already holds a run; choose another "
                        "--out or remove it")
 
-  def command(seed: int, out_dir: str) -> list[str]:
+  def command(seed: int, out_dir: str, minutes: float = minutes) -> list[str]:
     sets = [a for s in args.set for a in ("--set", s)]
     return ["--cpu-devices", str(args.cpu_devices), "train", "--env", args.robot, "--preset",
             args.kind, "--agent", agent, *sets, "--seed", str(seed), "--total-env-steps",
@@ -157,14 +156,13 @@ def main() -> None:
   with tempfile.TemporaryDirectory(prefix="time_to_score_") as caches:
     if args.cache == "warm":  # filled by the same configuration, then every seed loads from it
       with tempfile.TemporaryDirectory() as fill:
-        train_in_a_process([*command(seeds[0] - 1, fill), "--max-minutes", "1"],
-                           os.path.join(caches, "warm"))
+        train_in_a_process(command(seeds[0] - 1, fill, minutes=1), os.path.join(caches, "warm"))
     for seed in seeds:
       cache = os.path.join(caches, "warm" if args.cache == "warm" else f"cold_{seed}")
       if args.cache == "cold" and os.path.exists(cache) and os.listdir(cache):
         raise SystemExit(f"time_to_score: the cold cache {cache} is not empty")
       out_dir = os.path.join(out, f"seed_{seed}")
-      eval_times, _ = train_in_a_process(command(seed, out_dir), cache)
+      eval_times = train_in_a_process(command(seed, out_dir), cache)
       rows = on_process_clock(common.evaluations(os.path.join(out_dir, "log.csv"))[0],
                               eval_times)
       results[seed] = summarise(rows, target)

@@ -160,11 +160,8 @@ def _run_flags(t: argparse.ArgumentParser, base, sweep: bool = False) -> None:
 def train(args: argparse.Namespace) -> None:
   """Trains an agent: progress, log.csv, checkpoints, evaluations and curves.png."""
   from mjx_hopper.run import loop
-  from mjx_hopper.settings import flags
-  cfg = flags.run_config(args, "train")
-  if line := flags.unmeasured_budget(args):
-    print(f"mjx-hopper train: {line}")
-  loop.run(cfg, checkpoint_dir=args.checkpoint_dir, progress=not args.no_progress)
+  loop.run(_run_config(args, "train"), checkpoint_dir=args.checkpoint_dir,
+           progress=not args.no_progress)
 
 
 def sweep(args: argparse.Namespace) -> None:
@@ -172,18 +169,23 @@ def sweep(args: argparse.Namespace) -> None:
   curves.png, a ranking, checkpoints; with --distributed, over several processes as one."""
   from mjx_hopper.process import distributed
   from mjx_hopper.run import loop
-  from mjx_hopper.settings import flags
   if args.seeds is not None and args.seeds < 1:
     raise ValueError(f"--seeds must be >= 1, got {args.seeds}")
   cluster = distributed.Cluster(args.coordinator, args.num_processes, args.process_id)
   if any(v is not None for v in cluster) and not args.distributed:
     raise ValueError("--coordinator, --num-processes and --process-id place a process of a "
                      "--distributed sweep: add --distributed")
-  cfg = flags.run_config(args, "sweep")
+  loop.run(_run_config(args, "sweep"), checkpoint_dir=args.checkpoint_dir,
+           progress=not args.no_progress, distributed_run=args.distributed and cluster)
+
+
+def _run_config(args: argparse.Namespace, command: str):
+  """`command`'s RunConfig from its flags, saying in a line where its budget is not measured."""
+  from mjx_hopper.settings import flags
+  cfg = flags.run_config(args, command)  # a bad flag ends the command before the line
   if line := flags.unmeasured_budget(args):
-    print(f"mjx-hopper sweep: {line}")
-  loop.run(cfg, checkpoint_dir=args.checkpoint_dir, progress=not args.no_progress,
-           distributed_run=args.distributed and cluster)
+    print(f"mjx-hopper {command}: {line}")
+  return cfg
 
 
 def settings(args: argparse.Namespace) -> None:

@@ -144,9 +144,8 @@ def unmeasured_budget(env, kind: str, agent: str) -> str | None:
   agent other than the robot's with no budget of its own (`AGENT_BUDGETS`), or a task of your
   own, which takes its robot's."""
   cls = envs.task_class(env)
-  robot = envs.robot_of(cls)
-  name = envs.task_id(cls)
-  if PRESETS[robot, kind].agent != agent and (robot, kind, agent) not in AGENT_BUDGETS:
+  robot, name = envs.robot_of(cls), envs.task_id(cls)
+  if get(cls, kind).agent != agent and (robot, kind, agent) not in AGENT_BUDGETS:
     return (f"no budget is measured for {agent} on {robot} ({kind}): it trains "
             f"{RunConfig.total_env_steps:,} env steps, RunConfig's default, which may not reach "
             "a score; set --total-env-steps or --max-minutes")
