@@ -17,7 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
 
-from mjx_hopper.core import parallel, replay, rollout
+from mjx_hopper.core import kept, parallel, replay, rollout
 from mjx_hopper.core.fields import check_types, setting
 from mjx_hopper.agents.base import Agent
 from mjx_hopper.envs import EpisodeStarts, LocomotionEnv
@@ -183,33 +183,35 @@ def layout(num_members: int, devices: list) -> Layout:
 
 def make_trainer(env: LocomotionEnv, agent: Agent, cfg: TrainConfig, eval_episodes: int = 16,
                  num_members: int = 1, dynamic_updates: bool = False,
-                 devices: list | None = None) -> Trainer:
+                 devices: list | None = None, identity: str | None = None) -> Trainer:
   """The compiled trainer of `num_members` members on `devices` (default: every process's).
 
   With `dynamic_updates` each member's update count follows its own replay_ratio, up to `cfg`'s;
-  without, all run `cfg`'s.
+  without, all run `cfg`'s. With `identity` (a text naming the env, agent and settings, the
+  same in every process: `runs.assemble`'s), its programs are kept as traced (`kept`).
   """
   where = layout(num_members, list(jax.devices() if devices is None else devices))
   cfg.check(where.group_size)
   train_env = EpisodeStarts.for_steps(env, cfg.unroll_length * cfg.iterations_per_chunk)
-  refill = _make_refill(train_env, where)
-  return Trainer(_make_init(train_env, agent, cfg, where, num_members, refill),
-                 _make_chunk(train_env, agent, cfg, where, dynamic_updates), refill,
-                 make_evaluate(env, agent, eval_episodes, num_members, where.mesh), cfg, env, agent,
-                 num_members, where.shardings)
+  refill = _make_refill(train_env, where, identity)
+  return Trainer(_make_init(train_env, agent, cfg, where, num_members, refill, identity),
+                 _make_chunk(train_env, agent, cfg, where, dynamic_updates, identity), refill,
+                 make_evaluate(env, agent, eval_episodes, num_members, where.mesh, identity),
+                 cfg, env, agent, num_members, where.shardings)
 
 
 def make_evaluate(env: LocomotionEnv, agent: Agent, eval_episodes: int, num_members: int,
-                  devices: list | Mesh | None = None):
+                  devices: list | Mesh | None = None, identity: str | None = None):
   """Trainer.evaluate: each member's `eval_episodes` episodes, jitted, over `devices` (a
-  list, or the trainer's mesh: `parallel.per_device`)."""
+  list, or the trainer's mesh: `parallel.per_device`); kept as traced under `identity`."""
   # One member's evaluation as plain code (vmap of one traces much slower), several under vmap.
-  return jax.jit(per_member(
-      lambda s, k: evaluate(env, agent, s, k, eval_episodes, devices=devices), num_members))
+  return kept.jit(per_member(
+      lambda s, k: evaluate(env, agent, s, k, eval_episodes, devices=devices), num_members),
+      identity, "evaluate")
 
 
 def _make_init(train_env: EpisodeStarts, agent: Agent, cfg: TrainConfig, where: Layout,
-               num_members: int, refill):
+               num_members: int, refill, identity: str | None):
   """Trainer.init: the members' fresh TrainState, placed on the mesh: its envs blank, then
   begun by `refill`."""
   env = train_env.env
@@ -227,7 +229,8 @@ def _make_init(train_env: EpisodeStarts, agent: Agent, cfg: TrainConfig, where: 
         iteration=jnp.zeros((), jnp.int32), updates=jnp.zeros((), jnp.int32),
         replay_ratio=jnp.asarray(ratio, jnp.float32))
 
-  compiled_init = jax.jit(jax.vmap(init_member), out_shardings=where.shardings)
+  compiled_init = kept.jit(jax.vmap(init_member), identity, "init_member",
+                           out_shardings=where.shardings)
 
   def init(seeds, hparams=None, begin=True):
     # NumPy until the one compiled call: eager JAX here would compile programs of its own.
@@ -246,15 +249,15 @@ def _make_init(train_env: EpisodeStarts, agent: Agent, cfg: TrainConfig, where: 
   return init
 
 
-def _make_refill(train_env: EpisodeStarts, where: Layout):
+def _make_refill(train_env: EpisodeStarts, where: Layout, identity: str | None):
   """Trainer.refill: each env's fresh episode starts, made where its env lives."""
   def refill(env_states, begin):
     return where.each_member(jax.vmap(lambda s: train_env.refill(s, begin)))(env_states)
   replicated = NamedSharding(where.mesh, P())
-  return jax.jit(jax.shard_map(refill, mesh=where.mesh, in_specs=(where.specs.env, P()),
-                               out_specs=where.specs.env, check_vma=False),
-                 in_shardings=(where.shardings.env, replicated),
-                 out_shardings=where.shardings.env, donate_argnums=0)
+  return kept.jit(jax.shard_map(refill, mesh=where.mesh, in_specs=(where.specs.env, P()),
+                                out_specs=where.specs.env, check_vma=False),
+                  identity, "refill", in_shardings=(where.shardings.env, replicated),
+                  out_shardings=where.shardings.env, donate_argnums=0)
 
 
 def collect(agent: Agent, train_env: EpisodeStarts, unroll_length: int, agent_state, env_state,
@@ -311,7 +314,7 @@ def _metric_shapes(env: LocomotionEnv, agent: Agent):
 
 
 def _make_chunk(train_env: EpisodeStarts, agent: Agent, cfg: TrainConfig, where: Layout,
-                dynamic_updates: bool):
+                dynamic_updates: bool, identity: str | None):
   """Trainer.chunk: `iterations_per_chunk` iterations, under shard_map over the mesh."""
   each_member, env = where.each_member, train_env.env
   member_collect = functools.partial(collect, agent, train_env, cfg.unroll_length)
@@ -360,11 +363,11 @@ def _make_chunk(train_env: EpisodeStarts, agent: Agent, cfg: TrainConfig, where:
   # Explicit shardings, the same in and out, so that a chunk's output feeds the next call
   # without a second compilation.
   per_member_out = NamedSharding(where.mesh, P(MEMBERS))
-  return jax.jit(
+  return kept.jit(
       jax.shard_map(chunk, mesh=where.mesh, in_specs=(where.specs,),
                     out_specs=(where.specs, P(MEMBERS)), check_vma=False),
-      in_shardings=(where.shardings,), out_shardings=(where.shardings, per_member_out),
-      donate_argnums=0)
+      identity, "chunk", in_shardings=(where.shardings,),
+      out_shardings=(where.shardings, per_member_out), donate_argnums=0)
 
 
 def seed_bits(seeds) -> np.ndarray:

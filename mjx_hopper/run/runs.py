@@ -40,7 +40,17 @@ def assemble(cfg: RunConfig, num_members: int | None = None) -> train.Trainer:
   agent = agents.make(cfg.agent, env.observation_size, env.action_size, cfg.agent_config())
   return train.make_trainer(env, agent, cfg.train_config(), eval_episodes=cfg.eval_episodes,
                             num_members=num_members or len(cfg.member_settings()),
-                            dynamic_updates="replay_ratio" in cfg.grid)
+                            dynamic_updates="replay_ratio" in cfg.grid,
+                            identity=identity(cfg, num_members, env, agent))
+
+
+def identity(cfg: RunConfig, num_members: int | None, env, agent) -> str | None:
+  """The text under which the trainer's programs are kept as traced (`core.kept`): its
+  `trainer_key`, where its task and agent are this package's own (a class of one's own may
+  change without its name changing, and is traced afresh)."""
+  if not all(type(x).__module__.startswith("mjx_hopper.") for x in (env, agent)):
+    return None
+  return repr(trainer_key(cfg, num_members))
 
 
 def trainer_key(cfg: RunConfig, num_members: int | None = None) -> tuple:

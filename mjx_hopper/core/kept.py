@@ -1,0 +1,190 @@
+"""Programs kept as traced: a jitted function whose traced and lowered program (`jax.export`'s
+StableHLO) is written beside the compile cache and read back by a later build, in this process
+or another, so that a warm start skips tracing, and the program's compile-cache key no longer
+depends on what the process traced before. A program is kept under a hash of everything that
+shapes it: the caller's identity of the function, its arguments' paths, shapes, dtypes and
+shardings, this package's source, the versions of what it is built on, XLA's flags, JAX's
+settings and the devices. Anything else, or an unreadable file, traces the function afresh."""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import importlib
+import importlib.metadata
+import os
+import pickle
+import sys
+import tempfile
+import threading
+
+import jax
+import numpy as np
+from jax import export
+from jax.sharding import NamedSharding
+
+FOLDER = "programs"  # under JAX's compile-cache folder
+_PACKAGES = ("mjx_hopper", "mjx_hopper.envs", "mjx_hopper.agents")
+_VERSIONS = ("jax", "jaxlib", "mujoco", "mujoco-mjx", "flax", "optax", "numpy")
+_SETTINGS = ("jax_enable_x64", "jax_default_matmul_precision", "jax_use_shardy_partitioner",
+             "jax_numpy_rank_promotion", "jax_threefry_partitionable")
+
+
+def jit(fun, identity: str | None, name: str, **jit_kwargs):
+  """`jax.jit(fun, **jit_kwargs)`, its program kept under `identity` (a text that names all
+  `fun` closes over, the same in every process) where one is given."""
+  jitted = jax.jit(fun, **jit_kwargs)
+  return jitted if identity is None else Kept(jitted, identity, name, jit_kwargs)
+
+
+class Kept:
+  """A jitted function that is called and lowered as `jax.jit`'s, through its kept program."""
+
+  def __init__(self, jitted, identity: str, name: str, jit_kwargs: dict):
+    self._jitted, self._identity, self.__name__ = jitted, identity, name
+    self._jit_kwargs = jit_kwargs
+    self._programs: dict[str, object] = {}
+    self._lock = threading.Lock()
+
+  def __call__(self, *args):
+    return self._program(args)(*args)
+
+  def lower(self, *args):
+    return self._program(args).lower(*args)
+
+  def _program(self, args):
+    key = program_key(self.__name__, self._identity, args, self._jit_kwargs)
+    with self._lock:
+      if key not in self._programs:
+        self._programs[key] = self._read(key) or self._trace(key, args)
+      return self._programs[key]
+
+  def _read(self, key: str):
+    path = _path(key)
+    if path is None or not os.path.exists(path):
+      return None
+    try:
+      with open(path, "rb") as f:
+        saved = pickle.load(f)
+      return self._calling(export.deserialize(saved["exported"]), saved["out_tree"])
+    except Exception:  # unreadable, or from another pickle: traced afresh and written again
+      return None
+
+  def _trace(self, key: str, args):
+    leaves, in_tree = jax.tree.flatten(args)
+    out_trees = []
+
+    def flat(*leaves):
+      out_leaves, out_tree = jax.tree.flatten(self._jitted(*jax.tree.unflatten(in_tree, leaves)))
+      out_trees.append(out_tree)
+      return out_leaves
+    avals = [_aval(x) for x in leaves]
+    exported = export.export(jax.jit(flat), platforms=[_platform(avals)])(*avals)
+    path = _path(key)
+    if path is not None:
+      _write(path, {"exported": exported.serialize(), "out_tree": out_trees[0]})
+    return self._calling(exported, out_trees[0])
+
+  def _calling(self, exported, out_tree):
+    """A jitted function of the original's arguments that calls `exported`."""
+    def call(*args):
+      return jax.tree.unflatten(out_tree, exported.call(*jax.tree.leaves(args)))
+    call.__name__ = self.__name__
+    return jax.jit(call, **self._jit_kwargs)
+
+
+def program_key(name: str, identity: str, args, jit_kwargs: dict) -> str:
+  """The hash under which the program of `name` (`identity`) for `args` is kept."""
+  parts = [name, identity, repr(sorted((k, repr(v)) for k, v in jit_kwargs.items()
+                                       if k not in ("in_shardings", "out_shardings"))),
+           _environment()]
+  for path, x in jax.tree_util.tree_flatten_with_path(args)[0]:
+    aval = _aval(x)
+    parts.append(f"{jax.tree_util.keystr(path)} {aval.shape} {aval.dtype} {aval.weak_type} "
+                 f"{_sharding_text(aval.sharding)}")
+  # The explicit shardings of the function's inputs and outputs, as text.
+  for k in ("in_shardings", "out_shardings"):
+    if k in jit_kwargs:
+      parts.append(repr([_sharding_text(s) for s in jax.tree.leaves(
+          jit_kwargs[k], is_leaf=lambda s: isinstance(s, jax.sharding.Sharding))]))
+  return hashlib.sha256("\n".join(parts).encode()).hexdigest()
+
+
+def _aval(x) -> jax.ShapeDtypeStruct:
+  """`x`'s shape, dtype, weak type and (for an array over a mesh) sharding."""
+  if isinstance(x, (jax.ShapeDtypeStruct, jax.Array)):
+    sharding = getattr(x, "sharding", None)
+    return jax.ShapeDtypeStruct(x.shape, x.dtype, weak_type=getattr(x, "weak_type", False),
+                                sharding=sharding if isinstance(sharding, NamedSharding) else None)
+  weak = isinstance(x, (bool, int, float, complex))  # Python's numbers are weakly typed
+  return jax.ShapeDtypeStruct(np.shape(x), jax.dtypes.canonicalize_dtype(np.result_type(x)),
+                              weak_type=weak)
+
+
+def _sharding_text(sharding) -> str:
+  if not isinstance(sharding, NamedSharding):
+    return "unspecified" if sharding is None else type(sharding).__name__
+  mesh = sharding.mesh
+  return (f"{dict(zip(mesh.axis_names, mesh.devices.shape))} {sharding.spec} "
+          f"{mesh.devices.flat[0].platform} {sharding.memory_kind}")
+
+
+def _platform(avals) -> str:
+  """The platform of the arguments' devices, or JAX's default one."""
+  for aval in avals:
+    if aval.sharding is not None:
+      return aval.sharding.mesh.devices.flat[0].platform
+  return jax.default_backend()
+
+
+@functools.cache
+def _environment() -> str:
+  """What shapes every program besides its function and arguments."""
+  versions = []
+  for name in _VERSIONS:
+    try:
+      versions.append(f"{name} {importlib.metadata.version(name)}")
+    except importlib.metadata.PackageNotFoundError:
+      versions.append(f"{name} none")
+  settings = [f"{s} {getattr(jax.config, s, None)}" for s in _SETTINGS]
+  devices = [f"{d.platform} {d.device_kind}" for d in jax.devices()]
+  return "\n".join([*versions, *settings, *devices, f"processes {jax.process_count()}",
+                    os.environ.get("XLA_FLAGS", ""), _source_digest(), sys.version])
+
+
+@functools.cache
+def _source_digest() -> str:
+  """A hash of this package's source and model files."""
+  digest = hashlib.sha256()
+  for package in _PACKAGES:
+    root = os.path.dirname(importlib.import_module(package).__file__)
+    for folder, dirs, files in sorted(os.walk(root)):
+      dirs.sort()
+      for name in sorted(files):
+        if name.endswith((".py", ".xml")):
+          with open(os.path.join(folder, name), "rb") as f:
+            digest.update(name.encode() + f.read())
+  return digest.hexdigest()
+
+
+def _path(key: str) -> str | None:
+  """Where the program of `key` is kept: under JAX's compile cache, or None where it has none."""
+  cache = jax.config.jax_compilation_cache_dir
+  if not cache or not jax.config.jax_enable_compilation_cache:
+    return None
+  return os.path.join(cache, FOLDER, f"{key}.pkl")
+
+
+def _write(path: str, saved: dict) -> None:
+  """Writes `saved` to `path` whole or not at all (a program that cannot be written is traced
+  again by the next process)."""
+  temporary = None
+  try:
+    os.makedirs(os.path.dirname(path), exist_ok=True)
+    fd, temporary = tempfile.mkstemp(dir=os.path.dirname(path), suffix=".tmp")
+    with os.fdopen(fd, "wb") as f:
+      pickle.dump(saved, f)
+    os.replace(temporary, path)
+  except Exception:
+    if temporary is not None and os.path.exists(temporary):
+      os.remove(temporary)

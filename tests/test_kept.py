@@ -1,0 +1,118 @@
+"""Programs kept as traced (core.kept): a later build reads the program instead of tracing, and
+runs it as the function would; anything that shapes the program otherwise, or a damaged file,
+is traced afresh."""
+
+import os
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from jax.sharding import NamedSharding, PartitionSpec as P
+
+import configs
+from mjx_hopper.core import kept
+from mjx_hopper.run import runs
+
+
+class State(NamedTuple):
+  x: jax.Array
+  parts: dict
+
+
+@pytest.fixture
+def cache(tmp_path):
+  """A compile-cache folder of the test's own."""
+  before = jax.config.jax_compilation_cache_dir
+  jax.config.update("jax_compilation_cache_dir", str(tmp_path))
+  yield tmp_path
+  jax.config.update("jax_compilation_cache_dir", before)
+
+
+def make(identity, traced):
+  """A kept function of a sharded state, which counts its traces in `traced`."""
+  mesh = jax.sharding.Mesh(np.array(jax.devices()), ("d",))
+  rows = NamedSharding(mesh, P("d"))
+
+  def step(state, scale):
+    traced.append(1)
+    y = jnp.sin(state.x) * scale + state.parts["b"].sum()
+    return State(y, {"b": state.parts["b"] + 1}), {"mean": y.mean()}
+  fn = kept.jit(step, identity, "step", in_shardings=(State(rows, {"b": rows}), None),
+                out_shardings=(State(rows, {"b": rows}), None), donate_argnums=0)
+  return fn, rows
+
+
+def state(rows, n=8):
+  return jax.device_put(State(jnp.arange(n, dtype=jnp.float32), {"b": jnp.ones(n)}),
+                        State(rows, {"b": rows}))
+
+
+def test_a_later_build_runs_the_kept_program_without_tracing(cache):
+  traced = []
+  first, rows = make("a", traced)
+  want_state, want = jax.device_get(first(state(rows), 2.0))
+  assert len(traced) == 1 and len(os.listdir(cache / kept.FOLDER)) == 1
+  plain = jax.jit(make(None, [])[0])  # no identity: jax.jit's own function
+  jax.tree.map(np.testing.assert_array_equal, (want_state, want),
+               jax.device_get(plain(state(rows), 2.0)))
+
+  again, _ = make("a", traced)  # as a new process builds it: nothing in memory
+  out_state, out = again(state(rows), 2.0)
+  assert len(traced) == 1  # read, not traced
+  assert out_state.x.sharding == rows and isinstance(out_state, State)
+  jax.tree.map(np.testing.assert_array_equal, (want_state, want), jax.device_get((out_state,
+                                                                                out)))
+  # Lowered from shapes, as a run's start does, and compiled: the same program.
+  shapes = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=x.sharding),
+                        state(rows))
+  compiled = make("a", traced)[0].lower(shapes, 2.0).compile()
+  assert len(traced) == 1
+  np.testing.assert_array_equal(compiled(state(rows), 2.0)[1]["mean"], want["mean"])
+
+
+def test_another_identity_or_shape_is_traced_afresh(cache):
+  traced = []
+  fn, rows = make("a", traced)
+  fn(state(rows), 2.0)
+  make("b", traced)[0](state(rows), 2.0)
+  assert len(traced) == 2
+  make("a", traced)[0](state(rows, n=4), 2.0)
+  assert len(traced) == 3
+  make("a", traced)[0](state(rows), np.float32(2.0))  # a strong type, where 2.0 is weak
+  assert len(traced) == 4
+  assert len(os.listdir(cache / kept.FOLDER)) == 4
+
+
+def test_a_damaged_file_is_traced_afresh_and_written_again(cache):
+  traced = []
+  fn, rows = make("a", traced)
+  want = jax.device_get(fn(state(rows), 2.0))
+  path, = (cache / kept.FOLDER).iterdir()
+  path.write_bytes(path.read_bytes()[:100])
+  got = make("a", traced)[0](state(rows), 2.0)
+  assert len(traced) == 2
+  jax.tree.map(np.testing.assert_array_equal, want, jax.device_get(got))
+  make("a", traced)[0](state(rows), 2.0)
+  assert len(traced) == 2  # the file was written whole again
+
+
+def test_without_a_compile_cache_nothing_is_kept(cache):
+  jax.config.update("jax_compilation_cache_dir", None)
+  traced = []
+  fn, rows = make("a", traced)
+  fn(state(rows), 2.0)
+  make("a", traced)[0](state(rows), 2.0)
+  assert len(traced) == 2 and not (cache / kept.FOLDER).exists()
+
+
+def test_a_trainer_is_kept_only_for_the_packages_own_task_and_agent():
+  cfg = configs.TINY
+  env = cfg.make_env()
+  agent = runs.agents.make(cfg.agent, env.observation_size, env.action_size, cfg.agent_config())
+  assert runs.identity(cfg, None, env, agent) == repr(runs.trainer_key(cfg))
+
+  class Mine(type(env)):  # a task of one's own may change under the same name
+    pass
+  assert runs.identity(cfg, None, Mine(), agent) is None
