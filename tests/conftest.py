@@ -88,7 +88,7 @@ LONGEST_FIRST = ("the notebook's programs", "hopper programs", "tiny trainers", 
 GROUPS = {"tiny trainers": ("test_train.py", "test_run_folder.py", "test_runlock.py",
                             "test_presets.py", "test_logger.py", "test_notebook_helpers.py",
                             "test_export.py", "test_terminal.py", "test_start.py",
-                            "test_compile_cache.py", "test_packaging.py"),
+                            "test_compile_cache.py", "test_packaging.py", "test_kept.py"),
           # The notebook's Ant event and high jump, trained by test_tasks.py first.
           "the notebook's programs": ("test_tasks.py", "test_notebooks.py"),
           "hopper programs": ("test_env_api.py", "test_episode_starts.py", "test_gymnasium.py",

@@ -2,6 +2,7 @@
 runs it as the function would; anything that shapes the program otherwise, or a damaged file,
 is traced afresh."""
 
+import dataclasses
 import os
 from typing import NamedTuple
 
@@ -13,7 +14,7 @@ from jax.sharding import NamedSharding, PartitionSpec as P
 
 import configs
 from mjx_hopper.core import kept
-from mjx_hopper.run import runs
+from mjx_hopper.run import loop, runs
 
 
 class State(NamedTuple):
@@ -23,10 +24,12 @@ class State(NamedTuple):
 
 @pytest.fixture
 def cache(tmp_path):
-  """A compile-cache folder of the test's own."""
+  """A compile-cache folder of the test's own, and no programs in memory."""
   before = jax.config.jax_compilation_cache_dir
   jax.config.update("jax_compilation_cache_dir", str(tmp_path))
+  kept.forget()
   yield tmp_path
+  kept.forget()
   jax.config.update("jax_compilation_cache_dir", before)
 
 
@@ -58,6 +61,11 @@ def test_a_later_build_runs_the_kept_program_without_tracing(cache):
   jax.tree.map(np.testing.assert_array_equal, (want_state, want),
                jax.device_get(plain(state(rows), 2.0)))
 
+  same, _ = make("a", traced)  # built again in this process: the program in memory
+  jax.tree.map(np.testing.assert_array_equal, (want_state, want),
+               jax.device_get(same(state(rows), 2.0)))
+  assert len(traced) == 1
+  kept.forget()
   again, _ = make("a", traced)  # as a new process builds it: nothing in memory
   out_state, out = again(state(rows), 2.0)
   assert len(traced) == 1  # read, not traced
@@ -67,6 +75,7 @@ def test_a_later_build_runs_the_kept_program_without_tracing(cache):
   # Lowered from shapes, as a run's start does, and compiled: the same program.
   shapes = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=x.sharding),
                         state(rows))
+  kept.forget()
   compiled = make("a", traced)[0].lower(shapes, 2.0).compile()
   assert len(traced) == 1
   np.testing.assert_array_equal(compiled(state(rows), 2.0)[1]["mean"], want["mean"])
@@ -78,8 +87,10 @@ def test_another_identity_or_shape_is_traced_afresh(cache):
   fn(state(rows), 2.0)
   make("b", traced)[0](state(rows), 2.0)
   assert len(traced) == 2
+  kept.forget()
   make("a", traced)[0](state(rows, n=4), 2.0)
   assert len(traced) == 3
+  kept.forget()
   make("a", traced)[0](state(rows), np.float32(2.0))  # a strong type, where 2.0 is weak
   assert len(traced) == 4
   assert len(os.listdir(cache / kept.FOLDER)) == 4
@@ -91,9 +102,11 @@ def test_a_damaged_file_is_traced_afresh_and_written_again(cache):
   want = jax.device_get(fn(state(rows), 2.0))
   path, = (cache / kept.FOLDER).iterdir()
   path.write_bytes(path.read_bytes()[:100])
+  kept.forget()
   got = make("a", traced)[0](state(rows), 2.0)
   assert len(traced) == 2
   jax.tree.map(np.testing.assert_array_equal, want, jax.device_get(got))
+  kept.forget()
   make("a", traced)[0](state(rows), 2.0)
   assert len(traced) == 2  # the file was written whole again
 
@@ -103,6 +116,7 @@ def test_without_a_compile_cache_nothing_is_kept(cache):
   traced = []
   fn, rows = make("a", traced)
   fn(state(rows), 2.0)
+  kept.forget()
   make("a", traced)[0](state(rows), 2.0)
   assert len(traced) == 2 and not (cache / kept.FOLDER).exists()
 
@@ -116,3 +130,28 @@ def test_a_trainer_is_kept_only_for_the_packages_own_task_and_agent():
   class Mine(type(env)):  # a task of one's own may change under the same name
     pass
   assert runs.identity(cfg, None, Mine(), agent) is None
+
+
+def test_a_second_run_of_the_same_shapes_traces_and_compiles_none_of_its_programs(
+    tmp_path, monkeypatch):
+  # The product's build (not the suite's memo): another seed is the same trainer, whose
+  # programs the process already holds, traced and compiled.
+  monkeypatch.setattr(runs, "build", runs.build.__wrapped__)
+  heavy = ("chunk", "refill", "evaluate", "init_member")
+  events = []
+
+  def listen(event, secs, fun_name="", **_):
+    if any(name in fun_name for name in heavy):
+      events.append((event.rsplit("/", 1)[-1], fun_name))
+  for seed in (0, 1):
+    events.clear()
+    if seed == 1:
+      jax.monitoring.register_event_duration_secs_listener(listen)
+    try:
+      loop.run(dataclasses.replace(configs.TINY, seed=seed, total_env_steps=80,
+                                   out_dir=str(tmp_path / str(seed))),
+               progress=False, print_fn=lambda line: None)
+    finally:
+      if seed == 1:
+        jax.monitoring.unregister_event_duration_listener(listen)
+  assert events == []

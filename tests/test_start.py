@@ -8,7 +8,8 @@ import sys
 # The programs lowered before the first chunk's row: the chunk, init and the refill that begins
 # its envs, the evaluation (where it is traced beside the chunk's compile), the members'
 # finiteness check, and while building the env, MJX's model and data and the reset's reward
-# terms (envs.check_task).
+# terms (envs.check_task). Not counted: the trainer's programs as lowered to be kept
+# (core.kept), once, by the first process to build them.
 MOST_PROGRAMS_BEFORE_FIRST_CHUNK = 8
 
 PROGRAM = """
@@ -19,7 +20,8 @@ from mjx_hopper.run import loop
 
 lowered = []
 def listen(event, duration, fun_name="?", **kwargs):
-  if event == "/jax/core/compile/jaxpr_to_mlir_module_duration":
+  if (event == "/jax/core/compile/jaxpr_to_mlir_module_duration"
+      and not fun_name.startswith("jit(kept_")):
     lowered.append(fun_name)
 jax.monitoring.register_event_duration_secs_listener(listen)
 

@@ -37,27 +37,45 @@ def jit(fun, identity: str | None, name: str, **jit_kwargs):
   return jitted if identity is None else Kept(jitted, identity, name, jit_kwargs)
 
 
+# The process's programs by key, shared by every Kept of the same identity: a second build of
+# the same trainer (a resume, another seed) calls the jitted functions of the first, whose
+# compiled programs JAX still holds in memory.
+_programs: dict[str, object] = {}
+_lock = threading.Lock()
+
+
+def forget() -> None:
+  """Empties the process's programs, as a new process starts with none (the kept files stay)."""
+  with _lock:
+    _programs.clear()
+
+
 class Kept:
   """A jitted function that is called and lowered as `jax.jit`'s, through its kept program."""
 
   def __init__(self, jitted, identity: str, name: str, jit_kwargs: dict):
     self._jitted, self._identity, self.__name__ = jitted, identity, name
     self._jit_kwargs = jit_kwargs
-    self._programs: dict[str, object] = {}
-    self._lock = threading.Lock()
+    self._seen: dict[tuple, object] = {}  # by the arguments' signature: a call's fast path
 
   def __call__(self, *args):
     return self._program(args)(*args)
 
   def lower(self, *args):
+    """The program for `args` (arrays or shapes) lowered, as `jax.jit(...).lower` lowers."""
     return self._program(args).lower(*args)
 
   def _program(self, args):
-    key = program_key(self.__name__, self._identity, args, self._jit_kwargs)
-    with self._lock:
-      if key not in self._programs:
-        self._programs[key] = self._read(key) or self._trace(key, args)
-      return self._programs[key]
+    leaves, tree = jax.tree.flatten(args)
+    signature = (tree, *map(_signature, leaves))
+    program = self._seen.get(signature)
+    if program is None:
+      key = program_key(self.__name__, self._identity, args, self._jit_kwargs)
+      with _lock:
+        if key not in _programs:
+          _programs[key] = self._read(key) or self._trace(key, args)
+        program = self._seen[signature] = _programs[key]
+    return program
 
   def _read(self, key: str):
     path = _path(key)
@@ -78,6 +96,7 @@ class Kept:
       out_leaves, out_tree = jax.tree.flatten(self._jitted(*jax.tree.unflatten(in_tree, leaves)))
       out_trees.append(out_tree)
       return out_leaves
+    flat.__name__ = f"kept_{self.__name__}"  # the program traced, as the ledger names it
     avals = [_aval(x) for x in leaves]
     exported = export.export(jax.jit(flat), platforms=[_platform(avals)])(*avals)
     path = _path(key)
@@ -108,6 +127,15 @@ def program_key(name: str, identity: str, args, jit_kwargs: dict) -> str:
       parts.append(repr([_sharding_text(s) for s in jax.tree.leaves(
           jit_kwargs[k], is_leaf=lambda s: isinstance(s, jax.sharding.Sharding))]))
   return hashlib.sha256("\n".join(parts).encode()).hexdigest()
+
+
+def _signature(x) -> tuple:
+  """What of argument `x` shapes a program (`_aval`'s), quickly, for a call's fast path."""
+  if isinstance(x, (jax.ShapeDtypeStruct, jax.Array)):
+    sharding = getattr(x, "sharding", None)
+    return (x.shape, x.dtype, getattr(x, "weak_type", False),
+            sharding if isinstance(sharding, NamedSharding) else None)
+  return (np.shape(x), np.result_type(x), isinstance(x, (bool, int, float, complex)))
 
 
 def _aval(x) -> jax.ShapeDtypeStruct:
