@@ -25,14 +25,18 @@ from jax.sharding import NamedSharding
 
 FOLDER = "programs"  # under JAX's compile-cache folder
 _PACKAGES = ("mjx_hopper", "mjx_hopper.envs", "mjx_hopper.agents")
-_VERSIONS = ("jax", "jaxlib", "mujoco", "mujoco-mjx", "flax", "optax", "numpy")
+_VERSIONS = ("jax", "jaxlib", "mujoco", "mujoco-mjx", "brax", "flax", "optax", "numpy")
 _SETTINGS = ("jax_enable_x64", "jax_default_matmul_precision", "jax_use_shardy_partitioner",
-             "jax_numpy_rank_promotion", "jax_threefry_partitionable")
+             "jax_numpy_rank_promotion", "jax_numpy_dtype_promotion", "jax_default_prng_impl",
+             "jax_threefry_partitionable")
 
 
 def jit(fun, identity: str | None, name: str, **jit_kwargs):
-  """`jax.jit(fun, **jit_kwargs)`, its program kept under `identity` (a text that names all
-  `fun` closes over, the same in every process) where one is given."""
+  """`jax.jit(fun, **jit_kwargs)`, its program kept under `identity` where one is given: a
+  text, the same in every process, that names all `fun` closes over besides this package's
+  code. Static arguments are not kept (the key holds no argument's value)."""
+  if identity is not None and {"static_argnums", "static_argnames"} & set(jit_kwargs):
+    raise ValueError(f"kept.jit takes no static arguments, got {sorted(jit_kwargs)}")
   jitted = jax.jit(fun, **jit_kwargs)
   return jitted if identity is None else Kept(jitted, identity, name, jit_kwargs)
 
@@ -41,11 +45,12 @@ def jit(fun, identity: str | None, name: str, **jit_kwargs):
 # the same trainer (a resume, another seed) calls the jitted functions of the first, whose
 # compiled programs JAX still holds in memory.
 _programs: dict[str, object] = {}
-_lock = threading.Lock()
+_lock = threading.RLock()
 
 
 def forget() -> None:
-  """Empties the process's programs, as a new process starts with none (the kept files stay)."""
+  """Empties the process's programs (the kept files stay): a Kept made after this reads its
+  programs from the files, as in a new process."""
   with _lock:
     _programs.clear()
 
@@ -67,7 +72,7 @@ class Kept:
 
   def _program(self, args):
     leaves, tree = jax.tree.flatten(args)
-    signature = (tree, *map(_signature, leaves))
+    signature = (tree, *map(_signature, leaves), *(getattr(jax.config, s) for s in _SETTINGS))
     program = self._seen.get(signature)
     if program is None:
       key = program_key(self.__name__, self._identity, args, self._jit_kwargs)
@@ -98,11 +103,15 @@ class Kept:
       return out_leaves
     flat.__name__ = f"kept_{self.__name__}"  # the program traced, as the ledger names it
     avals = [_aval(x) for x in leaves]
-    exported = export.export(jax.jit(flat), platforms=[_platform(avals)])(*avals)
+    try:
+      serialized = export.export(jax.jit(flat), platforms=[_platform(avals)])(*avals).serialize()
+    except Exception:  # not exportable (a host callback, say): the function as jitted
+      return self._jitted
     path = _path(key)
     if path is not None:
-      _write(path, {"exported": exported.serialize(), "out_tree": out_trees[0]})
-    return self._calling(exported, out_trees[0])
+      _write(path, {"exported": serialized, "out_tree": out_trees[0]})
+    # As read back: this process then compiles what a later one loads from the compile cache.
+    return self._calling(export.deserialize(serialized), out_trees[0])
 
   def _calling(self, exported, out_tree):
     """A jitted function of the original's arguments that calls `exported`."""
@@ -135,7 +144,7 @@ def _signature(x) -> tuple:
     sharding = getattr(x, "sharding", None)
     return (x.shape, x.dtype, getattr(x, "weak_type", False),
             sharding if isinstance(sharding, NamedSharding) else None)
-  return (np.shape(x), np.result_type(x), isinstance(x, (bool, int, float, complex)))
+  return (np.shape(x), np.result_type(x), type(x) in (int, float, complex))
 
 
 def _aval(x) -> jax.ShapeDtypeStruct:
@@ -144,7 +153,7 @@ def _aval(x) -> jax.ShapeDtypeStruct:
     sharding = getattr(x, "sharding", None)
     return jax.ShapeDtypeStruct(x.shape, x.dtype, weak_type=getattr(x, "weak_type", False),
                                 sharding=sharding if isinstance(sharding, NamedSharding) else None)
-  weak = isinstance(x, (bool, int, float, complex))  # Python's numbers are weakly typed
+  weak = type(x) in (int, float, complex)  # Python's numbers are weakly typed, not its bools
   return jax.ShapeDtypeStruct(np.shape(x), jax.dtypes.canonicalize_dtype(np.result_type(x)),
                               weak_type=weak)
 
@@ -165,19 +174,25 @@ def _platform(avals) -> str:
   return jax.default_backend()
 
 
-@functools.cache
 def _environment() -> str:
-  """What shapes every program besides its function and arguments."""
+  """What shapes every program besides its function and arguments: JAX's settings as they are
+  now, and what a process cannot change."""
+  settings = [f"{s} {getattr(jax.config, s, None)}" for s in _SETTINGS]
+  return "\n".join([*settings, os.environ.get("XLA_FLAGS", ""), _fixed()])
+
+
+@functools.cache
+def _fixed() -> str:
+  """The versions, devices, Python and this package's source."""
   versions = []
   for name in _VERSIONS:
     try:
       versions.append(f"{name} {importlib.metadata.version(name)}")
     except importlib.metadata.PackageNotFoundError:
       versions.append(f"{name} none")
-  settings = [f"{s} {getattr(jax.config, s, None)}" for s in _SETTINGS]
   devices = [f"{d.platform} {d.device_kind}" for d in jax.devices()]
-  return "\n".join([*versions, *settings, *devices, f"processes {jax.process_count()}",
-                    os.environ.get("XLA_FLAGS", ""), _source_digest(), sys.version])
+  return "\n".join([*versions, *devices, f"processes {jax.process_count()}", _source_digest(),
+                    sys.version])
 
 
 @functools.cache

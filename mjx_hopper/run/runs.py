@@ -41,14 +41,15 @@ def assemble(cfg: RunConfig, num_members: int | None = None) -> train.Trainer:
   return train.make_trainer(env, agent, cfg.train_config(), eval_episodes=cfg.eval_episodes,
                             num_members=num_members or len(cfg.member_settings()),
                             dynamic_updates="replay_ratio" in cfg.grid,
-                            identity=identity(cfg, num_members, env, agent))
+                            identity=identity(cfg, num_members))
 
 
-def identity(cfg: RunConfig, num_members: int | None, env, agent) -> str | None:
+def identity(cfg: RunConfig, num_members: int | None = None) -> str | None:
   """The text under which the trainer's programs are kept as traced (`core.kept`): its
-  `trainer_key`, where its task and agent are this package's own (a class of one's own may
-  change without its name changing, and is traced afresh)."""
-  if not all(type(x).__module__.startswith("mjx_hopper.") for x in (env, agent)):
+  `trainer_key`, where its task's class and its agent's `make` are this package's own (code of
+  one's own may change without its name changing, and is traced afresh)."""
+  own = (envs.task_class(cfg.env), agents.spec(cfg.agent).make)
+  if not all(x.__module__.startswith("mjx_hopper.") for x in own):
     return None
   return repr(trainer_key(cfg, num_members))
 
