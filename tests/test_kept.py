@@ -45,6 +45,7 @@ def make(identity, traced):
     return State(y, {"b": state.parts["b"] + 1}), {"mean": y.mean()}
   fn = kept.jit(step, identity, "step", in_shardings=(State(rows, {"b": rows}), None),
                 out_shardings=(State(rows, {"b": rows}), None), donate_argnums=0)
+  fn.step = step
   return fn, rows
 
 
@@ -60,7 +61,7 @@ def test_a_later_build_runs_the_kept_program_without_tracing(cache):
   want_state, want = jax.device_get(first(given, 2.0))
   assert given.x.is_deleted()  # donated, as the function's jit asks
   assert len(traced) == 1 and len(os.listdir(cache / kept.FOLDER)) == 1
-  plain = jax.jit(make(None, [])[0])  # no identity: jax.jit's own function
+  plain = jax.jit(first.step)  # the function as jitted (its trace cached)
   jax.tree.map(np.testing.assert_array_equal, (want_state, want),
                jax.device_get(plain(state(rows), 2.0)))
 
@@ -79,9 +80,15 @@ def test_a_later_build_runs_the_kept_program_without_tracing(cache):
   shapes = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=x.sharding),
                         state(rows))
   kept.forget()
-  compiled = make("a", traced)[0].lower(shapes, 2.0).compile()
+  lowered = make("a", traced)[0].lower(shapes, 2.0)
   assert len(traced) == 1
-  np.testing.assert_array_equal(compiled(state(rows), 2.0)[1]["mean"], want["mean"])
+  np.testing.assert_array_equal(lowered.compile()(state(rows), 2.0)[1]["mean"], want["mean"])
+  # The same function not kept (a task of one's own) is the same program, which the compile
+  # cache serves to both.
+  unkept = make(None, traced)[0].lower(shapes, 2.0)
+  assert len(traced) == 2
+  assert unkept.as_text(debug_info=False) == lowered.as_text(debug_info=False)
+  assert len(os.listdir(cache / kept.FOLDER)) == 1
 
 
 def test_another_identity_or_shape_is_traced_afresh(cache):

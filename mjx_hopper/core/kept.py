@@ -4,7 +4,10 @@ or another, so that a warm start skips tracing, and the program's compile-cache 
 depends on what the process traced before. A program is kept under a hash of everything that
 shapes it: the caller's identity of the function, its arguments' paths, shapes, dtypes and
 shardings, this package's source, the versions of what it is built on, XLA's flags, JAX's
-settings and the devices. Anything else, or an unreadable file, traces the function afresh."""
+settings and the devices. Anything else, or an unreadable file, traces the function afresh.
+A function without an identity is exported too, in memory only, so that the same code kept or
+not compiles to one program, which the compile cache then serves to both (the notebook's
+Hopper, a class of its own, and the package's)."""
 
 from __future__ import annotations
 
@@ -31,14 +34,13 @@ _SETTINGS = ("jax_enable_x64", "jax_default_matmul_precision", "jax_use_shardy_p
              "jax_threefry_partitionable")
 
 
-def jit(fun, identity: str | None, name: str, **jit_kwargs):
-  """`jax.jit(fun, **jit_kwargs)`, its program kept under `identity` where one is given: a
-  text, the same in every process, that names all `fun` closes over besides this package's
-  code. Static arguments are not kept (the key holds no argument's value)."""
-  if identity is not None and {"static_argnums", "static_argnames"} & set(jit_kwargs):
+def jit(fun, identity: str | None, name: str, **jit_kwargs) -> Kept:
+  """`jax.jit(fun, **jit_kwargs)` through its export, the program kept under `identity` where
+  one is given: a text, the same in every process, that names all `fun` closes over besides
+  this package's code. Static arguments are refused (the key holds no argument's value)."""
+  if {"static_argnums", "static_argnames"} & set(jit_kwargs):
     raise ValueError(f"kept.jit takes no static arguments, got {sorted(jit_kwargs)}")
-  jitted = jax.jit(fun, **jit_kwargs)
-  return jitted if identity is None else Kept(jitted, identity, name, jit_kwargs)
+  return Kept(jax.jit(fun, **jit_kwargs), identity, name, jit_kwargs)
 
 
 # The process's programs by key, shared by every Kept of the same identity: a second build of
@@ -58,7 +60,7 @@ def forget() -> None:
 class Kept:
   """A jitted function that is called and lowered as `jax.jit`'s, through its kept program."""
 
-  def __init__(self, jitted, identity: str, name: str, jit_kwargs: dict):
+  def __init__(self, jitted, identity: str | None, name: str, jit_kwargs: dict):
     self._jitted, self._identity, self.__name__ = jitted, identity, name
     self._jit_kwargs = jit_kwargs
     self._seen: dict[tuple, object] = {}  # by the arguments' signature: a call's fast path
@@ -74,7 +76,9 @@ class Kept:
     leaves, tree = jax.tree.flatten(args)
     signature = (tree, *map(_signature, leaves), *(getattr(jax.config, s) for s in _SETTINGS))
     program = self._seen.get(signature)
-    if program is None:
+    if program is None and self._identity is None:
+      program = self._seen[signature] = self._trace(None, args)
+    elif program is None:
       key = program_key(self.__name__, self._identity, args, self._jit_kwargs)
       with _lock:
         if key not in _programs:
@@ -93,7 +97,7 @@ class Kept:
     except Exception:  # unreadable, or from another pickle: traced afresh and written again
       return None
 
-  def _trace(self, key: str, args):
+  def _trace(self, key: str | None, args):
     leaves, in_tree = jax.tree.flatten(args)
     out_trees = []
 
@@ -107,7 +111,7 @@ class Kept:
       serialized = export.export(jax.jit(flat), platforms=[_platform(avals)])(*avals).serialize()
     except Exception:  # not exportable (a host callback, say): the function as jitted
       return self._jitted
-    path = _path(key)
+    path = None if key is None else _path(key)
     if path is not None:
       _write(path, {"exported": serialized, "out_tree": out_trees[0]})
     # As read back: this process then compiles what a later one loads from the compile cache.
