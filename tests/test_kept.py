@@ -134,6 +134,20 @@ def test_without_a_compile_cache_nothing_is_kept(cache):
   assert len(traced) == 2
 
 
+def test_under_gspmd_the_function_runs_as_jitted(cache):
+  traced = []
+  fn, rows = make("a", traced)
+  want = jax.device_get(fn(state(rows), 2.0))
+  before = jax.config.jax_use_shardy_partitioner
+  jax.config.update("jax_use_shardy_partitioner", False)
+  try:
+    jax.tree.map(np.testing.assert_array_equal, want,
+                 jax.device_get(make("b", traced)[0](state(rows), 2.0)))
+  finally:
+    jax.config.update("jax_use_shardy_partitioner", before)
+  assert len(traced) == 2 and len(os.listdir(cache / kept.FOLDER)) == 1  # "b" not kept
+
+
 def test_a_trainer_is_kept_only_for_the_packages_own_task_and_agent(monkeypatch):
   cfg = configs.TINY
   assert runs.identity(cfg) == repr(runs.trainer_key(cfg))

@@ -73,6 +73,11 @@ class Kept:
     return self._program(args).lower(*args)
 
   def _program(self, args):
+    if not jax.config.jax_use_shardy_partitioner:
+      # Under GSPMD (`runtime.setup`'s choice on JAX 0.11) JAX 0.11.2 writes Shardy's sharding
+      # attributes into an export and then refuses to lower the export's call (seen on one
+      # H200): the function runs as jitted.
+      return self._jitted
     leaves, tree = jax.tree.flatten(args)
     signature = (tree, *map(_signature, leaves), *(getattr(jax.config, s) for s in _SETTINGS))
     program = self._seen.get(signature)
@@ -171,11 +176,12 @@ def _sharding_text(sharding) -> str:
 
 
 def _platform(avals) -> str:
-  """The platform of the arguments' devices, or JAX's default one."""
+  """The platform to export for, as `jax.export` names it: the CPU's where the arguments are on
+  the host's CPU devices (a GPU run's evaluation on the host), else the default backend's."""
   for aval in avals:
-    if aval.sharding is not None:
-      return aval.sharding.mesh.devices.flat[0].platform
-  return jax.default_backend()
+    if aval.sharding is not None and aval.sharding.mesh.devices.flat[0].platform == "cpu":
+      return "cpu"
+  return export.default_export_platform()
 
 
 def _environment() -> str:
