@@ -148,23 +148,21 @@ def program_key(name: str, identity: str, args, jit_kwargs: dict) -> str:
 
 
 def _signature(x) -> tuple:
-  """What of argument `x` shapes a program (`_aval`'s), quickly, for a call's fast path."""
+  """What of argument `x` shapes a program: (shape, dtype, weak type, sharding over a mesh or
+  None), as jit sees it; quick enough for every call."""
   if isinstance(x, (jax.ShapeDtypeStruct, jax.Array)):
     sharding = getattr(x, "sharding", None)
     return (x.shape, x.dtype, getattr(x, "weak_type", False),
             sharding if isinstance(sharding, NamedSharding) else None)
-  return (np.shape(x), np.result_type(x), type(x) in (int, float, complex))
+  # Python's numbers are weakly typed, not its bools.
+  return (np.shape(x), jax.dtypes.canonicalize_dtype(np.result_type(x)),
+          type(x) in (int, float, complex), None)
 
 
 def _aval(x) -> jax.ShapeDtypeStruct:
-  """`x`'s shape, dtype, weak type and (for an array over a mesh) sharding."""
-  if isinstance(x, (jax.ShapeDtypeStruct, jax.Array)):
-    sharding = getattr(x, "sharding", None)
-    return jax.ShapeDtypeStruct(x.shape, x.dtype, weak_type=getattr(x, "weak_type", False),
-                                sharding=sharding if isinstance(sharding, NamedSharding) else None)
-  weak = type(x) in (int, float, complex)  # Python's numbers are weakly typed, not its bools
-  return jax.ShapeDtypeStruct(np.shape(x), jax.dtypes.canonicalize_dtype(np.result_type(x)),
-                              weak_type=weak)
+  """`x`'s `_signature` as a shape to trace with."""
+  shape, dtype, weak, sharding = _signature(x)
+  return jax.ShapeDtypeStruct(shape, dtype, weak_type=weak, sharding=sharding)
 
 
 def _sharding_text(sharding) -> str:
