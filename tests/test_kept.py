@@ -109,6 +109,19 @@ def test_another_identity_or_shape_is_traced_afresh(cache):
   assert len(os.listdir(cache / kept.FOLDER)) == 5
 
 
+def test_xla_flags_are_read_as_xla_reads_them(cache, monkeypatch):
+  # The CLI's `setup(cpu_devices=...)` writes $XLA_FLAGS back with single spaces: the same flags
+  # are the same program; another flag is another.
+  traced, flags = [], os.environ.get("XLA_FLAGS", "")
+  for written, count in ((flags, 1), ("  " + flags.replace(" ", "   ") + " ", 1),
+                         (flags + " --xla_cpu_enable_fast_math=false", 2)):
+    kept.forget()
+    monkeypatch.setenv("XLA_FLAGS", written)
+    fn, rows = make("a", traced)
+    fn(state(rows), 2.0)
+    assert len(traced) == count, written
+
+
 def test_a_damaged_file_is_traced_afresh_and_written_again(cache):
   traced = []
   fn, rows = make("a", traced)

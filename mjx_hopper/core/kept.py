@@ -184,9 +184,10 @@ def _platform(avals) -> str:
 
 def _environment() -> str:
   """What shapes every program besides its function and arguments: JAX's settings as they are
-  now, and what a process cannot change."""
+  now, XLA's flags as XLA reads them (split at white space: `setup` rewrites $XLA_FLAGS with
+  single spaces where the CLI sets a device count), and what a process cannot change."""
   settings = [f"{s} {getattr(jax.config, s, None)}" for s in _SETTINGS]
-  return "\n".join([*settings, os.environ.get("XLA_FLAGS", ""), _fixed()])
+  return "\n".join([*settings, *os.environ.get("XLA_FLAGS", "").split(), _fixed()])
 
 
 @functools.cache
