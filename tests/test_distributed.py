@@ -1,10 +1,18 @@
 """The exchanges of a run over processes, against a stand-in for JAX's all-gather: every process
-agrees on a phase before its flags count, and processes out of step say where each stands."""
+agrees on a phase before its flags count, and processes out of step say where each stands; and
+an error as the one line a stopped process prints."""
 
 import numpy as np
 import pytest
 
-from mjx_hopper.process import distributed
+from mjx_hopper.process import distributed, errors
+
+
+def test_an_error_is_its_first_line_or_its_type():
+  assert errors.first_line(ValueError(" bad value\nmore on it")) == "bad value"
+  assert errors.first_line(OSError("disk full"), typed=True) == "OSError: disk full"
+  assert errors.first_line(KeyError()) == errors.first_line(KeyError(), typed=True) == "KeyError"
+  assert errors.first_line(ValueError("x" * 500), limit=300) == "x" * 300
 
 
 def as_processes(monkeypatch, others):

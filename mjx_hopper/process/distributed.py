@@ -24,7 +24,7 @@ import jax
 import numpy as np
 from jax.experimental import multihost_utils
 
-from mjx_hopper.process import runlock
+from mjx_hopper.process import errors, runlock
 
 # How long the processes wait for each other to start, in seconds.
 START_TIMEOUT_S = 300
@@ -97,7 +97,7 @@ def _check_port_free(coordinator: str) -> None:
 
 def _start_failure(cluster: Cluster, error: Exception, timeout_s: int) -> str:
   """One line saying why `jax.distributed.initialize` failed."""
-  text = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+  text = errors.first_line(error)
   where = cluster.coordinator or "the launcher's coordinator"
   if "already in use" in text.lower() or "address in use" in text.lower():
     return f"the coordinator address {where} is already in use: choose another port ({text})"
@@ -203,7 +203,7 @@ def watch(folder: str):
       # gone.
       time.sleep(2 * WATCH_S)
     stop.set()
-    text = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+    text = errors.first_line(error)
     _end(f"process {me} stopped at an error: {text}")
   stop.set()
   thread.join(timeout=2 * WATCH_S)

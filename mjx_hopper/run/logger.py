@@ -19,6 +19,8 @@ import os
 import time
 from typing import Callable, Sequence
 
+from mjx_hopper.process import errors
+
 
 # (row field, terminal text with {} for its value) pairs.
 RETURNS = (("episode_return", "train return {}"), ("eval_return", "eval return {}"))
@@ -188,8 +190,8 @@ def _wandb_module():
 
 
 def _no_wandb_run(project: str, error: Exception) -> Unavailable:
-  first = (str(error).strip().splitlines() or [type(error).__name__])[0]
-  return Unavailable(f"Weights & Biases cannot start a run of project {project!r} ({first}): "
+  return Unavailable(f"Weights & Biases cannot start a run of project {project!r} "
+                     f"({errors.first_line(error)}): "
                      "log in with `wandb login` (or set WANDB_API_KEY), or log offline with "
                      "WANDB_MODE=offline and upload later with `wandb sync`")
 

@@ -16,6 +16,8 @@ import time
 import jax
 import orbax.checkpoint as ocp
 
+from mjx_hopper.process import errors
+
 
 class SaveFailed(ValueError):
   """A checkpoint step that could not be written, or would not fit. Its partial files are
@@ -118,13 +120,7 @@ def _reason(error: BaseException) -> str:
     if code:
       return f"{os.strerror(code)} ({errno.errorcode.get(code, code)})"
     cause = cause.__cause__ or cause.__context__
-  return f"{type(error).__name__}: {first_line(error)}"
-
-
-def first_line(error: Exception, limit: int = 300) -> str:
-  """The first line of `error`'s message, at most `limit` characters, for a one-line report."""
-  text = str(error).strip().splitlines()[0] if str(error).strip() else ""
-  return text[:limit]
+  return errors.first_line(error, typed=True)
 
 
 _quieted = False

@@ -10,7 +10,8 @@ from typing import Any, NamedTuple
 import orbax.checkpoint as ocp
 
 from mjx_hopper.core import train
-from mjx_hopper.store.failures import SaveFailed, first_line
+from mjx_hopper.process import errors
+from mjx_hopper.store.failures import SaveFailed
 from mjx_hopper.store.items import ConfigMismatch, read_best, read_config, read_state, save
 from mjx_hopper.store.manifests import damage, wait_and_record
 
@@ -38,7 +39,7 @@ def load_newest(mngr: ocp.CheckpointManager, load, print_fn=print):
 
 
 def _why(error: Exception) -> str:
-  text = f"{type(error).__name__}: {first_line(error)}"
+  text = errors.first_line(error, typed=True)
   if "tree structures do not match" in str(error):
     text = ("its training state is laid out otherwise than this version of mjx_hopper's, "
             "perhaps saved by an older one; " + text)
