@@ -1,13 +1,14 @@
 """The suite's training configurations, shared so that their programs are compiled once (in a
 test worker's memory, `conftest.shared_builds`, and across workers and the processes tests
 start, through the compile cache): each agent's tiny run on the Hopper, the notebook's short
-mode (`notebook.tiny`), as a RunConfig and as the command line that makes the same run. A test
-that trains picks one of these; a configuration of its own is an exception, said where it is
-made."""
+mode (`notebook.tiny`), as a RunConfig and as the command line that makes the same run, and the
+notebook's high jump. A test that trains picks one of these; a configuration of its own is an
+exception, said where it is made."""
 
 import dataclasses
 
 from mjx_hopper import agents
+from mjx_hopper.envs.events import HighJump
 from mjx_hopper.faces import notebook
 from mjx_hopper.run import loop
 from mjx_hopper.settings import presets
@@ -43,3 +44,10 @@ def tiny_args(agent: str = "d4pg", command: str = "train") -> list[str]:
 
 TINY = tiny("d4pg")
 TINY_ARGS = tiny_args("d4pg")
+# The notebook's tiny D4PG run on its high jump, its setting given: the programs of the
+# notebook's own high jump (a class of its own, which lowers to the same programs), and those of
+# its population (PBT) where a test trains four members of it.
+JUMP = dataclasses.replace(
+    notebook.tiny(presets.agent_run_config(HighJump, "cpu", "d4pg",
+                                           env_settings={"height_weight": 10.0})),
+    log_every=0.0)

@@ -21,8 +21,12 @@ from mjx_hopper.core import train
 from mjx_hopper.core.pbt import PBT, exploit_explore
 from mjx_hopper.faces import cli
 from mjx_hopper.run import loop, runs, sweep
-from configs import TINY, TINY_ARGS
+from configs import JUMP, TINY, TINY_ARGS
 from test_train import member
+
+# The populations trained here are of the notebook's high jump (configs.JUMP): four members of it
+# are the programs of the notebook's population (its PBT cell), which the compile cache then
+# serves to the notebook.
 
 
 def run_chunks(trainer, state, chunks=2):
@@ -71,10 +75,10 @@ def assert_as_its_single_run(a, b):
 
 @pytest.fixture(scope="module")
 def single():
-  """The trainer of a single TINY run on one device. A member's seed and swept values are
+  """The trainer of a single JUMP run on one device. A member's seed and swept values are
   data, init's inputs, so this one program is every member's single run."""
-  base = runs.build(TINY, 1)
-  return train.make_trainer(base.env, base.agent, TINY.train, TINY.eval_episodes,
+  base = runs.build(JUMP, 1)
+  return train.make_trainer(base.env, base.agent, JUMP.train, JUMP.eval_episodes,
                             devices=jax.local_devices()[:1])
 
 
@@ -90,14 +94,14 @@ def single_run(single, chosen, chunks=2):
 def test_member_is_bit_identical_to_its_single_run(single):
   # Two members on the two CPU devices, one each: each runs the program of a single run on one
   # device, from its own seed's keys, with its learning rate as an array of the same program.
-  cfg = dataclasses.replace(TINY, seeds=(1,), grid={"learning_rate": (1e-3, 3e-4)})
+  cfg = dataclasses.replace(JUMP, seeds=(1,), grid={"learning_rate": (1e-3, 3e-4)})
   trainer = runs.build(cfg)
   members = cfg.member_settings()
   state, metrics = run_chunks(trainer, runs.init(cfg, trainer, members))
-  # Member 1 has TINY's own learning rate: its single run is started as `loop.run(TINY)` starts
+  # Member 1 has JUMP's own learning rate: its single run is started as `loop.run(JUMP)` starts
   # one; member 0's gets its learning rate through init.
-  assert members[1] == {"seed": 1, "learning_rate": TINY.agent_config().learning_rate}
-  user_path = run_chunks(single, runs.init(dataclasses.replace(TINY, seed=1), single,
+  assert members[1] == {"seed": 1, "learning_rate": JUMP.agent_config().learning_rate}
+  user_path = run_chunks(single, runs.init(dataclasses.replace(JUMP, seed=1), single,
                                            [{"seed": 1}]))
   for i, (one, one_metrics) in enumerate([single_run(single, members[0]), user_path]):
     assert_as_its_single_run(member(state, i), member(one))
@@ -115,7 +119,7 @@ def stop_after_first_chunk(line):
 
 def test_sweep_writes_results_resumes_exactly_and_extracts(single, tmp_path, capsys):
   # 2 seeds x 2 sigmas = 4 members, two on each device (under vmap).
-  cfg = dataclasses.replace(TINY, seeds=(0, 1), grid={"sigma": (0.1, 0.3)}, total_env_steps=80,
+  cfg = dataclasses.replace(JUMP, seeds=(0, 1), grid={"sigma": (0.1, 0.3)}, total_env_steps=80,
                             out_dir=str(tmp_path / "straight"))
   straight = loop.run(cfg, progress=False)
   split_cfg = dataclasses.replace(cfg, out_dir=str(tmp_path / "split"))
@@ -288,7 +292,7 @@ def test_bad_pbt_specs():
 # Four members, two to a device under vmap, each device holding a sane learning rate beside an
 # absurd one (members 1 and 3): the trainer of test_sweep_writes_results_resumes_exactly_and_
 # extracts (four members; their sigmas and learning rates are data).
-ABSURD = dataclasses.replace(TINY, seeds=(0,), total_env_steps=120,
+ABSURD = dataclasses.replace(JUMP, seeds=(0,), total_env_steps=120,
                              grid={"sigma": (0.1, 0.3), "learning_rate": (1e-3, 1e30)})
 
 

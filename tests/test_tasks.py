@@ -18,14 +18,7 @@ from mjx_hopper.envs.events import AntLongJump, HighJump
 from mjx_hopper.faces import cli, notebook
 from mjx_hopper.run import loop, runs
 from mjx_hopper.settings import presets
-from configs import TINY_ARGS
-
-# The notebook's tiny D4PG run on the high jump, its setting given: the same program as the
-# notebook's own high jump (the compile cache serves the second).
-JUMP = dataclasses.replace(
-    notebook.tiny(presets.agent_run_config(HighJump, "cpu", "d4pg",
-                                           env_settings={"height_weight": 10.0})),
-    log_every=0.0)
+from configs import JUMP, TINY_ARGS
 
 
 def test_a_task_is_named_by_class_instance_path_or_registered_name():
