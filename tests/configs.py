@@ -7,7 +7,7 @@ exception, said where it is made."""
 
 import dataclasses
 
-from mjx_hopper import agents
+from mjx_hopper import agents, envs
 from mjx_hopper.envs.events import HighJump
 from mjx_hopper.faces import notebook
 from mjx_hopper.run import loop
@@ -26,14 +26,23 @@ def tiny(agent: str = "d4pg") -> loop.RunConfig:
 def tiny_args(agent: str = "d4pg", command: str = "train") -> list[str]:
   """`tiny(agent)` on the command line of `mjx-hopper COMMAND` over 2 CPU devices, without its
   --total-env-steps (each test says its own)."""
-  cfg, t = tiny(agent), notebook.TINY_TRAIN
+  return args_of(tiny(agent), command)
+
+
+def args_of(cfg: loop.RunConfig, command: str = "train") -> list[str]:
+  """A tiny run `cfg` (`notebook.tiny`'s sizes, the cpu preset) on the command line of
+  `mjx-hopper COMMAND` over 2 CPU devices, without its --total-env-steps."""
+  t, agent = notebook.TINY_TRAIN, cfg.agent
+  assert cfg.train == t and cfg.agent_preset == "cpu", "args_of takes a tiny run"
   # The tiny settings, and the robot's cpu preset's others back at the agent's defaults, as
   # notebook.tiny has them.
   preset = presets.agent_run_config(cfg.env, "cpu", agent).agent_overrides
   chosen = dataclasses.asdict(cfg.agent_config())
   sets = [f"{name}={chosen[name]!r}" for name in {**preset, **agents.spec(agent).tiny}]
-  return ["--cpu-devices", "2", command, "--env", cfg.env, "--agent", agent, "--preset", "cpu",
+  task = envs.task_id(envs.task_class(cfg.env))
+  return ["--cpu-devices", "2", command, "--env", task, "--agent", agent, "--preset", "cpu",
           *[arg for s in sets for arg in ("--set", s.replace(" ", ""))],
+          *[arg for k, v in cfg.env_settings.items() for arg in ("--env-set", f"{k}={v!r}")],
           "--num-envs", str(t.num_envs), "--unroll-length", str(t.unroll_length),
           "--batch-size", str(t.batch_size), "--replay-ratio", f"{t.replay_ratio:g}",
           "--replay-size", str(t.replay_size), "--min-replay", str(t.min_replay),
@@ -45,9 +54,12 @@ def tiny_args(agent: str = "d4pg", command: str = "train") -> list[str]:
 TINY = tiny("d4pg")
 TINY_ARGS = tiny_args("d4pg")
 # The notebook's tiny D4PG run on its high jump, its setting given: the programs of the
-# notebook's own high jump (a class of its own, which lowers to the same programs), and those of
-# its population (PBT) where a test trains four members of it.
+# notebook's own high jump (a class of its own, which lowers to the same programs).
 JUMP = dataclasses.replace(
     notebook.tiny(presets.agent_run_config(HighJump, "cpu", "d4pg",
                                            env_settings={"height_weight": 10.0})),
     log_every=0.0)
+JUMP_ARGS = args_of(JUMP)
+# Four members of it, two seeds by two sigmas: the programs of the notebook's population (its
+# PBT cell), as of any four members of it whatever their seeds and swept values.
+POPULATION = dataclasses.replace(JUMP, seeds=(0, 1), grid={"sigma": (0.1, 0.3)})

@@ -12,7 +12,7 @@ from mjx_hopper.core import train
 from mjx_hopper.faces import cli
 from mjx_hopper.run import loop
 from mjx_hopper.settings import flags, presets
-from configs import TINY  # a tiny Hopper run: 4 envs, eval every 40 env steps
+from configs import POPULATION, TINY  # tiny runs: 4 envs, eval every 40 env steps
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent.parent / "benchmarks"))
 import report  # noqa: E402  (the results behind the README's table; files only)
@@ -176,7 +176,7 @@ def test_cli_starts_from_the_robot_preset():
 
 @pytest.mark.slow
 def test_run_stops_once_every_member_reaches_the_target(tmp_path, capsys):
-  cfg = dataclasses.replace(TINY, out_dir=str(tmp_path), stop_at_return=-1e9, seeds=(0, 1),
+  cfg = dataclasses.replace(POPULATION, out_dir=str(tmp_path), stop_at_return=-1e9,
                             total_env_steps=10**6)
   result = loop.run(cfg, progress=False)
   # The first evaluation (at 40 env steps; training goes on while it compiles) stops the run.

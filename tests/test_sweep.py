@@ -21,12 +21,12 @@ from mjx_hopper.core import train
 from mjx_hopper.core.pbt import PBT, exploit_explore
 from mjx_hopper.faces import cli
 from mjx_hopper.run import loop, runs, sweep
-from configs import JUMP, TINY, TINY_ARGS
+from configs import JUMP, JUMP_ARGS, POPULATION, TINY, TINY_ARGS
 from test_train import member
 
 # The populations trained here are of the notebook's high jump (configs.JUMP): four members of it
-# are the programs of the notebook's population (its PBT cell), which the compile cache then
-# serves to the notebook.
+# (configs.POPULATION) are the programs of the notebook's population (its PBT cell), which the
+# compile cache then serves to the notebook.
 
 
 def run_chunks(trainer, state, chunks=2):
@@ -119,8 +119,7 @@ def stop_after_first_chunk(line):
 
 def test_sweep_writes_results_resumes_exactly_and_extracts(single, tmp_path, capsys):
   # 2 seeds x 2 sigmas = 4 members, two on each device (under vmap).
-  cfg = dataclasses.replace(JUMP, seeds=(0, 1), grid={"sigma": (0.1, 0.3)}, total_env_steps=80,
-                            out_dir=str(tmp_path / "straight"))
+  cfg = dataclasses.replace(POPULATION, total_env_steps=80, out_dir=str(tmp_path / "straight"))
   straight = loop.run(cfg, progress=False)
   split_cfg = dataclasses.replace(cfg, out_dir=str(tmp_path / "split"))
   stopped = loop.run(split_cfg, progress=False, print_fn=stop_after_first_chunk)
@@ -363,11 +362,12 @@ def test_pbt_replaces_a_diverged_member_resumes_exactly_and_extracts(tmp_path, c
 
 
 # A 4-member PBT sweep: members (learning_rate, sigma) 0 (1e-3, 0.1), 1 (1e-3, 0.3),
-# 2 (1e30, 0.1) and 3 (1e30, 0.3), the grid in the order of the settings (TINY_ARGS sets the
-# learning rate first). Members 2 and 3 diverge in the first chunk, and PBT gives each a copy of
-# a member on the other process at the second evaluation. Evaluations fall due inside chunks (every
-# 60 env steps, a chunk being 40), and between PBT's steps.
-PBT_SWEEP = [*TINY_ARGS[3:], "--total-env-steps", "200",
+# 2 (1e30, 0.1) and 3 (1e30, 0.3), the grid in the order of the settings (JUMP_ARGS sets the
+# learning rate first); on one process of two devices, the programs of ABSURD. Members 2 and 3
+# diverge in the first chunk, and PBT gives each a copy of a member on the other process at the
+# second evaluation. Evaluations fall due inside chunks (every 60 env steps, a chunk being 40),
+# and between PBT's steps.
+PBT_SWEEP = [*JUMP_ARGS[3:], "--total-env-steps", "200",
              "--set", "sigma=0.1,0.3", "--set", "learning_rate=1e-3,1e30", "--pbt",
              "--eval-every", "60", "--pbt-every", "2"]
 
