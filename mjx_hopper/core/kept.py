@@ -104,23 +104,27 @@ class Kept:
 
   def _trace(self, key: str | None, args):
     leaves, in_tree = jax.tree.flatten(args)
-    out_trees = []
+    # The outputs' structure, for the flat function's own output shardings; the call inside
+    # `flat` reuses this trace.
+    out_shape = jax.eval_shape(self._jitted, *args)
+    out_tree = jax.tree.structure(out_shape)
 
     def flat(*leaves):
-      out_leaves, out_tree = jax.tree.flatten(self._jitted(*jax.tree.unflatten(in_tree, leaves)))
-      out_trees.append(out_tree)
-      return out_leaves
+      return jax.tree.leaves(self._jitted(*jax.tree.unflatten(in_tree, leaves)))
     flat.__name__ = f"kept_{self.__name__}"  # the program traced, as the ledger names it
     avals = [_aval(x) for x in leaves]
+    # The flat function with the original's shardings and donation, leaf by leaf: without them
+    # at its top, the exported program compiles markedly slower than the function jitted.
+    flat_jit = jax.jit(flat, **_flat_kwargs(self._jit_kwargs, args, out_shape))
     try:
-      serialized = export.export(jax.jit(flat), platforms=[_platform(avals)])(*avals).serialize()
+      serialized = export.export(flat_jit, platforms=[_platform(avals)])(*avals).serialize()
     except Exception:  # not exportable (a host callback, say): the function as jitted
       return self._jitted
     path = None if key is None else _path(key)
     if path is not None:
-      _write(path, {"exported": serialized, "out_tree": out_trees[0]})
+      _write(path, {"exported": serialized, "out_tree": out_tree})
     # As read back: this process then compiles what a later one loads from the compile cache.
-    return self._calling(export.deserialize(serialized), out_trees[0])
+    return self._calling(export.deserialize(serialized), out_tree)
 
   def _calling(self, exported, out_tree):
     """A jitted function of the original's arguments that calls `exported`."""
@@ -128,6 +132,31 @@ class Kept:
       return jax.tree.unflatten(out_tree, exported.call(*jax.tree.leaves(args)))
     call.__name__ = self.__name__
     return jax.jit(call, **self._jit_kwargs)
+
+
+def _flat_kwargs(jit_kwargs: dict, args: tuple, out_shape) -> dict:
+  """`jax.jit`'s options for a function of `args` as leaves: shardings (given as prefixes of the
+  arguments and outputs) one per leaf, and donation by the donated arguments' leaves."""
+  flat = {k: v for k, v in jit_kwargs.items()
+          if k not in ("in_shardings", "out_shardings", "donate_argnums")}
+  if "in_shardings" in jit_kwargs:
+    flat["in_shardings"] = _per_leaf(jit_kwargs["in_shardings"], args)
+  if "out_shardings" in jit_kwargs:
+    flat["out_shardings"] = _per_leaf(jit_kwargs["out_shardings"], out_shape)
+  if "donate_argnums" in jit_kwargs:
+    donated = jit_kwargs["donate_argnums"]
+    starts = np.cumsum([0, *(len(jax.tree.leaves(a)) for a in args)]).tolist()
+    flat["donate_argnums"] = tuple(i for n in sorted(np.atleast_1d(donated).tolist())
+                                   for i in range(starts[n], starts[n + 1]))
+  return flat
+
+
+def _per_leaf(prefix, tree) -> list:
+  """The sharding (or None) that `prefix`, a prefix of `tree`, gives each of its leaves."""
+  out = []
+  jax.tree.map(lambda s, sub: out.extend([s] * len(jax.tree.leaves(sub))), prefix, tree,
+               is_leaf=lambda s: s is None or isinstance(s, jax.sharding.Sharding))
+  return out
 
 
 def program_key(name: str, identity: str, args, jit_kwargs: dict) -> str:
