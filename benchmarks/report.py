@@ -53,12 +53,14 @@ DISTRIBUTED = ("distributed_gpu2.json", "distributed_cpu2.json")
 CHUNK = {"one H100": "chunk_program_h100.json", "2 CPU cores": "chunk_program_cpu.json"}
 # The chunk compiled as one program, and as its collection and its learning at once (--split).
 SPLIT = {"one H200": "chunk_program_h200_split.json", "2 CPU cores": "chunk_program_cpu_split.json"}
-# A start's phases as the table shows them: label, and its key in start_time.py's medians.
-START_ROWS = {"imports": "imports", "build": "build", "chunk: tracing": "chunk trace",
-              "chunk: compile": "chunk compile", "init: compile": "init_member compile",
-              "refill: compile": "refill compile", "evaluation: compile": "one compile",
-              "first training row": "first_train", "first evaluation": "first_eval",
-              "env steps/s": "steps_per_s"}
+# A start's phases as the table shows them: label, and its keys in start_time.py's medians (the
+# first found: the evaluation's program was "one" before it was kept as "evaluate").
+START_ROWS = {"imports": ("imports",), "build": ("build",), "chunk: tracing": ("chunk trace",),
+              "chunk: compile": ("chunk compile",), "init: compile": ("init_member compile",),
+              "refill: compile": ("refill compile",),
+              "evaluation: compile": ("evaluate compile", "one compile"),
+              "first training row": ("first_train",), "first evaluation": ("first_eval",),
+              "env steps/s": ("steps_per_s",)}
 GYMNASIUM = "gymnasium_throughput_cpu.json"
 NOTEBOOK = "notebook_time_cpu.json"
 FIDELITY = "fidelity.json"
@@ -373,8 +375,11 @@ def start_section() -> tuple[str, str, str, list[str]]:
       code = (versions[code] if len(set(versions.values())) > 1
               else code.replace("this checkout", data["commit"]))
       columns[f"{code}{' with ' + flags if flags else ''}, {cache}"] = figures
-    rows = [[label, *("–" if c.get(key) is None else num(c[key], 0 if key == "steps_per_s" else 1)
-                      for c in columns.values())] for label, key in START_ROWS.items()]
+    rows = []
+    for label, keys in START_ROWS.items():
+      found = [next((c[k] for k in keys if c.get(k) is not None), None) for c in columns.values()]
+      rows.append([label, *("–" if x is None else num(x, 0 if keys == ("steps_per_s",) else 1)
+                            for x in found)])
     tables.append(f"On {where}:\n\n" + table(["phase (s)", *columns], rows))
   return ("The start, phase by phase", "The main job (Hopper), s from process start, empty "
           "(cold) or warm compile cache, beside an earlier commit or other releases; compiles "
