@@ -12,7 +12,7 @@ from mjx_hopper.core import train
 from mjx_hopper.faces import cli
 from mjx_hopper.run import loop
 from mjx_hopper.settings import flags, presets
-from configs import POPULATION, TINY  # tiny runs: 4 envs, eval every 40 env steps
+from configs import POPULATION  # four members of a tiny run: 4 envs, eval every 40 env steps
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent.parent / "benchmarks"))
 import report  # noqa: E402  (the results behind the README's table; files only)
