@@ -76,6 +76,7 @@ SUITE_FILES = {"quick": ("suite_time_quick.json", "suite_time_quick_before.json"
                "slow": ("suite_time_slow.json", "suite_time_slow_before.json")}
 HEAVIEST_FILES = 3
 COMPILE_FLAGS = "compile_flags_cpu.json"
+C_PHYSICS = "c_physics_cpu.json"
 TRAINERS = {"ours": "our D4PG", "sac": "Brax SAC", "ppo": "Brax PPO", "sb3": "SB3 SAC on PyBullet"}
 MARK = "<!-- report.py: {} -->"
 
@@ -285,6 +286,7 @@ def sections() -> list[tuple[str, str, str, list[str]]]:
               "peak.",
               table(["robot", "batch", "precision", "updates/s", "GFLOP/update", "% of peak",
                      "bfloat16 updates/s"], rows), list(LEARNER)))
+  out.append(c_physics_section())
   out.append(gymnasium_section())
   out.append(start_section())
   out.append(chunk_section())
@@ -474,6 +476,30 @@ def pretrained_section(names: list[str]) -> tuple[str, str, str, list[str]]:
           "trained past its score, the best policy exported, the file evaluated.",
           table(["robot", "score", "seed", "env steps", "training (s)", "best evaluation",
                  "the file's return", "file (KiB)"], rows), names)
+
+
+def c_physics_section() -> tuple[str, str, str, list[str]]:
+  """The Hopper's env step with its physics in MJX against MuJoCo C's, compile and speed."""
+  found = load(C_PHYSICS)["figures"]
+  by = {(r["engine"], r["batch"]): r for r in found["rows"]}
+  rows = []
+  for batch in sorted({b for e, b in by if e == "MJX"}):
+    mjx, c = by[("MJX", batch)], by[("C", batch)]
+    rows.append([num(batch), num(mjx["compile_s"], 1), num(c["compile_s"], 1),
+                 num(c["compile_s"] / mjx["compile_s"], 2), num(mjx["env_steps_per_s"]),
+                 num(c["env_steps_per_s"]), num(c["env_steps_per_s"] / mjx["env_steps_per_s"], 2)])
+  checks = found["agreement"]
+  passed = all(checks[k][f"{t}_pass"] for k in ("oracle_MJX", "oracle_C")
+               for t in ("random_states", "one_step", "episode_statistics"))
+  return ("The env step through MuJoCo C on 2 CPU cores",
+          "The Hopper's env step, its physics substeps in MJX or in MuJoCo C (`mujoco` on a "
+          "thread per device, through `jax.pure_callback`), random actions on 2 XLA devices: the "
+          "step program's XLA compile and env steps/s. Both "
+          + ("pass" if passed else "do not all pass") + " the PyBullet checks (random states, one "
+          "step, episode statistics); with the model's solver settings their episodes part "
+          "after the first contact, as MJX's own do when its actions move by 1e-6.",
+          table(["envs", "MJX compile (s)", "C compile (s)", "C ÷ MJX", "MJX env steps/s",
+                 "C env steps/s", "C ÷ MJX"], rows), [C_PHYSICS])
 
 
 def gymnasium_section() -> tuple[str, str, str, list[str]]:
