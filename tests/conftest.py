@@ -2,7 +2,6 @@
 one trainer per config for each test worker."""
 
 import functools
-import hashlib
 import os
 from importlib.metadata import version
 
@@ -29,8 +28,8 @@ LONG_RUNNING = {"xla_backend_optimization_level": 1}
 
 # One compile cache for the tests and the processes they start (CLI runs, notebooks), so that
 # a program compiled by one is loaded by the others.
-os.environ.setdefault("MJX_HOPPER_JAX_CACHE",
-                      os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", ".cache", "jax"))
+os.environ.setdefault("MJX_HOPPER_JAX_CACHE", os.path.join(
+    os.path.dirname(os.path.abspath(__file__)), "..", ".cache", "jax"))
 
 import jax  # noqa: E402
 import numpy as np  # noqa: E402
@@ -44,7 +43,6 @@ import crashes  # noqa: E402
 
 mjx_hopper.setup()  # before MuJoCo is imported, which reads MUJOCO_GL once
 
-from mjx_hopper.process import ledger  # noqa: E402
 from mjx_hopper.run import runs  # noqa: E402
 
 
@@ -66,7 +64,6 @@ def shared_builds():
     key = runs.trainer_key(cfg, num_members)
     if key not in built:
       built[key] = runs.assemble(cfg, num_members)
-      ledger.note("trainer", hashlib.sha256(repr(key).encode()).hexdigest()[:16])
     return built[key]
   with pytest.MonkeyPatch.context() as patch:
     patch.setattr(runs, "build", cached)

@@ -50,6 +50,7 @@ def pytest_terminal_summary(terminalreporter, config):
   write = terminalreporter.write_line
   terminalreporter.write_sep("=", "compile ledger")
   write(_line("all test files", total))
+  write("the trainer configurations: " + ", ".join(sorted(total["trainers"])))
   write(f"the {min(HEAVIEST, len(files))} that compiled longest:")
   for name, totals in sorted(files.items(), key=lambda kv: -kv[1]["compile s"])[:HEAVIEST]:
     write("  " + _line(name, totals))

@@ -5,6 +5,7 @@
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 from typing import Any, NamedTuple
 
 import jax
@@ -12,6 +13,7 @@ import numpy as np
 
 from mjx_hopper import agents, envs, store
 from mjx_hopper.core import train
+from mjx_hopper.process import ledger
 from mjx_hopper.settings.config import TRAINER_DYNAMIC, RunConfig
 from mjx_hopper.store.run_folder import RunFolder, Saved, config_item, open_checkpoints
 
@@ -34,7 +36,11 @@ def build(cfg: RunConfig, num_members: int | None = None) -> train.Trainer:
 
 
 def assemble(cfg: RunConfig, num_members: int | None = None) -> train.Trainer:
-  """`build`'s trainer, JAX's in-memory caches as they are."""
+  """`build`'s trainer, JAX's in-memory caches as they are. Where a compile ledger is kept, it
+  notes the trainer's configuration (`process.ledger`)."""
+  key = trainer_key(cfg, num_members)
+  ledger.note("trainer", f"{key[0].__name__} {cfg.agent} x{key[6]} "
+              + hashlib.sha256(repr(key).encode()).hexdigest()[:12])
   env = cfg.make_env()
   envs.check_task(env)
   agent = agents.make(cfg.agent, env.observation_size, env.action_size, cfg.agent_config())
