@@ -2,7 +2,7 @@
 
 Importing it sets nothing outside it: `setup()` sets what it needs process-wide."""
 
-from mjx_hopper.run.runtime import cpu_key, setup, xla_flags_with_cpu_devices
+from mjx_hopper.process.runtime import cpu_key, setup, xla_flags_with_cpu_devices
 
 __version__ = "0.3.0"
 

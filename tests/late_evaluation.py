@@ -9,17 +9,17 @@ import time
 
 import jax
 
-from mjx_hopper.core.evaluator import Evaluator
+from mjx_hopper.core import evaluator
 from mjx_hopper.faces import cli
-from mjx_hopper.run import loop
+from mjx_hopper.run import opening
 
-lower, chunk = Evaluator.lower, loop._Chunk.__call__
+lower, chunk = evaluator.lower, opening.Chunk.__call__
 
 
-def late_lower(self, agent_shapes):
+def late_lower(*args):
   if jax.process_index() == 1:
     time.sleep(float(os.environ["LATE_EVALUATION_S"]))
-  return lower(self, agent_shapes)
+  return lower(*args)
 
 
 def slow_chunk(self, state):
@@ -28,5 +28,5 @@ def slow_chunk(self, state):
 
 
 if __name__ == "__main__":
-  Evaluator.lower, loop._Chunk.__call__ = late_lower, slow_chunk
+  evaluator.lower, opening.Chunk.__call__ = late_lower, slow_chunk
   cli.main(sys.argv[1:])

@@ -24,7 +24,7 @@ import mjx_hopper
 from mjx_hopper import agents, store
 from mjx_hopper.core import train
 from mjx_hopper.faces import cli
-from mjx_hopper.run import loop, runs
+from mjx_hopper.run import opening, runs
 from mjx_hopper.store import failures
 from checkpoint_worker import CONFIG, state
 from configs import TINY_ARGS
@@ -256,7 +256,7 @@ def test_a_checkpoint_without_a_newer_setting_resumes_at_its_default(tmp_path):
   mngr = store.manager(str(directory))
   store.save(mngr, state(1), {**CONFIG, "agent_config": older})
   store.wait_and_record(mngr)
-  defaults = {"agent_config": loop._field_defaults(agents.config("d4pg"))}
+  defaults = {"agent_config": opening.field_defaults(agents.config("d4pg"))}
   assert defaults["agent_config"]["compute_dtype"] == "float32"
   assert_same(store.read_latest(store.manager(str(directory)), state(0),
                                 {**CONFIG, "agent_config": now}, print_fn=lambda _: None,

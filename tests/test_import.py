@@ -10,7 +10,7 @@ import jax
 import pytest
 
 import mjx_hopper
-from mjx_hopper.run import runtime
+from mjx_hopper.process import runtime
 
 CLEAN = {k: v for k, v in os.environ.items() if k not in (
     "MUJOCO_GL", "DISPLAY", "WAYLAND_DISPLAY", "XLA_FLAGS", "TF_CPP_MIN_LOG_LEVEL",

@@ -1,23 +1,22 @@
 """JAX's private API that mjx_hopper/process/jax_private.py uses is still there, as it was read."""
 
-import inspect
-
-import jax
+import subprocess
+import sys
 
 from mjx_hopper.process import jax_private
 
+PROGRAM = """
+from mjx_hopper.process import jax_private
+before = jax_private.backends_started()  # JAX not imported yet
+import jax
+imported = jax_private.backends_started()
+jax.devices()
+print(before, imported, jax_private.backends_started())
+"""
 
-def test_the_cache_loader_is_where_it_was_read():
-  loader = jax_private.cache_loader()
-  load = loader.get_executable_and_time
-  assert callable(load), f"jax {jax.__version__} moved compilation_cache.get_executable_and_time"
-  if not getattr(load, "quiet", False):  # the hook passes its arguments on as they come
-    assert "cache_key" in inspect.signature(load).parameters
 
-
-def test_quiet_loads_keep_the_loader_working_and_are_installed_once():
-  assert jax_private.backends_started() in (True, False)
-  jax_private.quiet_cache_loads()
-  first = jax_private.cache_loader().get_executable_and_time
-  jax_private.quiet_cache_loads()
-  assert jax_private.cache_loader().get_executable_and_time is first and first.quiet
+def test_backends_started_tells_whether_xla_still_reads_its_flags():
+  assert jax_private.backends_started()  # conftest's set-up ran JAX
+  done = subprocess.run([sys.executable, "-c", PROGRAM], check=True, capture_output=True,
+                        text=True, env={"JAX_PLATFORMS": "cpu", "PATH": ""})
+  assert done.stdout.split() == ["False", "False", "True"]

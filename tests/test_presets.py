@@ -10,7 +10,7 @@ import pytest
 from mjx_hopper import agents, envs
 from mjx_hopper.core import train
 from mjx_hopper.faces import cli
-from mjx_hopper.run import loop
+from mjx_hopper.run import loop, opening
 from mjx_hopper.settings import flags, presets
 from configs import POPULATION  # four members of a tiny run: 4 envs, eval every 40 env steps
 
@@ -189,5 +189,5 @@ def test_run_stops_once_every_member_reaches_the_target(tmp_path, capsys):
 
 
 def test_the_gpu_preset_on_a_cpu_says_so():
-  assert "bash scripts/setup.sh cuda" in loop.preset_warning("gpu", "cpu")
-  assert loop.preset_warning("gpu", "gpu") is None and loop.preset_warning("cpu", "cpu") is None
+  assert "bash scripts/setup.sh cuda" in opening.preset_warning("gpu", "cpu")
+  assert opening.preset_warning("gpu", "gpu") is None and opening.preset_warning("cpu", "cpu") is None

@@ -39,20 +39,37 @@ class Done(NamedTuple):
     return self.result["return"].mean(-1)
 
 
-class Evaluator:
-  """Evaluates every member's deterministic policy when asked, on the training's devices or,
-  with `on_host`, on the host's CPU devices beside training."""
+def host_sharding(episodes: int) -> NamedSharding:
+  """The host's CPU devices for an evaluation of `episodes` on the host: as many as the
+  episodes spread evenly over."""
+  cpus = jax.devices("cpu")
+  count = max(k for k in range(1, len(cpus) + 1) if episodes % k == 0)
+  return NamedSharding(Mesh(np.array(cpus[:count]), ("host",)), P())
 
-  def __init__(self, trainer: train.Trainer, members: list[dict], episodes: int,
-               on_host: bool):
-    self.trainer, self.seeds = trainer, [m["seed"] for m in members]
-    self.host = None
-    if on_host:  # the episodes spread evenly over as many CPU devices as they allow
-      cpus = jax.devices("cpu")
-      count = max(k for k in range(1, len(cpus) + 1) if episodes % k == 0)
-      self.host = NamedSharding(Mesh(np.array(cpus[:count]), ("host",)), P())
-    self.episodes = episodes
-    self.best = None         # each member's agent at its best evaluation
+
+def lower(trainer: train.Trainer, members: int, episodes: int, host: NamedSharding | None,
+          agent_shapes):
+  """The evaluation of `members` members' agents of `agent_shapes`, `episodes` each, lowered
+  for the training's devices, or with `host` (`host_sharding`), the host's."""
+  keys = jax.ShapeDtypeStruct((members, 2), jnp.uint32)
+  if host is None:
+    return trainer.evaluate.lower(agent_shapes, keys)
+  evaluate = train.make_evaluate(trainer.env, trainer.agent, episodes, members,
+                                 list(host.mesh.devices.flat))
+  agent, keys = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=host),
+                             (agent_shapes, keys))
+  return evaluate.lower(agent, keys)
+
+
+class Evaluator:
+  """Evaluates every member's deterministic policy when asked, by `program` (the compiled
+  `lower`'s future; None for a run with nothing left to train), on the training's devices or,
+  with `host`, on the host's CPU devices beside training. `best` is each member's agent at its
+  best evaluation (a resumed run's; None before any)."""
+
+  def __init__(self, trainer: train.Trainer, seeds: list[int], host: NamedSharding | None,
+               program, best=None):
+    self.seeds, self.host, self.program, self.best = seeds, host, program, best
     self.latest: Done | None = None  # the latest evaluation kept
     self.pending: list[Pending] = []
     # Every member's agents copied, and chosen member by member: the host loop's chunk uses
@@ -60,21 +77,6 @@ class Evaluator:
     self.copy_agents = jax.jit(lambda tree: jax.tree.map(jnp.copy, tree),
                                out_shardings=trainer.shardings.agent)
     self.select_agents = jax.jit(select_members, out_shardings=trainer.shardings.agent)
-    self.program = None      # the compiled evaluation's future, once the run has started it
-
-  def lower(self, agent_shapes):
-    """The evaluation lowered for the members' agents of `agent_shapes`, on the training's
-    devices or the host's."""
-    keys = jax.ShapeDtypeStruct((len(self.seeds), 2), jnp.uint32)
-    if self.host is None:
-      return self.trainer.evaluate.lower(agent_shapes, keys)
-    devices = list(self.host.mesh.devices.flat)
-    evaluate = train.make_evaluate(self.trainer.env, self.trainer.agent, self.episodes,
-                                   len(self.seeds), devices)
-    agent, keys = jax.tree.map(
-        lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=self.host),
-        (agent_shapes, keys))
-    return evaluate.lower(agent, keys)
 
   def submit(self, env_steps: int, agent, diverged: np.ndarray) -> None:
     """Queues an evaluation of `agent` (every member's) at `env_steps`."""

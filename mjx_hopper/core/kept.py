@@ -74,7 +74,7 @@ class Kept:
 
   def _program(self, args):
     if not jax.config.jax_use_shardy_partitioner:
-      # Under GSPMD (`runtime.setup`'s choice on JAX 0.11) JAX 0.11.2 writes Shardy's sharding
+      # Under GSPMD (`mjx_hopper.setup`'s choice on JAX 0.11) JAX 0.11.2 writes Shardy's sharding
       # attributes into an export and then refuses to lower the export's call: the function
       # runs as jitted.
       return self._jitted

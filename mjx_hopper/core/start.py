@@ -30,12 +30,12 @@ class Started(NamedTuple):
   evaluation: concurrent.futures.Future  # the compiled evaluation (`Evaluator.lower`)
 
 
-def start(trainer: train.Trainer, init, evaluator) -> Started:
+def start(trainer: train.Trainer, init, lower_evaluation) -> Started:
   """Starts making the fresh state (the blank `init(begin=False)`, whose envs begin in the
-  trainer's refill, as `init()` does) and compiling the chunk, the finiteness check and
-  `evaluator`'s evaluation. The first training row needs the chunk, the state and the check,
-  which come first, side by side: the chunk in one thread, the state and the check in the
-  other. The evaluation follows, on a small CPU after the chunk in its thread, so as not to
+  trainer's refill, as `init()` does) and compiling the chunk, the finiteness check and the
+  evaluation (`lower_evaluation(agent_shapes)`, lowered). The first training row needs the
+  chunk, the state and the check, which come first, side by side: the chunk in one thread, the
+  state and the check in the other. The evaluation follows, on a small CPU after the chunk in its thread, so as not to
   slow its compile. The programs are traced here, in turn, since tracing holds Python's lock;
   the state's programs (the refill's too) are traced in its thread, and on a small CPU the
   evaluation in the chunk's."""
@@ -55,13 +55,13 @@ def start(trainer: train.Trainer, init, evaluator) -> Started:
   refill = lines[1].submit(trainer.refill.lower(shapes.env, BEGIN).compile)
   state = lines[1].submit(lambda: _begun(init(begin=False), refill.result()))
   finite = lines[1].submit(finite_members.lower(shapes.agent).compile)
-  lowered = evaluator.lower(shapes.agent) if _cores() >= TRACE_BESIDE_FROM_CORES else None
+  lowered = lower_evaluation(shapes.agent) if _cores() >= TRACE_BESIDE_FROM_CORES else None
 
   def evaluation_after_the_first_row():
     # The evaluation's compile waits for the programs of the first training row, which it
     # would slow where cores are few.
     finite.result()
-    return (lowered or evaluator.lower(shapes.agent)).compile()
+    return (lowered or lower_evaluation(shapes.agent)).compile()
   evaluation = lines[0].submit(evaluation_after_the_first_row)
   for line in lines:
     line.shutdown(wait=False)

@@ -9,9 +9,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import functools
-import math
-import os
 import sys
 import time
 from typing import Any, Callable
@@ -21,18 +18,15 @@ import numpy as np
 from tqdm.auto import tqdm
 
 import mjx_hopper
-from mjx_hopper import agents, store
-from mjx_hopper.core import pbt, start, train
-from mjx_hopper.core.evaluator import Evaluator
-from mjx_hopper.core.members import Members
+from mjx_hopper import store
+from mjx_hopper.core import train
 from mjx_hopper.process import distributed, runlock
 from mjx_hopper.process.stop import StopRequest
-from mjx_hopper.run import runs, sweep
-from mjx_hopper.run.logger import Logger, check_services
+from mjx_hopper.run import opening, runs
+from mjx_hopper.run.logger import check_services
+from mjx_hopper.run.opening import ProgressFn
 from mjx_hopper.settings.config import RunConfig
-from mjx_hopper.store.run_folder import RunFolder, check_processes, config_item
-
-ProgressFn = Callable[[int, dict], Any]
+from mjx_hopper.store.run_folder import RunFolder
 
 
 @dataclasses.dataclass
@@ -79,7 +73,8 @@ def run(cfg: RunConfig, checkpoint_dir: str | None = None, progress: bool = True
   say = _above_progress_bars(print_fn) if primary else _silent
   folder = RunFolder.of(cfg)
   with _lock(folder.path, say, primary), distributed.watch(folder.path):
-    parts, state = _open(cfg, checkpoint_dir, say, progress_fn if primary else None)
+    parts, state = opening.open_run(cfg, folder, checkpoint_dir, say,
+                                    progress_fn if primary else None)
     with StopRequest() as stop, parts.logger, _naming_the_checkpoint_at_an_error(parts):
       user = _UserCode(stop)
       state = _train(parts, state, progress, stop, user)
@@ -121,35 +116,7 @@ def _lock(folder: str, say, primary: bool):
     yield
 
 
-@dataclasses.dataclass
-class _Parts:
-  """One call of `run`: its config and the parts that own each step between chunks."""
-  cfg: RunConfig
-  trainer: train.Trainer
-  members: Members
-  evaluator: Evaluator
-  chunk: Callable
-  pbt_step: Callable | None
-  saver: store.Saver
-  logger: Logger
-  display: sweep.Report
-  until: "_Until"
-  progress_fn: ProgressFn | None
-  say: Callable[[str], None]
-
-  def env_steps(self, state) -> int:
-    return train.iterations(state) * self.trainer.config.steps_per_iteration
-
-  def pbt_due(self, before: int, env_steps: int) -> bool:
-    """Whether PBT steps after the chunk from `before` to `env_steps`: at every `pbt.every`-th
-    evaluation, but not at the run's end."""
-    if self.cfg.pbt is None:
-      return False
-    period = self.cfg.eval_every * self.cfg.pbt.every
-    return env_steps // period > before // period and env_steps < self.cfg.total_env_steps
-
-
-def _train(p: _Parts, state: train.TrainState, progress: bool, stop, user: "_UserCode"
+def _train(p: opening.Parts, state: train.TrainState, progress: bool, stop, user: "_UserCode"
            ) -> train.TrainState:
   """Chunks until the run's env steps or deadline, a stop (a signal, progress_fn's False, or
   an exception from the user's code), its target, or every member diverged."""
@@ -205,7 +172,7 @@ def _signalled_elsewhere(stop, signalled: bool) -> None:
     stop.request("stopped by a signal to another process")
 
 
-def _close(p: _Parts, user: "_UserCode", state: train.TrainState, bar) -> None:
+def _close(p: opening.Parts, user: "_UserCode", state: train.TrainState, bar) -> None:
   """After the last chunk: the evaluations still running, the bar, the last checkpoint."""
   for done in p.evaluator.collect(wait=True):
     p.evaluator.keep(done, p.members.evaluated(done.env_steps, done.returns, done.diverged))
@@ -215,120 +182,6 @@ def _close(p: _Parts, user: "_UserCode", state: train.TrainState, bar) -> None:
   if not p.members.all_diverged():
     p.saver.save(state, p.evaluator.best, p.members, last=True)
   p.saver.finish(state)
-
-
-def _open(cfg: RunConfig, checkpoint_dir: str | None, say, progress_fn):
-  """The parts of a run, and the state to train from (fresh, or the newest readable
-  checkpoint's), with the training chunk compiling meanwhile, then the evaluation."""
-  t_start = time.perf_counter()
-  mine = cfg.member_settings()
-  indices = list(range(len(mine)))
-  primary = distributed.primary()
-  folder = RunFolder.of(cfg)
-  os.makedirs(folder.path, exist_ok=True)
-  checkpoint_dir = checkpoint_dir or folder.checkpoints
-  saved_config = config_item(cfg, indices, distributed.count())
-  defaults = {"agent_config": _field_defaults(cfg.agent_config()), "env_settings": {}}
-  mngr = _checked_manager(cfg, checkpoint_dir, saved_config, defaults)
-  trainer = runs.build(cfg, len(mine))
-  members = Members(mine, indices, single=len(mine) == 1, pbt=cfg.pbt is not None,
-                    target=cfg.stop_at_return, say=say)
-  # Evaluating on the host's CPU beside training is one process's choice: not over processes.
-  evaluator = Evaluator(trainer, mine, cfg.eval_episodes,
-                        cfg.evaluates_on_host(jax.default_backend())
-                        and distributed.count() == 1)
-  fresh = functools.partial(runs.init, cfg, trainer, mine)
-  # A fresh run: compiling from here, while the checkpoints and the log open.
-  started = None if mngr is not None else start.start(trainer, fresh, evaluator)
-  per_iteration = trainer.config.steps_per_iteration
-  saver = store.Saver(mngr or store.manager(checkpoint_dir, cfg.keep_checkpoints), saved_config,
-                      cfg.checkpoint_minutes, per_iteration, say)
-  if started is None and (saver.mngr.latest_step() or 0) * per_iteration < cfg.total_env_steps:
-    started = start.start(trainer, fresh, evaluator)  # a resumed run that trains on
-  resumed = store.read_latest(
-      saver.mngr, started.state.result() if started else fresh(), saved_config, say, defaults)
-  members.load_record(resumed.record)
-  evaluator.best = resumed.best
-  if primary:
-    folder.write_config(saved_config)  # once resuming is agreed
-  env_steps = train.iterations(resumed.state) * per_iteration
-  if env_steps >= cfg.total_env_steps:
-    started = None  # nothing left to train
-  elif started is None:  # an older step than the newest was read
-    started = start.start(trainer, fresh, evaluator)
-  if started is not None:
-    evaluator.program = started.evaluation
-  display = sweep.Report(cfg.grid, members, say)
-  logger = Logger(folder.log if primary else None, cfg.log_every, display.logger_print,
-                  agents.learner_fields(cfg.agent), cfg.tensorboard_dir if primary else None,
-                  start_step=env_steps, id_fields=display.id_fields,
-                  wandb_project=cfg.wandb if primary else None,
-                  wandb_config=saved_config)
-  say(_header(cfg, trainer, len(mine), members.single))
-  if warning := preset_warning(cfg.agent_preset, jax.devices()[0].platform):
-    say(warning)
-  pbt_step = cfg.pbt and pbt.make_step(cfg.pbt, cfg.grid, trainer, cfg.seed, say)
-  parts = _Parts(cfg, trainer, members, evaluator, _Chunk(started, evaluator, members), pbt_step,
-                 saver, logger, display, _Until(cfg, t_start), progress_fn, say)
-  return parts, resumed.state
-
-
-def _checked_manager(cfg: RunConfig, checkpoint_dir: str, saved_config: dict, defaults: dict):
-  """The checkpoint manager of a folder that holds checkpoints, once they are of this run (its
-  config and number of processes), before anything is built or compiled for it; None for a
-  fresh folder. A checkpoint of another run is a ConfigMismatch."""
-  if not (os.path.isdir(checkpoint_dir) and os.listdir(checkpoint_dir)):
-    return None
-  mngr = store.manager(checkpoint_dir, cfg.keep_checkpoints)
-  check_processes(mngr, distributed.count())
-  store.check_config(mngr, saved_config, defaults)
-  return mngr
-
-
-class _Chunk:
-  """Runs one compiled chunk and the refill of its episode starts, and freezes a sweep's members
-  that diverged in it at their agents before it."""
-
-  def __init__(self, started: start.Started | None, evaluator: Evaluator, members: Members):
-    self.program, self._refill, self._finite = (
-        (started.chunk, started.refill, started.finite) if started else (None, None, None))
-    self.single = members.single
-    self._copy, self._select = evaluator.copy_agents, evaluator.select_agents
-
-  def __call__(self, state: train.TrainState):
-    """(state after the chunk, its metrics on the host, a sweep's agents before it (None for a
-    single run, which stops when it diverges))."""
-    before = None if self.single else self._copy(state.agent)
-    state, metrics = self.program.result()(state)
-    return state, distributed.gather(metrics, "metrics"), before
-
-  def refill(self, state: train.TrainState) -> train.TrainState:
-    """`state` with fresh episode starts for the next chunk."""
-    return state._replace(env=self._refill.result()(state.env, np.False_))
-
-  def finite(self, agent) -> np.ndarray:
-    """(members,): whether every float of each member's `agent` is finite."""
-    return distributed.gather(self._finite.result()(agent), "finite")
-
-  def freeze(self, state: train.TrainState, before, diverged: np.ndarray) -> train.TrainState:
-    """`state` with the agents of the `diverged` members taken back to `before`."""
-    if before is None or not diverged.any():
-      return state
-    return state._replace(agent=self._select(diverged, before, state.agent))
-
-
-class _Until:
-  """When the run ends: at its env steps or its deadline."""
-
-  def __init__(self, cfg: RunConfig, t_start: float):
-    self.t_start, self.total = t_start, cfg.total_env_steps
-    self.deadline = t_start + 60 * cfg.max_minutes if cfg.max_minutes else math.inf
-
-  def elapsed(self) -> float:
-    return time.perf_counter() - self.t_start
-
-  def reached(self, env_steps: int) -> bool:
-    return env_steps >= self.total or time.perf_counter() >= self.deadline
 
 
 class _UserCode:
@@ -354,7 +207,7 @@ class _UserCode:
 
 
 @contextlib.contextmanager
-def _naming_the_checkpoint_at_an_error(parts: _Parts):
+def _naming_the_checkpoint_at_an_error(parts: opening.Parts):
   """Where an error leaves the loop (not a failed save, which names its own), waits for the save
   in flight and says which checkpoint resumes the run."""
   try:
@@ -373,7 +226,7 @@ def _naming_the_checkpoint_at_an_error(parts: _Parts):
     raise
 
 
-def _log_train(p: _Parts, user: _UserCode, state, env_steps: int, rate: float,
+def _log_train(p: opening.Parts, user: _UserCode, state, env_steps: int, rate: float,
                metrics: dict) -> bool:
   """Logs a chunk: a row per member, and a sweep's terminal line. Returns whether progress_fn
   asked to stop."""
@@ -386,7 +239,7 @@ def _log_train(p: _Parts, user: _UserCode, state, env_steps: int, rate: float,
   return _log(p, user, env_steps, rows)
 
 
-def _log_evaluation(p: _Parts, user: _UserCode, done) -> bool:
+def _log_evaluation(p: opening.Parts, user: _UserCode, done) -> bool:
   """Logs a finished evaluation: a row per member, and a sweep's terminal line. Returns whether
   progress_fn asked to stop."""
   returns = done.result["return"]
@@ -399,7 +252,7 @@ def _log_evaluation(p: _Parts, user: _UserCode, done) -> bool:
   return _log(p, user, done.env_steps, rows)
 
 
-def _log(p: _Parts, user: _UserCode, env_steps: int, rows: list[dict]) -> bool:
+def _log(p: opening.Parts, user: _UserCode, env_steps: int, rows: list[dict]) -> bool:
   """Writes `rows` to the logger, then hands them to progress_fn. Returns whether it returned
   False."""
   for row in rows:
@@ -411,19 +264,19 @@ def _log(p: _Parts, user: _UserCode, env_steps: int, rows: list[dict]) -> bool:
   return user.call("progress_fn", p.progress_fn, env_steps, metrics) is False
 
 
-def _show(bar, p: _Parts, env_steps: int, rate: float) -> None:
+def _show(bar, p: opening.Parts, env_steps: int, rate: float) -> None:
   """Moves the progress bar (if any) to `env_steps`."""
   if bar is not None:
     bar.update(min(env_steps, p.cfg.total_env_steps) - bar.n)
     bar.set_postfix_str(p.display.status(rate, p.logger))
 
 
-def _finish(p: _Parts, state: train.TrainState, stop) -> Result:
+def _finish(p: opening.Parts, state: train.TrainState, stop) -> Result:
   """The run's last lines (a sweep's ranking and curves first) and its Result."""
   evaluation = None if p.evaluator.latest is None else p.evaluator.latest.result
   if p.members.single and evaluation is not None:
     evaluation = jax.tree.map(lambda x: x[0], evaluation)  # a single run is one member
-  folder = RunFolder.of(p.cfg)
+  folder = p.folder
   if distributed.primary():
     p.display.summarise(p.logger.rows, folder.path)
   directory = p.saver.mngr.directory
@@ -445,33 +298,6 @@ def _finish(p: _Parts, state: train.TrainState, stop) -> Result:
   p.say("; ".join(parts))
   return Result(state, p.trainer, p.logger.rows, evaluation, p.evaluator.best,
                 p.members.best_return)
-
-
-def preset_warning(agent_preset: str, platform: str) -> str | None:
-  """A line for a run of the gpu preset where JAX has no GPU (a CPU install, as on Colab's CPU
-  runtime): its sizes would train slowly."""
-  if agent_preset == "gpu" and platform == "cpu":
-    return ("the gpu preset's sizes are a GPU's, and JAX runs on the CPU here: install JAX's GPU "
-            "build (bash scripts/setup.sh cuda), or train the cpu preset (--preset cpu)")
-  return None
-
-
-def _header(cfg: RunConfig, trainer: train.Trainer, count: int, single: bool) -> str:
-  config, each = trainer.config, "" if single else " each"
-  per_chunk = config.steps_per_iteration * config.iterations_per_chunk
-  return (f"{cfg.task_id} with {cfg.agent} ({cfg.agent_preset}): "
-          f"{'' if single else f'{count} members, '}{config.num_envs} envs{each} on "
-          f"{len(jax.devices())} {jax.devices()[0].platform} device(s)"
-          f"{f' of {distributed.count()} processes' if distributed.count() > 1 else ''}, "
-          f"{per_chunk:,} env steps and "
-          f"{config.updates_per_iteration * config.iterations_per_chunk:,} updates per chunk"
-          f"{'' if single else ' per member'}")
-
-
-def _field_defaults(config) -> dict:
-  """A config dataclass's fields' default values."""
-  return {f.name: f.default for f in dataclasses.fields(config)
-          if f.default is not dataclasses.MISSING}
 
 
 def _progress_bar(total: int, initial: int):

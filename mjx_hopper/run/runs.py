@@ -38,12 +38,12 @@ def build(cfg: RunConfig, num_members: int | None = None) -> train.Trainer:
 def assemble(cfg: RunConfig, num_members: int | None = None) -> train.Trainer:
   """`build`'s trainer, JAX's in-memory caches as they are. Where a compile ledger is kept, it
   notes the trainer's configuration (`process.ledger`)."""
-  key = trainer_key(cfg, num_members)
-  ledger.note("trainer", f"{key[0].__name__} {cfg.agent} x{key[6]} "
-              + hashlib.sha256(repr(key).encode()).hexdigest()[:12])
   env = cfg.make_env()
   envs.check_task(env)
   agent = agents.make(cfg.agent, env.observation_size, env.action_size, cfg.agent_config())
+  key = trainer_key(cfg, num_members)
+  ledger.note("trainer", f"{key[0].__name__} {cfg.agent} x{key[6]} "
+              + hashlib.sha256(repr(key).encode()).hexdigest()[:12])
   return train.make_trainer(env, agent, cfg.train_config(), eval_episodes=cfg.eval_episodes,
                             num_members=num_members or len(cfg.member_settings()),
                             dynamic_updates="replay_ratio" in cfg.grid,

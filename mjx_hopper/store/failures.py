@@ -129,7 +129,7 @@ _quieted = False
 def quiet_failed_saves() -> None:
   """Leaves a failed save to SaveFailed's one line: drops orbax's logged tracebacks of it,
   asyncio's "Future exception was never retrieved" for its writes, and what its writer threads
-  and coroutines raise after it. Once per process: `mjx_hopper.setup` calls it."""
+  and coroutines raise after it. Once per process: each `Saver` calls it."""
   global _quieted
   if _quieted:
     return

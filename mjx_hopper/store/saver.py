@@ -11,7 +11,7 @@ import orbax.checkpoint as ocp
 
 from mjx_hopper.core import train
 from mjx_hopper.process import errors
-from mjx_hopper.store.failures import SaveFailed
+from mjx_hopper.store.failures import SaveFailed, quiet_failed_saves
 from mjx_hopper.store.items import ConfigMismatch, read_best, read_config, read_state, save
 from mjx_hopper.store.manifests import damage, wait_and_record
 
@@ -126,6 +126,7 @@ class Saver:
 
   def __init__(self, mngr: ocp.CheckpointManager, config: dict, minutes: float,
                steps_per_iteration: int, say=print):
+    quiet_failed_saves()
     self.mngr, self.config, self.minutes = mngr, config, minutes
     self.per_iteration, self.say = steps_per_iteration, say
     self.last = time.monotonic()

@@ -26,8 +26,7 @@ def setup(compile_cache: str | None = None, cpu_devices: int | None = None) -> s
   C++ log at errors. Then JAX's config: the persistent compile cache, keeping every
   program, in `compile_cache` (None: the folder already set, else $MJX_HOPPER_JAX_CACHE, else
   ~/.cache/mjx_hopper/jax) per `cpu_key()`, GSPMD where Shardy crashes, and gloo's CPU
-  collectives where none is chosen (used only by a run over processes). Last, the logs
-  and hooks that leave a failed save to its one line (`store.failures`), and where
+  collectives where none is chosen (used only by a run over processes). Last, where
   $MJX_HOPPER_COMPILE_LEDGER is set, the compile ledger (`process.ledger`). Unset environment
   variables only are set. Returns the compile cache's folder. A `cpu_devices` that JAX's
   started backends do not have is a ValueError.
@@ -54,11 +53,8 @@ def setup(compile_cache: str | None = None, cpu_devices: int | None = None) -> s
     jax.config.update("jax_use_shardy_partitioner", False)
   if jax.config.jax_cpu_collectives_implementation is None:
     jax.config.update("jax_cpu_collectives_implementation", "gloo")
-  jax_private.quiet_cache_loads()
   if os.environ.get(ledger.VARIABLE):
     ledger.start()
-  from mjx_hopper.store import failures
-  failures.quiet_failed_saves()
   return directory
 
 

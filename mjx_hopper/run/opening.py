@@ -1,0 +1,239 @@
+"""A run's opening: its settings resolved once into a `Plan`, its newest readable checkpoint
+restored (or a fresh state made) while its programs compile, and the `Parts` that own each step
+between chunks assembled around them, complete."""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+import os
+import time
+from typing import Any, Callable
+
+import jax
+import numpy as np
+
+from mjx_hopper import agents, store
+from mjx_hopper.core import evaluator as evaluation, pbt, start, train
+from mjx_hopper.core.evaluator import Evaluator
+from mjx_hopper.core.members import Members
+from mjx_hopper.process import distributed
+from mjx_hopper.run import runs, sweep
+from mjx_hopper.run.logger import Logger
+from mjx_hopper.settings.config import RunConfig
+from mjx_hopper.store.run_folder import RunFolder, check_processes, config_item
+
+ProgressFn = Callable[[int, dict], Any]
+
+
+@dataclasses.dataclass
+class Parts:
+  """One call of `run`: its config and the parts that own each step between chunks."""
+  cfg: RunConfig
+  folder: RunFolder
+  trainer: train.Trainer
+  members: Members
+  evaluator: Evaluator
+  chunk: Callable
+  pbt_step: Callable | None
+  saver: store.Saver
+  logger: Logger
+  display: sweep.Report
+  until: "Until"
+  progress_fn: ProgressFn | None
+  say: Callable[[str], None]
+
+  def env_steps(self, state) -> int:
+    """The env steps that `state` has trained, every member's alike."""
+    return train.iterations(state) * self.trainer.config.steps_per_iteration
+
+  def pbt_due(self, before: int, env_steps: int) -> bool:
+    """Whether PBT steps after the chunk from `before` to `env_steps`: at every `pbt.every`-th
+    evaluation, but not at the run's end."""
+    if self.cfg.pbt is None:
+      return False
+    period = self.cfg.eval_every * self.cfg.pbt.every
+    return env_steps // period > before // period and env_steps < self.cfg.total_env_steps
+
+
+@dataclasses.dataclass(frozen=True)
+class Plan:
+  """A run resolved at its start, for every step after: its members' settings, folder,
+  checkpoints' folder, saved config (and the defaults it is checked with), the checkpoints it
+  holds (None: a fresh folder), trainer and where it evaluates (None: the training's devices;
+  else the host's CPU devices)."""
+  cfg: RunConfig
+  members: list[dict]
+  folder: RunFolder
+  checkpoints: str
+  saved_config: dict
+  defaults: dict
+  mngr: Any
+  trainer: train.Trainer
+  host: Any
+
+  def fresh(self, begin: bool = True) -> train.TrainState:
+    """The members' fresh TrainState (`runs.init`)."""
+    return runs.init(self.cfg, self.trainer, self.members, begin)
+
+  def compile(self) -> start.Started:
+    """The programs that train the run, compiling (`start.start`)."""
+    return start.start(self.trainer, self.fresh, functools.partial(
+        evaluation.lower, self.trainer, len(self.members), self.cfg.eval_episodes, self.host))
+
+
+def open_run(cfg: RunConfig, folder: RunFolder, checkpoint_dir: str | None, say, progress_fn):
+  """The parts of a run, and the state to train from (fresh, or the newest readable
+  checkpoint's), with the training chunk compiling meanwhile, then the evaluation."""
+  t_start = time.perf_counter()
+  plan = resolve(cfg, folder, checkpoint_dir)
+  resumed, started, saver = restore(plan, say)
+  return assemble(plan, resumed, started, saver, say, progress_fn, t_start), resumed.state
+
+
+def resolve(cfg: RunConfig, folder: RunFolder, checkpoint_dir: str | None) -> Plan:
+  """The run's plan; a checkpoint of another run is refused before anything is built."""
+  mine = cfg.member_settings()
+  os.makedirs(folder.path, exist_ok=True)
+  checkpoint_dir = checkpoint_dir or folder.checkpoints
+  saved_config = config_item(cfg, list(range(len(mine))), distributed.count())
+  defaults = {"agent_config": field_defaults(cfg.agent_config()), "env_settings": {}}
+  mngr = checked_manager(cfg, checkpoint_dir, saved_config, defaults)
+  trainer = runs.build(cfg, len(mine))
+  # Evaluating on the host's CPU beside training is one process's choice: not over processes.
+  on_host = cfg.evaluates_on_host(jax.default_backend()) and distributed.count() == 1
+  return Plan(cfg, mine, folder, checkpoint_dir, saved_config, defaults, mngr, trainer,
+              evaluation.host_sharding(cfg.eval_episodes) if on_host else None)
+
+
+def restore(plan: Plan, say):
+  """(the newest readable checkpoint's contents or a fresh state's, the programs that train on
+  from it (None where nothing is left to train), the run's Saver). A fresh run compiles while
+  the checkpoints open; a resumed one that trains on, while its checkpoint is read."""
+  cfg, per_iteration = plan.cfg, plan.trainer.config.steps_per_iteration
+  started = None if plan.mngr is not None else plan.compile()
+  saver = store.Saver(plan.mngr or store.manager(plan.checkpoints, cfg.keep_checkpoints),
+                      plan.saved_config, cfg.checkpoint_minutes, per_iteration, say)
+  if started is None and (saver.mngr.latest_step() or 0) * per_iteration < cfg.total_env_steps:
+    started = plan.compile()
+  resumed = store.read_latest(saver.mngr, started.state.result() if started else plan.fresh(),
+                              plan.saved_config, say, plan.defaults)
+  if distributed.primary():
+    plan.folder.write_config(plan.saved_config)  # once resuming is agreed
+  if train.iterations(resumed.state) * per_iteration >= cfg.total_env_steps:
+    started = None  # nothing left to train
+  elif started is None:  # an older step than the newest was read
+    started = plan.compile()
+  return resumed, started, saver
+
+
+def assemble(plan: Plan, resumed, started, saver, say, progress_fn, t_start: float) -> Parts:
+  """The parts that own each step between chunks, complete."""
+  cfg, trainer, mine, primary = plan.cfg, plan.trainer, plan.members, distributed.primary()
+  members = Members(mine, list(range(len(mine))), single=len(mine) == 1,
+                    pbt=cfg.pbt is not None, target=cfg.stop_at_return, say=say)
+  members.load_record(resumed.record)
+  evaluator = Evaluator(trainer, [m["seed"] for m in mine], plan.host,
+                        started and started.evaluation, resumed.best)
+  display = sweep.Report(cfg.grid, members, say)
+  logger = Logger(plan.folder.log if primary else None, cfg.log_every, display.logger_print,
+                  agents.learner_fields(cfg.agent), cfg.tensorboard_dir if primary else None,
+                  start_step=train.iterations(resumed.state) * trainer.config.steps_per_iteration,
+                  id_fields=display.id_fields, wandb_project=cfg.wandb if primary else None,
+                  wandb_config=plan.saved_config)
+  say(header(cfg, trainer, len(mine), members.single))
+  if warning := preset_warning(cfg.agent_preset, jax.devices()[0].platform):
+    say(warning)
+  pbt_step = cfg.pbt and pbt.make_step(cfg.pbt, cfg.grid, trainer, cfg.seed, say)
+  return Parts(cfg, plan.folder, trainer, members, evaluator,
+                Chunk(started, evaluator, members), pbt_step, saver, logger, display,
+                Until(cfg, t_start), progress_fn, say)
+
+
+def checked_manager(cfg: RunConfig, checkpoint_dir: str, saved_config: dict, defaults: dict):
+  """The checkpoint manager of a folder that holds checkpoints, once they are of this run (its
+  config and number of processes), before anything is built or compiled for it; None for a
+  fresh folder. A checkpoint of another run is a ConfigMismatch."""
+  if not (os.path.isdir(checkpoint_dir) and os.listdir(checkpoint_dir)):
+    return None
+  mngr = store.manager(checkpoint_dir, cfg.keep_checkpoints)
+  check_processes(mngr, distributed.count())
+  store.check_config(mngr, saved_config, defaults)
+  return mngr
+
+
+class Chunk:
+  """Runs one compiled chunk and the refill of its episode starts, and freezes a sweep's members
+  that diverged in it at their agents before it."""
+
+  def __init__(self, started: start.Started | None, evaluator: Evaluator, members: Members):
+    self.program, self._refill, self._finite = (
+        (started.chunk, started.refill, started.finite) if started else (None, None, None))
+    self.single = members.single
+    self._copy, self._select = evaluator.copy_agents, evaluator.select_agents
+
+  def __call__(self, state: train.TrainState):
+    """(state after the chunk, its metrics on the host, a sweep's agents before it (None for a
+    single run, which stops when it diverges))."""
+    before = None if self.single else self._copy(state.agent)
+    state, metrics = self.program.result()(state)
+    return state, distributed.gather(metrics, "metrics"), before
+
+  def refill(self, state: train.TrainState) -> train.TrainState:
+    """`state` with fresh episode starts for the next chunk."""
+    return state._replace(env=self._refill.result()(state.env, np.False_))
+
+  def finite(self, agent) -> np.ndarray:
+    """(members,): whether every float of each member's `agent` is finite."""
+    return distributed.gather(self._finite.result()(agent), "finite")
+
+  def freeze(self, state: train.TrainState, before, diverged: np.ndarray) -> train.TrainState:
+    """`state` with the agents of the `diverged` members taken back to `before`."""
+    if before is None or not diverged.any():
+      return state
+    return state._replace(agent=self._select(diverged, before, state.agent))
+
+
+class Until:
+  """When the run ends: at its env steps or its deadline."""
+
+  def __init__(self, cfg: RunConfig, t_start: float):
+    self.t_start, self.total = t_start, cfg.total_env_steps
+    self.deadline = t_start + 60 * cfg.max_minutes if cfg.max_minutes else math.inf
+
+  def elapsed(self) -> float:
+    """Seconds since the run began."""
+    return time.perf_counter() - self.t_start
+
+  def reached(self, env_steps: int) -> bool:
+    """Whether the run ends at `env_steps`: its total reached, or its deadline passed."""
+    return env_steps >= self.total or time.perf_counter() >= self.deadline
+
+
+def preset_warning(agent_preset: str, platform: str) -> str | None:
+  """A line for a run of the gpu preset where JAX has no GPU (a CPU install, as on Colab's CPU
+  runtime): its sizes would train slowly."""
+  if agent_preset == "gpu" and platform == "cpu":
+    return ("the gpu preset's sizes are a GPU's, and JAX runs on the CPU here: install JAX's GPU "
+            "build (bash scripts/setup.sh cuda), or train the cpu preset (--preset cpu)")
+  return None
+
+
+def header(cfg: RunConfig, trainer: train.Trainer, count: int, single: bool) -> str:
+  """The run's first line: its task, agent, members, envs, devices and chunk."""
+  config, each = trainer.config, "" if single else " each"
+  per_chunk = config.steps_per_iteration * config.iterations_per_chunk
+  return (f"{cfg.task_id} with {cfg.agent} ({cfg.agent_preset}): "
+          f"{'' if single else f'{count} members, '}{config.num_envs} envs{each} on "
+          f"{len(jax.devices())} {jax.devices()[0].platform} device(s)"
+          f"{f' of {distributed.count()} processes' if distributed.count() > 1 else ''}, "
+          f"{per_chunk:,} env steps and "
+          f"{config.updates_per_iteration * config.iterations_per_chunk:,} updates per chunk"
+          f"{'' if single else ' per member'}")
+
+
+def field_defaults(config) -> dict:
+  """A config dataclass's fields' default values."""
+  return {f.name: f.default for f in dataclasses.fields(config)
+          if f.default is not dataclasses.MISSING}
