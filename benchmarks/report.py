@@ -77,6 +77,10 @@ SUITE_FILES = {"quick": ("suite_time_quick.json", "suite_time_quick_before.json"
 HEAVIEST_FILES = 3
 COMPILE_FLAGS = "compile_flags_cpu.json"
 C_PHYSICS = "c_physics_cpu.json"
+# The Hopper's gpu preset with one learner change each (issue 68): the baselines, then the changes.
+LEARNER_CHANGES = {"baseline": [TTS.format(f"Hopper_gpu_v_baseline{n}") for n in ("", "2")],
+                   **{label: [TTS.format(f"Hopper_gpu_v_{label}")]
+                      for label in ("batch32k", "envs4096", "nstep3")}}
 TRAINERS = {"ours": "our D4PG", "sac": "Brax SAC", "ppo": "Brax PPO", "sb3": "SB3 SAC on PyBullet"}
 MARK = "<!-- report.py: {} -->"
 
@@ -286,6 +290,7 @@ def sections() -> list[tuple[str, str, str, list[str]]]:
               "peak.",
               table(["robot", "batch", "precision", "updates/s", "GFLOP/update", "% of peak",
                      "bfloat16 updates/s"], rows), list(LEARNER)))
+  out.append(learner_changes_section())
   out.append(c_physics_section())
   out.append(gymnasium_section())
   out.append(start_section())
@@ -478,6 +483,23 @@ def pretrained_section(names: list[str]) -> tuple[str, str, str, list[str]]:
                  "the file's return", "file (KiB)"], rows), names)
 
 
+def learner_changes_section() -> tuple[str, str, str, list[str]]:
+  """The Hopper's gpu preset against itself with one learner change at a time."""
+  base = time_to_score(LEARNER_CHANGES["baseline"])["median"]
+  rows = []
+  for label, names in LEARNER_CHANGES.items():
+    t = time_to_score(names)
+    change = re.findall(r"--(?:train-)?set (\S+)", load(names[0])["command"])
+    rows.append([", ".join(change) or "none (the preset)", f"{t['reached']}/{t['seeds']}",
+                 num(t["median"], 1), num(t["env_steps"], 2), num(t["median"] / base, 2)])
+  return ("One learner change at a time on one GPU",
+          "The Hopper's gpu preset with one change, to 2,500, on seeds 100-104 run "
+          + time_to_score(LEARNER_CHANGES["baseline"])["method"] + " as in the GPU table, in "
+          "one session (the preset twice). × preset: over the preset's median.",
+          table(["change", "seeds reaching", "median (s)", "env steps (M)", "× preset"], rows),
+          [n for names in LEARNER_CHANGES.values() for n in names])
+
+
 def c_physics_section() -> tuple[str, str, str, list[str]]:
   """The Hopper's env step with its physics in MJX against MuJoCo C's, compile and speed."""
   found = load(C_PHYSICS)["figures"]
@@ -492,12 +514,10 @@ def c_physics_section() -> tuple[str, str, str, list[str]]:
   passed = all(checks[k][f"{t}_pass"] for k in ("oracle_MJX", "oracle_C")
                for t in ("random_states", "one_step", "episode_statistics"))
   return ("The env step through MuJoCo C on 2 CPU cores",
-          "The Hopper's env step, its physics substeps in MJX or in MuJoCo C (`mujoco` on a "
-          "thread per device, through `jax.pure_callback`), random actions on 2 XLA devices: the "
-          "step program's XLA compile and env steps/s. Both "
-          + ("pass" if passed else "do not all pass") + " the PyBullet checks (random states, one "
-          "step, episode statistics); with the model's solver settings their episodes part "
-          "after the first contact, as MJX's own do when its actions move by 1e-6.",
+          "The Hopper's env step, its physics in MJX or in MuJoCo C (through "
+          "`jax.pure_callback`), random actions on 2 XLA devices. Both "
+          + ("pass" if passed else "do not all pass") + " the PyBullet checks; their episodes part after "
+          "a contact, as MJX's own do when its actions move by 1e-6.",
           table(["envs", "MJX compile (s)", "C compile (s)", "C ÷ MJX", "MJX env steps/s",
                  "C env steps/s", "C ÷ MJX"], rows), [C_PHYSICS])
 

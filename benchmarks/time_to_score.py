@@ -1,11 +1,12 @@
 """Time to score as users get it: one robot trained with its preset (mjx_hopper.settings.presets)
 by `mjx-hopper train`, each seed in a fresh process of its own, timed from process start until an
 evaluation reaches the robot's target or the time budget ends; a task of your own (module:Class,
-a subclass of a robot) with its robot's preset. Cold (the default): each process starts on an
-empty compile cache, checked empty; warm: on a cache that a run of the same configuration (an
-earlier seed, not counted) filled. Seeds from 100 up are held out: the presets were tuned on
-0-9. Writes its figures to benchmarks/results/time_to_score_ROBOT_KIND[_LABEL].json, and to
-OUT the best seed's final episode (episode.npz, rendered to frame.png and robot.gif where a
+a subclass of a robot) with its robot's preset; --set and --train-set replace one of its agent
+settings or of its trainer's layout (`mjx-hopper train`'s flags). Cold (the default): each
+process starts on an empty compile cache, checked empty; warm: on a cache that a run of the same
+configuration (an earlier seed, not counted) filled. Seeds from 100 up are held out: the presets
+were tuned on 0-9. Writes its figures to benchmarks/results/time_to_score_ROBOT_KIND[_LABEL].json,
+and to OUT the best seed's final episode (episode.npz, rendered to frame.png and robot.gif where a
 renderer works).
 
     python benchmarks/time_to_score.py Hopper --kind cpu              # on the 2-core CPU
@@ -113,6 +114,9 @@ def main() -> None:
                  help="run out the budget instead of stopping once every seed reached the target")
   p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                  help="an agent setting replacing the preset's")
+  p.add_argument("--train-set", action="append", default=[], metavar="NAME=VALUE",
+                 help="a setting of the trainer's layout replacing the preset's, e.g. "
+                 "batch_size=32768 (passed as `mjx-hopper train --batch-size 32768`)")
   p.add_argument("--cache", choices=("cold", "warm"), default="cold",
                  help="cold: each seed on an empty compile cache; warm: on a cache that a run "
                  "of the same configuration filled first")
@@ -129,6 +133,7 @@ def main() -> None:
     return
   import jax
 
+  from mjx_hopper.core.train import TrainConfig
   from mjx_hopper.settings import flags, presets
   try:
     preset = presets.get(args.robot, args.kind)
@@ -140,6 +145,11 @@ def main() -> None:
   name = args.robot.split(":")[-1]
   out = args.out or os.path.join("runs", "time_to_score", f"{name}_{args.kind}")
   seeds = [int(s) for s in args.seeds.split(",")]
+  layout = flags.overrides(args.train_set, "--train-set")
+  for setting in layout:
+    if setting not in {f.name for owner, f in flags.fields() if owner is TrainConfig}:
+      raise SystemExit(f"time_to_score: --train-set {setting} is no setting of the trainer's "
+                       "layout (`mjx-hopper train --help` lists them)")
   for seed in seeds:  # a run there would resume, and its times would mean nothing
     if os.path.exists(os.path.join(out, f"seed_{seed}", "checkpoints")):
       raise SystemExit(f"time_to_score: {out}/seed_{seed} already holds a run; choose another "
@@ -147,6 +157,8 @@ def main() -> None:
 
   def command(seed: int, out_dir: str, minutes: float = minutes) -> list[str]:
     sets = [a for s in args.set for a in ("--set", s)]
+    sets += [a for name, value in layout.items() for a in ("--" + name.replace("_", "-"),
+                                                           str(value))]
     return ["--cpu-devices", str(args.cpu_devices), "train", "--env", args.robot, "--preset",
             args.kind, "--agent", agent, *sets, "--seed", str(seed), "--total-env-steps",
             str(10**12), "--max-minutes", str(minutes), "--no-progress", "--out-dir", out_dir,
@@ -171,6 +183,7 @@ def main() -> None:
             f"from process start, best return {results[seed]['best_return']:,.0f}", flush=True)
   cfg = presets.agent_run_config(args.robot, args.kind, agent,
                                  agent_overrides=flags.overrides(args.set))  # the runs' config
+  cfg = dataclasses.replace(cfg, train=dataclasses.replace(cfg.train, **layout))
   best = max(results, key=lambda s: results[s]["final_return"])
   episode = record_episode(os.path.join(out, f"seed_{best}", "checkpoints"), 0,
                            os.path.join(out, "episode.npz"))
