@@ -163,7 +163,15 @@ def test_under_gspmd_the_function_runs_as_jitted(cache):
 
 def test_a_trainer_is_kept_only_for_the_packages_own_task_and_agent(monkeypatch):
   cfg = configs.TINY
-  assert runs.identity(cfg) == repr(runs.trainer_key(cfg))
+  assert runs.identity(cfg) == repr(runs.program_key(cfg))
+  # Dynamic settings are data of the same programs; n-step's window and the networks shape them.
+  overrides = cfg.agent_overrides
+  same = dataclasses.replace(cfg, agent_overrides={**overrides, "learning_rate": 0.5,
+                                                   "discount": 0.9, "vmax": 900.0})
+  assert runs.identity(same) == runs.identity(cfg)
+  for shaping in ({"n_step": 1}, {"critic_layers": (8,)}):
+    assert runs.identity(dataclasses.replace(cfg, agent_overrides={**overrides, **shaping})
+                         ) != runs.identity(cfg)
 
   class Mine(type(cfg.make_env())):  # a task of one's own may change under the same name
     pass
@@ -175,8 +183,8 @@ def test_a_trainer_is_kept_only_for_the_packages_own_task_and_agent(monkeypatch)
 
 def test_a_second_run_of_the_same_shapes_traces_and_compiles_none_of_its_programs(
     tmp_path, monkeypatch):
-  # The product's build (not the suite's memo): another seed is the same trainer, whose
-  # programs the process already holds, traced and compiled.
+  # The product's build (not the suite's memo): another seed, learning rate and noise are the
+  # same programs (`runs.program_key`), which the process already holds, traced and compiled.
   monkeypatch.setattr(runs, "build", runs.build.__wrapped__)
   heavy = ("chunk", "refill", "evaluate", "init_member")
   events = []
@@ -189,7 +197,9 @@ def test_a_second_run_of_the_same_shapes_traces_and_compiles_none_of_its_program
     if seed == 1:
       jax.monitoring.register_event_duration_secs_listener(listen)
     try:
+      dynamic = {"learning_rate": 1e-3 * (1 + seed), "sigma": 0.2 + 0.1 * seed}
       loop.run(dataclasses.replace(configs.TINY, seed=seed, total_env_steps=80,
+                                   agent_overrides={**configs.TINY.agent_overrides, **dynamic},
                                    out_dir=str(tmp_path / str(seed))),
                progress=False, print_fn=lambda line: None)
     finally:

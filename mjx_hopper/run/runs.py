@@ -18,17 +18,18 @@ from mjx_hopper.settings.config import TRAINER_DYNAMIC, RunConfig
 from mjx_hopper.store.run_folder import RunFolder, Saved, config_item, open_checkpoints
 
 
-_last_built: list = [None]  # the trainer_key of the trainer this process built last
+_last_built: list = [None]  # the program_key of the trainer this process built last
 
 
 def build(cfg: RunConfig, num_members: int | None = None) -> train.Trainer:
   """The compiled trainer of `cfg`'s members (or of `num_members` of them), after checking its
-  task's reward. Where the trainer built last in this process was another, JAX's in-memory
-  caches are emptied first: once full, they change how the next programs are traced, and so
-  their keys in the compile cache, and a run after other work in the same process (a
-  notebook's earlier cells) would compile what the cache holds. The same trainer again (a
-  resume, another seed) keeps them, so its programs are traced again quickly."""
-  key = trainer_key(cfg, num_members)
+  task's reward. Where the trainer built last in this process had other programs, JAX's
+  in-memory caches are emptied first: once full, they change how the next programs are traced,
+  and so their keys in the compile cache, and a run after other work in the same process (a
+  notebook's earlier cells) would compile what the cache holds. The same programs again (a
+  resume, another seed or learning rate: `program_key`) keep them, so a second run of them
+  neither traces nor compiles."""
+  key = program_key(cfg, num_members)
   if key != _last_built[0]:
     jax.clear_caches()
   _last_built[0] = key
@@ -41,7 +42,7 @@ def assemble(cfg: RunConfig, num_members: int | None = None) -> train.Trainer:
   env = cfg.make_env()
   envs.check_task(env)
   agent = agents.make(cfg.agent, env.observation_size, env.action_size, cfg.agent_config())
-  key = trainer_key(cfg, num_members)
+  key = program_key(cfg, num_members)
   ledger.note("trainer", f"{key[0].__name__} {cfg.agent} x{key[6]} "
               + hashlib.sha256(repr(key).encode()).hexdigest()[:12])
   return train.make_trainer(env, agent, cfg.train_config(), eval_episodes=cfg.eval_episodes,
@@ -52,12 +53,13 @@ def assemble(cfg: RunConfig, num_members: int | None = None) -> train.Trainer:
 
 def identity(cfg: RunConfig, num_members: int | None = None) -> str | None:
   """The text under which the trainer's programs are kept as traced (`core.kept`): its
-  `trainer_key`, where its task's class and its agent's `make` are this package's own (code of
-  one's own may change without its name changing, and is traced afresh)."""
+  `program_key` (a run of another learning rate reads the same programs), where its task's
+  class and its agent's `make` are this package's own (code of one's own may change without its
+  name changing, and is traced afresh)."""
   own = (envs.task_class(cfg.env), agents.spec(cfg.agent).make)
   if not all(x.__module__.startswith("mjx_hopper.") for x in own):
     return None
-  return repr(trainer_key(cfg, num_members))
+  return repr(program_key(cfg, num_members))
 
 
 def trainer_key(cfg: RunConfig, num_members: int | None = None) -> tuple:
@@ -68,6 +70,19 @@ def trainer_key(cfg: RunConfig, num_members: int | None = None) -> tuple:
   return (envs.task_class(cfg.env), _frozen(cfg.task_settings()), cfg.agent,
           _frozen(dataclasses.asdict(cfg.agent_config())), cfg.train_config(), cfg.eval_episodes,
           num_members or len(cfg.member_settings()), "replay_ratio" in cfg.grid)
+
+
+# A dynamic setting that also shapes the programs: the longest n-step window the replay reads.
+SHAPING_DYNAMIC = ("n_step",)
+
+
+def program_key(cfg: RunConfig, num_members: int | None = None) -> tuple:
+  """`trainer_key` without the agent's dynamic settings (but SHAPING_DYNAMIC): what shapes the
+  trainer's programs, which read the dynamic settings from the state's `hparams` as data. Runs
+  that differ only in those (another learning rate or noise) lower to the same programs."""
+  key = trainer_key(cfg, num_members)
+  dynamic = set(type(cfg.agent_config()).DYNAMIC) - set(SHAPING_DYNAMIC)
+  return (*key[:3], tuple(kv for kv in key[3] if kv[0] not in dynamic), *key[4:])
 
 
 def _frozen(x):
