@@ -27,7 +27,7 @@ class Started(NamedTuple):
   chunk: concurrent.futures.Future    # the compiled training chunk
   refill: concurrent.futures.Future   # the compiled refill of the episode starts (`init`'s)
   finite: concurrent.futures.Future   # compiled `finite_members` of the members' agents
-  evaluation: concurrent.futures.Future  # the compiled evaluation (`Evaluator.lower`)
+  evaluation: concurrent.futures.Future  # the compiled evaluation (`evaluator.lower`)
 
 
 def start(trainer: train.Trainer, init, lower_evaluation) -> Started:
@@ -35,10 +35,10 @@ def start(trainer: train.Trainer, init, lower_evaluation) -> Started:
   trainer's refill, as `init()` does) and compiling the chunk, the finiteness check and the
   evaluation (`lower_evaluation(agent_shapes)`, lowered). The first training row needs the
   chunk, the state and the check, which come first, side by side: the chunk in one thread, the
-  state and the check in the other. The evaluation follows, on a small CPU after the chunk in its thread, so as not to
-  slow its compile. The programs are traced here, in turn, since tracing holds Python's lock;
-  the state's programs (the refill's too) are traced in its thread, and on a small CPU the
-  evaluation in the chunk's."""
+  state and the check in the other. The evaluation follows, on a small CPU after the chunk in
+  its thread, so as not to slow its compile. The programs are traced here, in turn, since
+  tracing holds Python's lock; the state's programs (the refill's too) are traced in its
+  thread, and on a small CPU the evaluation in the chunk's."""
   shapes = jax.tree.map(
       lambda sharding, part: jax.tree.map(
           lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sharding), part),

@@ -20,17 +20,14 @@ def setup(compile_cache: str | None = None, cpu_devices: int | None = None) -> s
 
   Before JAX starts its backends (else left as they are): MuJoCo's EGL rendering on Linux
   without a display, cuBLAS rather than Triton for a GPU's matrix products, XLA:CPU's own
-  kernels rather than YNNPACK's for a CPU's, XLA's CPU split
-  into `cpu_devices` devices (None: one per core, unless $XLA_FLAGS sets a count: the CLI and
-  `loop.run` alike), and where this JAX's Shardy crashes (`SHARDY_CRASHES`), XLA's
-  C++ log at errors. Then JAX's config: the persistent compile cache, keeping every
-  program, in `compile_cache` (None: the folder already set, else $MJX_HOPPER_JAX_CACHE, else
-  ~/.cache/mjx_hopper/jax) per `cpu_key()`, GSPMD where Shardy crashes, and gloo's CPU
-  collectives where none is chosen (used only by a run over processes). Last, where
-  $MJX_HOPPER_COMPILE_LEDGER is set, the compile ledger (`process.ledger`). Unset environment
-  variables only are set. Returns the compile cache's folder. A `cpu_devices` that JAX's
-  started backends do not have is a ValueError.
-  """
+  kernels rather than YNNPACK's for a CPU's, XLA's CPU split into `cpu_devices` devices (None:
+  one per core, unless $XLA_FLAGS sets a count), and where this JAX's Shardy crashes
+  (`SHARDY_CRASHES`), XLA's C++ log at errors. Then JAX's config: the persistent compile cache,
+  keeping every program, in `compile_cache` (None: the folder already set, else
+  $MJX_HOPPER_JAX_CACHE, else ~/.cache/mjx_hopper/jax) per `cpu_key()`, GSPMD where Shardy
+  crashes, gloo's CPU collectives where none is chosen, and where $MJX_HOPPER_COMPILE_LEDGER is
+  set, the compile ledger. Unset environment variables only are set. Returns the compile
+  cache's folder. A `cpu_devices` that JAX's started backends do not have is a ValueError."""
   if cpu_devices is not None and cpu_devices < 1:
     raise ValueError(f"cpu_devices must be >= 1, got {cpu_devices}")
   from mjx_hopper.process import jax_private, ledger  # import no JAX

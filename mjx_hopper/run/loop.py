@@ -118,8 +118,7 @@ def _lock(folder: str, say, primary: bool):
 
 def _train(p: opening.Parts, state: train.TrainState, progress: bool, stop, user: "_UserCode"
            ) -> train.TrainState:
-  """Chunks until the run's env steps or deadline, a stop (a signal, progress_fn's False, or
-  an exception from the user's code), its target, or every member diverged."""
+  """Chunks until the env steps or deadline, a stop, the target, or every member diverged."""
   cfg, members, evaluator = p.cfg, p.members, p.evaluator
   env_steps = p.env_steps(state)
   bar = _progress_bar(cfg.total_env_steps, env_steps) if progress and not p.until.reached(
@@ -134,13 +133,9 @@ def _train(p: opening.Parts, state: train.TrainState, progress: bool, stop, user
     _signalled_elsewhere(stop, signalled)
     if stopped or signalled or members.done():
       break
-    before, t0 = env_steps, time.perf_counter()
-    state, metrics, agents_before = p.chunk(state)
-    env_steps = p.env_steps(state)
-    members.check(env_steps, metrics, p.chunk.finite(state.agent))
-    state = p.chunk.freeze(state, agents_before, members.diverged)
-    rate = (env_steps - before) * len(members) / (time.perf_counter() - t0)
-    asked |= _log_train(p, user, state, env_steps, rate, metrics)
+    before = env_steps
+    state, env_steps, rate, asked_now = _one_chunk(p, user, state)
+    asked |= asked_now
     if members.all_diverged():
       break  # this state is not evaluated, and never saved
     state = p.chunk.refill(state)  # after the row: its program may still be compiling
@@ -153,10 +148,7 @@ def _train(p: opening.Parts, state: train.TrainState, progress: bool, stop, user
     pbt_now = p.pbt_due(before, env_steps)
     # The last evaluation, PBT's (which needs the returns) and a checkpoint's (which holds
     # them) wait; the others do not.
-    for done in evaluator.collect(wait=last or pbt_now or saving):
-      better = members.evaluated(done.env_steps, done.returns, done.diverged)
-      evaluator.keep(done, better)
-      asked |= _log_evaluation(p, user, done)
+    asked |= _take_evaluations(p, user, wait=last or pbt_now or saving)
     if pbt_now:
       state = p.pbt_step(state, evaluator.latest.returns, env_steps, members)
     if saving:
@@ -164,6 +156,28 @@ def _train(p: opening.Parts, state: train.TrainState, progress: bool, stop, user
     _show(bar, p, env_steps, rate)
   _close(p, user, state, bar)
   return state
+
+
+def _one_chunk(p: opening.Parts, user: "_UserCode", state: train.TrainState):
+  """A chunk, checked, its diverged members frozen, and logged: (state, env steps, env steps/s,
+  whether progress_fn asked to stop)."""
+  before, t0 = p.env_steps(state), time.perf_counter()
+  state, metrics, agents_before = p.chunk(state)
+  env_steps = p.env_steps(state)
+  p.members.check(env_steps, metrics, p.chunk.finite(state.agent))
+  state = p.chunk.freeze(state, agents_before, p.members.diverged)
+  rate = (env_steps - before) * len(p.members) / (time.perf_counter() - t0)
+  return state, env_steps, rate, _log_train(p, user, state, env_steps, rate, metrics)
+
+
+def _take_evaluations(p: opening.Parts, user: "_UserCode", wait: bool) -> bool:
+  """Records, keeps and logs the evaluations that are done (with `wait`, all of them). Returns
+  whether progress_fn asked to stop."""
+  asked = False
+  for done in p.evaluator.collect(wait=wait):
+    p.evaluator.keep(done, p.members.evaluated(done.env_steps, done.returns, done.diverged))
+    asked |= _log_evaluation(p, user, done)
+  return asked
 
 
 def _signalled_elsewhere(stop, signalled: bool) -> None:
@@ -174,9 +188,7 @@ def _signalled_elsewhere(stop, signalled: bool) -> None:
 
 def _close(p: opening.Parts, user: "_UserCode", state: train.TrainState, bar) -> None:
   """After the last chunk: the evaluations still running, the bar, the last checkpoint."""
-  for done in p.evaluator.collect(wait=True):
-    p.evaluator.keep(done, p.members.evaluated(done.env_steps, done.returns, done.diverged))
-    _log_evaluation(p, user, done)
+  _take_evaluations(p, user, wait=True)
   if bar is not None:
     bar.close()
   if not p.members.all_diverged():
