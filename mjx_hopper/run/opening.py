@@ -147,8 +147,8 @@ def assemble(plan: Plan, resumed, started, saver, say, progress_fn, t_start: flo
     say(warning)
   pbt_step = cfg.pbt and pbt.make_step(cfg.pbt, cfg.grid, trainer, cfg.seed, say)
   return Parts(cfg, plan.folder, trainer, members, evaluator,
-                Chunk(started, evaluator, members), pbt_step, saver, logger, display,
-                Until(cfg, t_start), progress_fn, say)
+               Chunk(started, evaluator, members), pbt_step, saver, logger, display,
+               Until(cfg, t_start), progress_fn, say)
 
 
 def checked_manager(cfg: RunConfig, checkpoint_dir: str, saved_config: dict, defaults: dict):
