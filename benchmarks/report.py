@@ -49,10 +49,6 @@ SWEEPS = ("sweep_throughput_2gpu_h200.json", "sweep_throughput_cpu.json")
 PBT = "pbt_quality_halfcheetah_h100x2.json"
 START = {"one H200": "start_time_h200.json", "2 CPU cores": "start_time_cpu.json"}
 DISTRIBUTED = ("distributed_gpu2.json", "distributed_cpu2.json")
-# The training chunk as a program, before and after a change (chunk_program.py).
-CHUNK = {"one H100": "chunk_program_h100.json", "2 CPU cores": "chunk_program_cpu.json"}
-# The chunk compiled as one program, and as its collection and its learning at once (--split).
-SPLIT = {"one H200": "chunk_program_h200_split.json", "2 CPU cores": "chunk_program_cpu_split.json"}
 # A start's phases as the table shows them: label, and its keys in start_time.py's medians (the
 # first found: the evaluation's program was "one" before it was kept as "evaluate").
 START_ROWS = {"imports": ("imports",), "build": ("build",), "chunk: tracing": ("chunk trace",),
@@ -294,7 +290,6 @@ def sections() -> list[tuple[str, str, str, list[str]]]:
   out.append(c_physics_section())
   out.append(gymnasium_section())
   out.append(start_section())
-  out.append(chunk_section())
   out.append(iteration_section())
   rows = []
   for name in SWEEPS:
@@ -441,33 +436,6 @@ def iteration_section() -> tuple[str, str, str, list[str]]:
           text, list(ITERATION.values()))
 
 
-def chunk_section() -> tuple[str, str, str, list[str]]:
-  """The training chunk's program at this code (the commits its results files compared it with
-  are in the page's history): its size, compile and steady pace."""
-  rows = []
-  for where, name in CHUNK.items():
-    data = load(name)
-    f = data["figures"]["medians"]["this checkout"]
-    rows.append([where, code(data["commit"]), num(f["compiled_instructions"]),
-                 num(f["compile_s"], 1), num(f["refill_instructions"]),
-                 num(f["env_steps_per_s"])])
-  split = []
-  for where, name in SPLIT.items():
-    data = load(name)
-    f = data["figures"]["medians"]["this checkout"]
-    split.append([where, code(data["commit"]), num(f["compile_s"], 1),
-                  num(f["collection_compile_s"], 1), num(f["learning_compile_s"], 1),
-                  num(f["split_compile_s"], 1)])
-  return ("The training chunk", "Hopper's preset: the chunk's HLO instructions, "
-          "cold compile and env steps/s over the chunks its command names, in a fresh "
-          "process; then compiled as one program, or as its collection and its learning at "
-          "once.",
-          table(["machine", "code", "instructions", "compile (s)", "refill's instructions",
-                 "env steps/s"], rows) + "\n\n" + table(
-              ["machine", "code", "one program (s)", "collection (s)", "learning (s)",
-               "both at once (s)"], split), list(CHUNK.values()) + list(SPLIT.values()))
-
-
 def pretrained_section(names: list[str]) -> tuple[str, str, str, list[str]]:
   """The shipped policies (mjx_hopper/faces/pretrained/): how each was trained, and its file's
   return."""
@@ -485,17 +453,16 @@ def pretrained_section(names: list[str]) -> tuple[str, str, str, list[str]]:
 
 def learner_changes_section() -> tuple[str, str, str, list[str]]:
   """The Hopper's gpu preset against itself with one learner change at a time."""
-  base = time_to_score(LEARNER_CHANGES["baseline"])["median"]
+  base = time_to_score(LEARNER_CHANGES["baseline"])
   rows = []
   for label, names in LEARNER_CHANGES.items():
     t = time_to_score(names)
     change = re.findall(r"--(?:train-)?set (\S+)", load(names[0])["command"])
     rows.append([", ".join(change) or "none (the preset)", f"{t['reached']}/{t['seeds']}",
-                 num(t["median"], 1), num(t["env_steps"], 2), num(t["median"] / base, 2)])
+                 num(t["median"], 1), num(t["env_steps"], 2), num(t["median"] / base["median"], 2)])
   return ("One learner change at a time on one GPU",
-          "The Hopper's gpu preset with one change, to 2,500, on seeds 100-104 run "
-          + time_to_score(LEARNER_CHANGES["baseline"])["method"] + " as in the GPU table, in "
-          "one session (the preset twice). × preset: over the preset's median.",
+          f"The Hopper's gpu preset, one change each, to 2,500, seeds run {base['method']}, in "
+          "one session; × preset: over its median.",
           table(["change", "seeds reaching", "median (s)", "env steps (M)", "× preset"], rows),
           [n for names in LEARNER_CHANGES.values() for n in names])
 
@@ -514,10 +481,10 @@ def c_physics_section() -> tuple[str, str, str, list[str]]:
   passed = all(checks[k][f"{t}_pass"] for k in ("oracle_MJX", "oracle_C")
                for t in ("random_states", "one_step", "episode_statistics"))
   return ("The env step through MuJoCo C on 2 CPU cores",
-          "The Hopper's env step, its physics in MJX or in MuJoCo C (through "
-          "`jax.pure_callback`), random actions on 2 XLA devices. Both "
-          + ("pass" if passed else "do not all pass") + " the PyBullet checks; their episodes part after "
-          "a contact, as MJX's own do when its actions move by 1e-6.",
+          "The Hopper's env step, its physics in MJX or in MuJoCo C (`jax.pure_callback`), "
+          "random actions, 2 XLA devices. Both " + ("pass" if passed else "do not all pass")
+          + " the PyBullet checks; their episodes part after a contact, as MJX's own do when "
+          "its actions move by 1e-6.",
           table(["envs", "MJX compile (s)", "C compile (s)", "C ÷ MJX", "MJX env steps/s",
                  "C env steps/s", "C ÷ MJX"], rows), [C_PHYSICS])
 
@@ -554,9 +521,10 @@ def benchmarks_page() -> str:
 
 
 def sources(names: list[str]) -> str:
-  """The lines naming the results files `names` under a table: files made by one command on
-  one machine, day and commit share a line. A command's --out (where it left its episodes) and
-  --label (in its file's name) are left out."""
+  """The lines naming the results files `names` under a table: files made on one machine, day
+  and commit by one command share a line, and so do those whose command is it with arguments
+  added (each file says its own). A command's --out (where it left its episodes) and --label
+  (in its file's name) are left out."""
   made = {}
   for n in dict.fromkeys(names):
     r = load(n)
@@ -564,11 +532,17 @@ def sources(names: list[str]) -> str:
     command = re.sub(r"^python \S*?benchmarks/", "", command)
     command = command.replace('bash benchmarks/gpu.sh "python benchmarks/', 'gpu.sh "')
     made.setdefault((r["date"], machine(n), code(r["commit"]), command), []).append(n)
-  lines = []
+  lines = {}
   for (date, where, commit, command), files in made.items():
-    listed = ", ".join(f"`{n.removesuffix('.json')}`" for n in files)
-    lines.append(f"- {listed} ({date}, {where}, {commit}): `{command}`")
-  return "\n".join(lines)
+    base = next((k for k in lines if k[:3] == (date, where, commit)
+                 and command.startswith(k[3] + " ")), None)
+    listed = [f"`{n.removesuffix('.json')}`" for n in files]
+    if base is None:
+      lines[(date, where, commit, command)] = listed
+    else:
+      lines[base] += [f"{name} + `{command[len(base[3]) + 1:]}`" for name in listed]
+  return "\n".join(f"- {', '.join(listed)} ({date}, {where}, {commit}): `{command}`"
+                   for (date, where, commit, command), listed in lines.items())
 
 
 def readme_table() -> str:
