@@ -20,6 +20,21 @@ def short_hopper():
 
 
 @pytest.fixture(scope="module")
+def resets(short_hopper):
+  """`short_hopper.reset` of each of `keys` (any number), through one program of NUM_ENVS
+  resets: host arrays."""
+  program = jax.jit(jax.vmap(short_hopper.reset))
+
+  def reset(keys):
+    keys = np.asarray(keys)
+    padded = np.concatenate([keys, np.zeros((-len(keys) % NUM_ENVS, *keys.shape[1:]),
+                                            keys.dtype)])
+    batches = [jax.device_get(program(b)) for b in padded.reshape(-1, NUM_ENVS, *keys.shape[1:])]
+    return jax.tree.map(lambda *x: np.concatenate(x)[:len(keys)], *batches)
+  return reset
+
+
+@pytest.fixture(scope="module")
 def new_episodes(short_hopper):
   """Every env's states after the steps that began new episodes, over 4 refills: their qpos,
   qvel, obs (4, STARTS, NUM_ENVS, ...), and each env's starts as each refill left them."""
@@ -64,13 +79,13 @@ def test_no_start_is_taken_twice(new_episodes):
   assert len(np.unique(qpos, axis=0)) == len(qpos)
 
 
-def test_starts_are_drawn_as_env_reset_draws_them(short_hopper, new_episodes):
+def test_starts_are_drawn_as_env_reset_draws_them(resets, new_episodes):
   """Positions, velocities and first observations of the new episodes against those of
   `env.reset` from other keys: each dimension's mean and spread agree within sampling error."""
   n = new_episodes["qpos"][..., 0].size
-  resets = jax.jit(jax.vmap(short_hopper.reset))(jax.random.split(jax.random.PRNGKey(11), n))
-  reference = {"qpos": resets.pipeline_state.qpos, "qvel": resets.pipeline_state.qvel,
-               "obs": resets.obs}
+  drawn = resets(jax.random.split(jax.random.PRNGKey(11), n))
+  reference = {"qpos": drawn.pipeline_state.qpos, "qvel": drawn.pipeline_state.qvel,
+               "obs": drawn.obs}
   for name, ours in new_episodes.items():
     if name == "starts":
       continue
@@ -85,12 +100,12 @@ def test_starts_are_drawn_as_env_reset_draws_them(short_hopper, new_episodes):
     np.testing.assert_allclose(ours[:, varies].std(0), spread[varies], rtol=0.1)
 
 
-def test_reset_begins_from_the_first_of_fresh_starts(short_hopper):
+def test_reset_begins_from_the_first_of_fresh_starts(short_hopper, resets):
   wrapped = envs.EpisodeStarts(short_hopper, 3)
   state = jax.jit(wrapped.reset)(jax.random.PRNGKey(0))
   assert int(state.info["starts_used"]) == 1  # the first state is start 0
   # Drawn as env.reset draws, each from its own key.
-  firsts = jax.jit(jax.vmap(short_hopper.reset))(jax.random.split(jax.random.PRNGKey(0), 4)[1:])
+  firsts = resets(jax.random.split(jax.random.PRNGKey(0), 4)[1:])
   np.testing.assert_allclose(state.info["starts"]["obs"], firsts.obs, atol=1e-6)
   np.testing.assert_allclose(state.obs, firsts.obs[0], atol=1e-6)
   np.testing.assert_allclose(state.info["final_obs"], firsts.obs[0], atol=1e-6)

@@ -12,18 +12,31 @@ from mjx_hopper.envs import base
 
 
 @pytest.fixture(scope="module")
-def init_state():
+def start_and_step():
+  """A robot's one program for these tests (by its name, or a name and an env of its own):
+  the state that `init_state` makes from (qpos, qvel), and that state after one control step
+  of `action`."""
   jitted = {}
 
-  def get(robot):
-    if robot not in jitted:
-      jitted[robot] = jax.jit(make_env(robot).init_state)
-    return jitted[robot]
+  def get(name, env=None):
+    if name not in jitted:
+      env = env or make_env(name)
+
+      def both(qpos, qvel, action):
+        start = env.init_state(qpos, qvel)
+        return start, env.step(start, action)
+      jitted[name] = jax.jit(both)
+    return jitted[name]
   return get
 
 
+def init_state(program, env, qpos, qvel):
+  """`env.init_state(qpos, qvel)` through `start_and_step`'s `program`."""
+  return program(qpos, qvel, np.zeros(env.action_size, np.float32))[0]
+
+
 @pytest.mark.parametrize("robot", ROBOTS)
-def test_reset_observation_matches_bullet(robot, init_state):
+def test_reset_observation_matches_bullet(robot, start_and_step):
   """Bullet's reset with seeds 0, 1 and 2 (tests/record_oracle.py): its observation from its
   joints' positions, and ours from the same."""
   env, bullet = make_env(robot), oracle(robot)
@@ -31,19 +44,19 @@ def test_reset_observation_matches_bullet(robot, init_state):
   for positions, bullet_obs in zip(bullet["reset_joint_positions"], bullet["reset_obs"]):
     qpos = np.array(env.mj_model.qpos0)
     qpos[env._qadr] = positions
-    state = init_state(robot)(qpos, np.zeros(env.mj_model.nv))
+    state = init_state(start_and_step(robot), env, qpos, np.zeros(env.mj_model.nv))
     np.testing.assert_allclose(state.obs, bullet_obs, atol=2e-5)
     assert state.obs.dtype == jnp.float32
 
 
 @pytest.mark.parametrize("robot", ROBOTS)
-def test_observation_matches_bullet_at_random_states(robot, init_state):
+def test_observation_matches_bullet_at_random_states(robot, start_and_step):
   """At 10 random states (every joint within its limits, a perturbed root, random speeds) put
   into Bullet's robot by hand."""
   env, bullet = make_env(robot), oracle(robot)
   assert len(bullet["random_qpos"]) == 10
   for i, (qpos, qvel) in enumerate(zip(bullet["random_qpos"], bullet["random_qvel"])):
-    state = init_state(robot)(qpos, qvel)
+    state = init_state(start_and_step(robot), env, qpos, qvel)
     np.testing.assert_allclose(state.obs, bullet["random_obs"][i], atol=5e-5)
     robot_state = state.info["robot"]
     np.testing.assert_allclose(robot_state.body_xyz, bullet["random_body_xyz"][i], atol=1e-5)
@@ -62,24 +75,23 @@ class BulletHumanoid(envs.Humanoid):
     model.dof_armature[:] = 0.0
 
 
-def one_step(env, bullet, seed):
+def one_step(program, bullet, seed):
   """From the random airborne states that Bullet stepped once with rng seed `seed`
-  (tests/record_oracle.py), one control step of ours: our observations before and after it,
-  Bullet's after it, our progress and Bullet's."""
-  step, init = jax.jit(env.step), jax.jit(env.init_state)
+  (tests/record_oracle.py), one control step of ours (`start_and_step`'s `program`): our
+  observations before and after it, Bullet's after it, our progress and Bullet's."""
   names = ("qpos", "qvel", "action", "obs", "progress")
   for qpos, qvel, action, bullet_obs, bullet_progress in zip(
       *(bullet[f"step{seed}_{k}"] for k in names)):
-    start = init(qpos, qvel)
-    state = step(start, jnp.asarray(action, jnp.float32))
+    start, state = program(qpos, qvel, np.asarray(action, np.float32))
     yield start.obs, state.obs, bullet_obs, float(state.metrics["progress"]), bullet_progress
 
 
 @pytest.mark.parametrize("robot", ROBOTS)
-def test_one_step_matches_bullet(robot):
+def test_one_step_matches_bullet(robot, start_and_step):
   """After a control step PyBullet reports poses one substep old: so must we. In the air, with
   no contact, only the integrators differ."""
   env = BulletHumanoid() if robot == "Humanoid" else make_env(robot)
+  program = start_and_step(type(env).__name__, env)
   speed = np.zeros(env.observation_size, bool)
   speed[3:6] = True  # Bullet takes the link speed from a part-updated pose: see fidelity.md
   if robot == "Humanoid":  # Bullet's arms collide with its body, ours do not: leave them out
@@ -87,21 +99,21 @@ def test_one_step_matches_bullet(robot):
     speed[[8 + 2 * i + k for i in arms for k in (0, 1)]] = True
   # Free-floating robots agree less well (fidelity.md): their base is Bullet's root link.
   tolerance = 0.01 if env._root == "planar" else 0.05
-  for _, obs, bullet_obs, progress, bullet_progress in one_step(env, oracle(robot), 2):
+  for _, obs, bullet_obs, progress, bullet_progress in one_step(program, oracle(robot), 2):
     assert progress == pytest.approx(bullet_progress, rel=0.02, abs=0.02)
     np.testing.assert_allclose(obs[~speed], bullet_obs[~speed], atol=tolerance)
     np.testing.assert_allclose(obs[3:6], bullet_obs[3:6], atol=0.05)
 
 
-def test_humanoid_armature_only_slows_the_joints():
+def test_humanoid_armature_only_slows_the_joints(start_and_step):
   """The shipped Humanoid's hinge armature leaves the pose after a step as Bullet's, and its
   joints' speeds change less in the step than without armature."""
   env, bullet = make_env("Humanoid"), oracle("Humanoid")
   positions = 8 + 2 * np.arange(len(env.joints))
   speeds = positions + 1
   assert len(bullet["step3_obs"]) == 4
-  shipped = one_step(env, bullet, 3)
-  without = list(one_step(BulletHumanoid(), bullet, 3))
+  shipped = one_step(start_and_step("Humanoid"), bullet, 3)
+  without = list(one_step(start_and_step("BulletHumanoid", BulletHumanoid()), bullet, 3))
   for (start, obs, bullet_obs, _, _), (_, free, _, _, _) in zip(shipped, without):
     np.testing.assert_allclose(obs[positions], bullet_obs[positions], atol=0.05)
     np.testing.assert_allclose(obs[speeds], bullet_obs[speeds], atol=0.15)

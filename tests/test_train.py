@@ -373,6 +373,12 @@ def test_progress_fn_sees_every_row_and_its_false_ends_the_run_cleanly(tmp_path)
   assert calls[-1][2] == pytest.approx(float(rows[-1]["eval_return"]))
   assert store.manager(str(tmp_path / "checkpoints")).all_steps() == [
       train.iterations(result.state)] == [10]
+  # A deadline that has passed before the first chunk (here, at once) ends the run in the same
+  # way after one chunk: a run always trains one, however long its programs took to compile.
+  resumed = loop.run(dataclasses.replace(cfg, max_minutes=1e-9), progress=False)
+  assert [(int(r["env_steps"]), r["kind"]) for r in resumed.history] == [
+      *((s, k) for s, k, _ in calls), (120, "train"), (120, "eval")]
+  assert store.manager(str(tmp_path / "checkpoints")).all_steps() == [10, 15]
 
 
 class Broken(Exception):

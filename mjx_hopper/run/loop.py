@@ -121,15 +121,15 @@ def _train(p: opening.Parts, state: train.TrainState, progress: bool, stop, user
   """Chunks until the env steps or deadline, a stop, the target, or every member diverged."""
   cfg, members, evaluator = p.cfg, p.members, p.evaluator
   env_steps = p.env_steps(state)
-  bar = _progress_bar(cfg.total_env_steps, env_steps) if progress and not p.until.reached(
-      env_steps) else None
+  bar = _progress_bar(cfg.total_env_steps, env_steps) if progress and not (
+      p.until.total_reached(env_steps)) else None
   next_eval = (env_steps // cfg.eval_every + 1) * cfg.eval_every
-  asked = False  # by progress_fn
+  asked = last = False  # asked by progress_fn; last: the run ends after this chunk
   while True:
     # Over processes, what one process alone knows (a signal, its clock, progress_fn) is
     # agreed on, so that every process makes the same choices.
-    stopped, signalled = distributed.agree("chunk", asked or p.until.reached(env_steps),
-                                            stop.requested)
+    stopped, signalled = distributed.agree(
+        "chunk", asked or last or p.until.total_reached(env_steps), stop.requested)
     _signalled_elsewhere(stop, signalled)
     if stopped or signalled or members.done():
       break

@@ -196,7 +196,8 @@ class Chunk:
 
 
 class Until:
-  """When the run ends: at its env steps or its deadline."""
+  """When the run ends: at its env steps, or at the first chunk's end past its deadline (so a
+  run trains at least one chunk, however long its programs take to compile)."""
 
   def __init__(self, cfg: RunConfig, t_start: float):
     self.t_start, self.total = t_start, cfg.total_env_steps
@@ -206,9 +207,14 @@ class Until:
     """Seconds since the run began."""
     return time.perf_counter() - self.t_start
 
+  def total_reached(self, env_steps: int) -> bool:
+    """Whether `env_steps` is the run's total: it trains no further chunk."""
+    return env_steps >= self.total
+
   def reached(self, env_steps: int) -> bool:
-    """Whether the run ends at `env_steps`: its total reached, or its deadline passed."""
-    return env_steps >= self.total or time.perf_counter() >= self.deadline
+    """Whether the run ends after a chunk that ends at `env_steps`: its total reached, or its
+    deadline passed."""
+    return self.total_reached(env_steps) or time.perf_counter() >= self.deadline
 
 
 def preset_warning(agent_preset: str, platform: str) -> str | None:

@@ -44,8 +44,9 @@ class RunConfig:
   agent_overrides: dict = setting({}, "agent settings that replace the preset's", flag=False)
   train: TrainConfig = setting(TrainConfig(), "the trainer's layout", flag=False)
   total_env_steps: int = setting(1_000_000, "env steps to train for")
-  max_minutes: float | None = setting(None, "also stop (and save) after this much wall-clock "
-                                     "time")
+  max_minutes: float | None = setting(None, "also stop (and save) after the chunk that ends "
+                                     "past this much wall-clock time (a run trains at least "
+                                     "one chunk)")
   stop_at_return: float | None = setting(None, "also stop once an evaluation of every member "
                                         "reaches this return")
   episode_steps: int | None = setting(None, "the task's time limit in steps; None: the task's "
