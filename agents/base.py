@@ -11,9 +11,15 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from mjx_hopper.core.fields import check_types
+from mjx_hopper.settings.fields import check_types
 
 AgentState = Any
+
+
+def n_step_transitions(hparams: dict) -> tuple:
+  """The transitions that a state with these `hparams` learns from: (n_step, discount), its own
+  settings of those names."""
+  return hparams["n_step"], hparams["discount"]
 
 
 class Agent(NamedTuple):
@@ -25,8 +31,10 @@ class Agent(NamedTuple):
   policy(state, obs) -> action, deterministic
   update(state, transitions, key, axis_name=None) -> (state, metrics); gradients are averaged
     over `axis_name` when given
-  n_step: the longest n-step window `update` takes; a state's own is `hparams["n_step"]`
+  n_step: the longest n-step window `update` takes (the replay rows a sample reads)
   hparams: the config's dynamic settings as arrays
+  transitions(hparams) -> (n_step, discount): the transitions that `update` takes, for a
+    state's `hparams`, which the trainer samples (default: its n_step and discount settings)
   """
 
   init: Callable[[jax.Array], AgentState]
@@ -35,6 +43,7 @@ class Agent(NamedTuple):
   update: Callable[..., tuple[AgentState, dict[str, jax.Array]]]
   n_step: int
   hparams: dict
+  transitions: Callable[[dict], tuple] = n_step_transitions
 
 
 COMPUTE_DTYPES = {"float32": jnp.float32, "bfloat16": jnp.bfloat16}

@@ -33,11 +33,15 @@ def measure(args) -> dict:
     import jax
     import numpy as np
 
-    runs, presets = common.project_module("run.runs"), common.project_module("settings.presets")
+    try:
+      trainers = common.project_module("run.trainers")
+    except ModuleNotFoundError:  # its name before the checkpoint readers had their own module
+      trainers = common.project_module("run.runs")
+    presets = common.project_module("settings.presets")
     cfg = presets.run_config(args.env, args.kind)
-    trainer = runs.build(cfg)
+    trainer = trainers.build(cfg)
     members = getattr(cfg, "member_settings", None) or cfg.members  # its name before c1d0d21
-    state = runs.init(cfg, trainer, members())
+    state = trainers.init(cfg, trainer, members())
     chunk = getattr(trainer, "chunk", None) or trainer.train_chunk  # before EpisodeStarts
     refill = getattr(trainer, "refill", None)
     figures = {"lowered_chars": len(chunk.lower(state).as_text())}

@@ -86,8 +86,8 @@ def installed_layout(checkout: str, folder: str) -> str:
 
 
 def project_module(dotted: str):
-  """The project's module `dotted` ("run.runs"), or in a checkout from before the floors'
-  sub-packages, its flat namesake ("runs"): for timing another checkout beside this one."""
+  """The project's module `dotted` ("run.trainers"), or in a checkout from before the floors'
+  sub-packages, its flat namesake ("trainers"): for timing another checkout beside this one."""
   import importlib
 
   import mjx_hopper

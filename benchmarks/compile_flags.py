@@ -41,7 +41,7 @@ def work(args) -> dict:
   from mjx_hopper import envs
   from mjx_hopper.core import rollout
   from mjx_hopper.faces import notebook
-  from mjx_hopper.run import runs
+  from mjx_hopper.run import trainers
   from mjx_hopper.settings.config import RunConfig
 
   out = {}
@@ -56,8 +56,8 @@ def work(args) -> dict:
   out["episodes_compile_s"], out["episodes_run_s"] = t1 - t0, time.perf_counter() - t1
 
   cfg = dataclasses.replace(notebook.tiny(RunConfig(env="Hopper", agent="d4pg")), log_every=0.0)
-  trainer = runs.build(cfg)
-  state = runs.init(cfg, trainer, cfg.member_settings())
+  trainer = trainers.build(cfg)
+  state = trainers.init(cfg, trainer, cfg.member_settings())
   t0 = time.perf_counter()
   chunk = trainer.chunk.lower(state).compile()
   t1 = time.perf_counter()

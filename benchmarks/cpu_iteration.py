@@ -65,7 +65,7 @@ def part_split(env_name: str, kind: str, repeats: int) -> dict:
     import jax.numpy as jnp
 
     from mjx_hopper.core import replay, rollout
-    from mjx_hopper.run import runs
+    from mjx_hopper.run import trainers
     from mjx_hopper.settings import presets
     cfg = presets.run_config(env_name, kind)
     tc = cfg.train
@@ -76,15 +76,15 @@ def part_split(env_name: str, kind: str, repeats: int) -> dict:
       timed(2)
       return statistics.median(timed() for _ in range(repeats))
 
-    trainer = runs.build(cfg)
+    trainer = trainers.build(cfg)
 
     def fresh():  # each part its own state: a chunk's call consumes (donates) the one it gets
-      return runs.init(cfg, trainer, cfg.member_settings())
+      return trainers.init(cfg, trainer, cfg.member_settings())
     learning = per_chunk(trainer.chunk, fresh(), trainer=trainer)
     # The same chunk before learning starts: collection and insert alone.
     waiting = dataclasses.replace(cfg, train=dataclasses.replace(tc, min_replay=tc.replay_size))
-    idle = runs.build(waiting)
-    collecting = per_chunk(idle.chunk, runs.init(waiting, idle, waiting.member_settings()),
+    idle = trainers.build(waiting)
+    collecting = per_chunk(idle.chunk, trainers.init(waiting, idle, waiting.member_settings()),
                            trainer=idle)
     refill = per_chunk(jax.jit(lambda e, _: (trainer.refill(e, False), None),
                                out_shardings=(trainer.shardings.env, None)), fresh().env, None)

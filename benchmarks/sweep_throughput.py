@@ -25,23 +25,23 @@ def measure(args) -> dict:
   mjx_hopper.setup()  # before the package loads (and anything compiles)
   import jax
 
-  from mjx_hopper.core import train
-  from mjx_hopper.run import runs
+  from mjx_hopper.run import trainers
   from mjx_hopper.settings import config, flags
+  from mjx_hopper.settings.training import TrainConfig
 
   cfg = config.RunConfig(
       env=args.env, agent=args.agent, agent_preset=args.preset,
       agent_overrides=flags.overrides(args.set),
-      train=train.TrainConfig(num_envs=args.num_envs, unroll_length=args.unroll_length,
-                              batch_size=args.batch_size, replay_ratio=args.replay_ratio,
-                              replay_size=args.replay_size, min_replay=0,
-                              iterations_per_chunk=args.chunk),
+      train=TrainConfig(num_envs=args.num_envs, unroll_length=args.unroll_length,
+                        batch_size=args.batch_size, replay_ratio=args.replay_ratio,
+                        replay_size=args.replay_size, min_replay=0,
+                        iterations_per_chunk=args.chunk),
       seeds=tuple(range(args.members)) if args.members > 1 else ())
   # Learning from the first iteration.
   cfg = dataclasses.replace(cfg, train=dataclasses.replace(
       cfg.train, min_replay=cfg.train.steps_per_iteration))
-  trainer = runs.build(cfg)
-  timed = common.Timed(trainer.chunk, runs.init(cfg, trainer, cfg.member_settings()),
+  trainer = trainers.build(cfg)
+  timed = common.Timed(trainer.chunk, trainers.init(cfg, trainer, cfg.member_settings()),
                        trainer=trainer)
   seconds = timed(args.chunks)
   per_chunk = args.members * cfg.train.steps_per_iteration * args.chunk * args.chunks

@@ -45,8 +45,8 @@ def record_episode(checkpoint_dir: str, member: int, path: str) -> dict:
   import jax
 
   from mjx_hopper.core import train
-  from mjx_hopper.run import runs
-  cfg, agent_state, trainer = runs.load_policy(checkpoint_dir, member)
+  from mjx_hopper.run import checkpoints
+  cfg, agent_state, trainer = checkpoints.load_policy(checkpoint_dir, member)
   result = jax.device_get(jax.jit(lambda s, k: train.evaluate(
       trainer.env, trainer.agent, s, k, 1, record_qpos=True))(agent_state, jax.random.PRNGKey(7)))
   length = int(result["length"][0])
@@ -133,7 +133,7 @@ def main() -> None:
     return
   import jax
 
-  from mjx_hopper.core.train import TrainConfig
+  from mjx_hopper.settings.training import TrainConfig
   from mjx_hopper.settings import flags, presets
   try:
     preset = presets.get(args.robot, args.kind)

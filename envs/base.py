@@ -10,7 +10,6 @@ import contextlib
 import functools
 import inspect
 import io
-import os
 from typing import ClassVar
 
 import jax
@@ -25,9 +24,8 @@ with contextlib.redirect_stdout(io.StringIO()):
 from brax.envs.base import Env, State
 from flax import struct
 
-from mjx_hopper.envs import specs
+from mjx_hopper.envs import model as robot_model, specs
 
-ASSETS = os.path.join(os.path.dirname(__file__), "assets")
 REWARD_TERMS = ("alive", "progress", "electricity_cost", "joints_at_limit_cost",
                 "feet_collision_cost")
 # Brax's EpisodeWrapper (which `brax.envs.training.wrap` and Brax's trainers add) keeps this key
@@ -128,71 +126,31 @@ class LocomotionEnv(Env):
     if not isinstance(episode_steps, (int, np.integer)) or episode_steps < 1:
       raise ValueError(f"episode_steps must be an integer >= 1, got {episode_steps!r}")
     self.episode_steps = int(episode_steps)
-    model = mujoco.MjModel.from_xml_path(os.path.join(ASSETS, self.xml_file))
-    self.edit_model(model)
-    if abs(model.opt.timestep * self.n_substeps - self.control_dt) > 1e-9:
-      raise ValueError(f"{self.xml_file}: timestep {model.opt.timestep} x {self.n_substeps} "
-                       f"substeps is not the control dt {self.control_dt}")
-    act_joints = tuple(model.joint(model.actuator_trnid[i, 0]).name for i in range(model.nu))
-    if act_joints != self.joints:
-      raise ValueError(f"{self.xml_file}: actuators drive {act_joints}, expected {self.joints}")
-    model.actuator_gear[:, 0] = self.power * np.asarray(self.power_coefs)
-    if self.floor_bodies is not None:
-      bodies = [model.body(b).name for b in range(1, model.nbody)]
-      unknown = sorted(set(self.floor_bodies) - set(bodies))
-      if unknown:
-        raise ValueError(f"{type(self).__name__}.floor_bodies names {unknown}, which "
-                         f"{self.xml_file} lacks; its bodies are {bodies}")
-      touching = [model.body(b).id for b in self.floor_bodies]
-      off = (model.geom_bodyid != 0) & ~np.isin(model.geom_bodyid, touching)
-      model.geom_contype[off] = model.geom_conaffinity[off] = 0
-    self.mj_model = model
+    model = self.mj_model = robot_model.load(self)
     # This process's first device (under jax.distributed, MJX's default, jax.devices()[0], may
     # be another process's).
     device = jax.local_devices()[0]
     self.mjx_model = mjx.put_model(model, device=device)
-
     joint_ids = [model.joint(n).id for n in self.joints]
     self._qadr = np.array([model.jnt_qposadr[j] for j in joint_ids])
     self._dofadr = np.array([model.jnt_dofadr[j] for j in joint_ids])
     lower, upper = model.jnt_range[joint_ids].T
     self._mid, self._half_range = (lower + upper) / 2, (upper - lower) / 2
     self._torso = model.body(self.torso).id
-    self._root = self._root_kind(model)
-    # Bullet averages the x, y of its "parts": the floor (fixed at the origin), a link per body,
-    # and a massless link placed after each joint but a free one. After a hinge that link sits
-    # at the hinge's anchor; after a slide, where the slide took it: at the next joint's anchor
-    # of the same body, or at the body's frame after its last joint.
-    self._part_bodies = np.arange(1, model.nbody)
-    hinge, free = int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_FREE)
-    last = np.append(model.jnt_bodyid[1:] != model.jnt_bodyid[:-1], True)
-    kinds = np.asarray(model.jnt_type)
-    self._after_hinge = np.flatnonzero(kinds == hinge)
-    self._after_slide_anchor = np.flatnonzero((kinds != hinge) & (kinds != free) & ~last) + 1
-    self._after_slide_body = model.jnt_bodyid[(kinds != hinge) & (kinds != free) & last]
-    self._n_parts = int(np.sum(kinds != free)) + len(self._part_bodies) + 1
+    self._root = robot_model.root_kind(model, self._torso, self.xml_file)
+    parts = robot_model.bullet_parts(model)
+    self._part_bodies, self._after_hinge = parts["bodies"], parts["after_hinge"]
+    self._after_slide_anchor, self._after_slide_body = (parts["after_slide_anchor"],
+                                                        parts["after_slide_body"])
+    self._n_parts = parts["count"]
     self._foot_geom, self._foot_half_length, self._foot_radius, self._foot_mask = (
-        self._foot_geoms(model))
+        robot_model.foot_geoms(model, self.feet, self.xml_file))
     # One compiled program, rather than MJX's eager one-op programs for each field.
     self._data0 = jax.jit(lambda: mjx.make_data(self.mjx_model),
                           out_shardings=jax.sharding.SingleDeviceSharding(device))()
 
   def edit_model(self, model: mujoco.MjModel) -> None:
     """Edits the MuJoCo model before the env is built; a no-op by default."""
-
-  def _root_kind(self, model: mujoco.MjModel) -> str:
-    """'planar' (slide x, slide z, hinge y at the torso's origin) or 'free'."""
-    joints = np.flatnonzero(model.jnt_bodyid == self._torso)
-    types = [int(model.jnt_type[j]) for j in joints]
-    planar = [int(mujoco.mjtJoint.mjJNT_SLIDE)] * 2 + [int(mujoco.mjtJoint.mjJNT_HINGE)]
-    axes = model.jnt_axis[joints]
-    if types == [int(mujoco.mjtJoint.mjJNT_FREE)]:
-      return "free"
-    if (types == planar and np.allclose(axes, np.eye(3)[[0, 2, 1]])
-        and np.allclose(model.jnt_pos[joints], 0) and list(joints) == [0, 1, 2]):
-      return "planar"
-    raise ValueError(f"{self.xml_file}: the torso's root joints must be one free joint, or "
-                     "slide x, slide z and hinge y at its origin")
 
   def _torso_speed(self, qpos: jax.Array, qvel: jax.Array) -> jax.Array:
     """(3,) world-frame velocity of the torso's centre of mass for this qpos, qvel (m/s)."""
@@ -206,24 +164,6 @@ class LocomotionEnv(Env):
       rot = _quat_to_mat(qpos[3:7])
       offset, linear, angular = rot @ com, qvel[:3], rot @ qvel[3:6]
     return linear + jnp.cross(angular, offset)
-
-  def _foot_geoms(self, model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The feet's capsule and sphere geoms: ids, half-lengths, radii (G,), owner mask (F, G)."""
-    capsule, sphere = int(mujoco.mjtGeom.mjGEOM_CAPSULE), int(mujoco.mjtGeom.mjGEOM_SPHERE)
-    ids, owner = [], []
-    for f, foot in enumerate(self.feet):
-      geoms = np.flatnonzero(model.geom_bodyid == model.body(foot).id)
-      for g in geoms:
-        if model.geom_type[g] not in (capsule, sphere):
-          raise ValueError(f"{self.xml_file}: foot geom {model.geom(g).name!r} must be a "
-                           "capsule or a sphere")
-      ids += list(geoms)
-      owner += [f] * len(geoms)
-    ids = np.array(ids)
-    is_capsule = model.geom_type[ids] == capsule
-    half_length = np.where(is_capsule, model.geom_size[ids, 1], 0.0)
-    mask = np.arange(len(self.feet))[:, None] == np.array(owner)[None, :]
-    return ids, half_length, model.geom_size[ids, 0], mask
 
   # ---- Brax Env interface -------------------------------------------------------------------
 
@@ -389,7 +329,7 @@ class LocomotionEnv(Env):
     """Poses of every body and geom for the current qpos."""
     return _forward_kinematics(self.mjx_model, data)
 
-  # ---- What the NMA notebook inspects ----------------------------------------------------------------
+  # ---- What the NMA notebook inspects ------------------------------------------------------
 
   def action_spec(self) -> specs.BoundedArray:
     """(A,) float32 actions in [-1, 1]."""

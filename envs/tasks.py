@@ -25,7 +25,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from mjx_hopper.core.fields import convert
+from mjx_hopper.settings.fields import convert
 from mjx_hopper.envs.base import LocomotionEnv
 
 _REGISTRY: dict[str, type[LocomotionEnv]] = {}

@@ -43,30 +43,30 @@ import crashes  # noqa: E402
 
 mjx_hopper.setup()  # before MuJoCo is imported, which reads MUJOCO_GL once
 
-from mjx_hopper.run import runs  # noqa: E402
+from mjx_hopper.run import trainers  # noqa: E402
 
 
 @pytest.fixture(scope="session", autouse=True)
 def shared_builds():
-  """`runs.build`, through which every path builds its trainer (`loop.run` and `loop.resume`,
-  `runs.restore`, `runs.load_policy`, `runs.extract`, `export.export_checkpoint` and the
-  in-process CLI), memoised on `runs.trainer_key` for a test worker's whole session: each config's
-  trainer is traced once, across the test files that the worker runs (tracing one takes about
+  """`trainers.build`, through which every path builds its trainer (`loop.run` and
+  `loop.resume`, `checkpoints.restore`, `.load_policy` and `.extract`,
+  `export.export_checkpoint` and the in-process CLI), memoised on `trainers.trainer_key` for a
+  test worker's whole session: each config's trainer is traced once, across the test files that the worker runs (tracing one takes about
   15 s of CPU, even when its programs come from the compile cache). A trainer is pure
   functions, so a run is the same with a trainer built once or again. JAX's caches are kept
-  (`runs.assemble`), not emptied for each new trainer as `runs.build` empties them: the
+  (`trainers.assemble`), not emptied for each new trainer as `trainers.build` empties them: the
   memoised trainers and envs would be traced again, which made the quick tier trace far longer.
-  `runs.build.__wrapped__` is the product's."""
+  `trainers.build.__wrapped__` is the product's."""
   built = {}
 
-  @functools.wraps(runs.build)
+  @functools.wraps(trainers.build)
   def cached(cfg, num_members=None):
-    key = runs.trainer_key(cfg, num_members)
+    key = trainers.trainer_key(cfg, num_members)
     if key not in built:
-      built[key] = runs.assemble(cfg, num_members)
+      built[key] = trainers.assemble(cfg, num_members)
     return built[key]
   with pytest.MonkeyPatch.context() as patch:
-    patch.setattr(runs, "build", cached)
+    patch.setattr(trainers, "build", cached)
     yield
 
 

@@ -24,7 +24,8 @@ import mjx_hopper
 from mjx_hopper import agents, store
 from mjx_hopper.core import train
 from mjx_hopper.faces import cli
-from mjx_hopper.run import opening, runs
+from mjx_hopper.run import checkpoints
+from mjx_hopper.settings.config import field_defaults
 from mjx_hopper.store import failures
 from checkpoint_worker import CONFIG, state
 from configs import TINY_ARGS
@@ -256,7 +257,7 @@ def test_a_checkpoint_without_a_newer_setting_resumes_at_its_default(tmp_path):
   mngr = store.manager(str(directory))
   store.save(mngr, state(1), {**CONFIG, "agent_config": older})
   store.wait_and_record(mngr)
-  defaults = {"agent_config": opening.field_defaults(agents.config("d4pg"))}
+  defaults = {"agent_config": field_defaults(agents.config("d4pg"))}
   assert defaults["agent_config"]["compute_dtype"] == "float32"
   assert_same(store.read_latest(store.manager(str(directory)), state(0),
                                 {**CONFIG, "agent_config": now}, print_fn=lambda _: None,
@@ -355,8 +356,8 @@ def test_resume_is_bit_exact_in_fresh_processes(tmp_path):
   for counts in (train_in_fresh_process(tmp_path / "split", 80),
                  train_in_fresh_process(tmp_path / "split", 160)):  # resumes at 80 env steps
     assert counts["compiled"] == 0 and counts["loaded"] >= 6, counts
-  straight = runs.restore(str(tmp_path / "straight" / "checkpoints"))[1]
-  split = runs.restore(str(tmp_path / "split" / "checkpoints"))[1]
+  straight = checkpoints.restore(str(tmp_path / "straight" / "checkpoints"))[1]
+  split = checkpoints.restore(str(tmp_path / "split" / "checkpoints"))[1]
   assert train.iterations(straight) == train.iterations(split) == 20
   assert int(straight.updates[0]) > 0
   # Params, target params, optimizer states, replay, env states, keys and counters.

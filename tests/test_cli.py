@@ -7,7 +7,7 @@ import json
 
 import pytest
 
-from mjx_hopper.core.train import TrainConfig
+from mjx_hopper.settings.training import TrainConfig
 from mjx_hopper.faces import cli
 from mjx_hopper.run import loop
 from mjx_hopper.settings import flags, presets

@@ -11,7 +11,7 @@ import jax
 import configs
 import mjx_hopper
 from mjx_hopper.process import runtime
-from mjx_hopper.run import runs
+from mjx_hopper.run import trainers
 
 # Compiles one small program with the cache in argv[1], as a CPU with features argv[2] when
 # given (standing in for another machine), and prints where the cache went and JAX's cache
@@ -60,7 +60,7 @@ def test_another_cpu_compiles_afresh(tmp_path):
 
 
 def test_a_trainer_of_another_config_is_traced_from_empty_caches():
-  # runs.build empties JAX's in-memory caches (which, once full, change how programs are
+  # trainers.build empties JAX's in-memory caches (which, once full, change how programs are
   # traced, and so their compile-cache keys) for a trainer other than the last one built, and
   # keeps them for the same one again (a resume: its programs are traced again quickly). A
   # jitted function of the process's own shows which: traced again after its caches emptied.
@@ -79,7 +79,7 @@ def test_a_trainer_of_another_config_is_traced_from_empty_caches():
     traces.clear()
     doubled(1.0)
     return len(traces)
-  build = runs.build.__wrapped__  # the product's, not the suite's memo (conftest)
+  build = trainers.build.__wrapped__  # the product's, not the suite's memo (conftest)
   try:
     a, b = configs.tiny("d4pg"), configs.tiny("ddpg")
     build(a)

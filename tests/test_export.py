@@ -17,7 +17,7 @@ import mjx_hopper
 from mjx_hopper import agents, store
 from mjx_hopper.faces import cli, export
 from mjx_hopper.process import runlock
-from mjx_hopper.run import loop, runs
+from mjx_hopper.run import checkpoints, loop
 from checkpoint_worker import CONFIG, state as fake_state
 from configs import TINY
 
@@ -198,8 +198,8 @@ def test_a_run_in_progress_is_read_without_taking_its_lock(run_dir, tmp_path):
     with open(lock) as f:
       held = f.read()
     export.export_checkpoint(directory, str(tmp_path / "policy.npz"), print_fn=quiet)
-    runs.load_policy(directory, print_fn=quiet)
-    runs.extract(directory, 0, str(tmp_path / "member0"), print_fn=quiet)
+    checkpoints.load_policy(directory, print_fn=quiet)
+    checkpoints.extract(directory, 0, str(tmp_path / "member0"), print_fn=quiet)
     with open(lock) as f:
       assert f.read() == held
 
@@ -209,7 +209,7 @@ def test_export_of_a_run_acts_as_its_policy_and_records_its_task(run_dir, tmp_pa
   directory = str(run_dir / "checkpoints")
   out = export.export_checkpoint(directory, str(tmp_path / "policy.npz"), print_fn=lines.append)
   policy = export.load(out)
-  cfg, agent_state, trainer = runs.load_policy(directory, print_fn=lambda _: None)
+  cfg, agent_state, trainer = checkpoints.load_policy(directory, print_fn=lambda _: None)
   obs = observations()
   np.testing.assert_allclose(policy(obs), np.asarray(jax.jit(trainer.agent.policy)(
       agent_state, obs)), rtol=0, atol=1e-5)
@@ -238,7 +238,7 @@ def test_an_exported_file_evaluates_and_films_as_its_checkpoint(run_dir, tmp_pat
   video = str(tmp_path / "policy.mp4")
   result = export.evaluate_file(path, episodes=2, seed=3, video_path=video,
                                 print_fn=lines.append)
-  cfg, agent_state, trainer = runs.load_policy(directory, print_fn=lambda _: None)
+  cfg, agent_state, trainer = checkpoints.load_policy(directory, print_fn=lambda _: None)
   from mjx_hopper.core import train
   want = jax.device_get(jax.jit(lambda s, k: train.evaluate(
       trainer.env, trainer.agent, s, k, 2))(agent_state, jax.random.PRNGKey(3)))

@@ -15,7 +15,7 @@ from jax.sharding import NamedSharding, PartitionSpec as P
 import configs
 from mjx_hopper import agents
 from mjx_hopper.core import kept
-from mjx_hopper.run import loop, runs
+from mjx_hopper.run import loop, trainers
 
 
 class State(NamedTuple):
@@ -163,29 +163,29 @@ def test_under_gspmd_the_function_runs_as_jitted(cache):
 
 def test_a_trainer_is_kept_only_for_the_packages_own_task_and_agent(monkeypatch):
   cfg = configs.TINY
-  assert runs.identity(cfg) == repr(runs.program_key(cfg))
+  assert trainers.identity(cfg) == repr(trainers.program_key(cfg))
   # Dynamic settings are data of the same programs; n-step's window and the networks shape them.
   overrides = cfg.agent_overrides
   same = dataclasses.replace(cfg, agent_overrides={**overrides, "learning_rate": 0.5,
                                                    "discount": 0.9, "vmax": 900.0})
-  assert runs.identity(same) == runs.identity(cfg)
+  assert trainers.identity(same) == trainers.identity(cfg)
   for shaping in ({"n_step": 1}, {"critic_layers": (8,)}):
-    assert runs.identity(dataclasses.replace(cfg, agent_overrides={**overrides, **shaping})
-                         ) != runs.identity(cfg)
+    assert trainers.identity(dataclasses.replace(cfg, agent_overrides={**overrides, **shaping})
+                         ) != trainers.identity(cfg)
 
   class Mine(type(cfg.make_env())):  # a task of one's own may change under the same name
     pass
-  assert runs.identity(dataclasses.replace(cfg, env=Mine)) is None
+  assert trainers.identity(dataclasses.replace(cfg, env=Mine)) is None
   d4pg = agents.spec("d4pg")  # and an agent registered from code of one's own
   monkeypatch.setitem(agents._AGENTS, "d4pg", d4pg._replace(make=lambda *a: d4pg.make(*a)))
-  assert runs.identity(cfg) is None
+  assert trainers.identity(cfg) is None
 
 
 def test_a_second_run_of_the_same_shapes_traces_and_compiles_none_of_its_programs(
     tmp_path, monkeypatch):
   # The product's build (not the suite's memo): another seed, learning rate and noise are the
-  # same programs (`runs.program_key`), which the process already holds, traced and compiled.
-  monkeypatch.setattr(runs, "build", runs.build.__wrapped__)
+  # same programs (`trainers.program_key`), which the process already holds, traced and compiled.
+  monkeypatch.setattr(trainers, "build", trainers.build.__wrapped__)
   heavy = ("chunk", "refill", "evaluate", "init_member")
   events = []
 

@@ -14,9 +14,9 @@ PACKAGE = ROOT / "mjx_hopper"
 LEAVES = ("agents", "envs")  # installed as mjx_hopper.agents, mjx_hopper.envs
 # What agents/ and envs/ may import from mjx_hopper/ (or the floor's package holding one, whose
 # __init__ imports nothing); everything else there is the host layer (run.loop, settings.config,
-# core.evaluator, core.members, core.pbt, run.runs, run.sweep, store, run.logger, faces.cli,
+# core.evaluator, core.members, core.pbt, run.trainers, run.sweep, store, run.logger, faces.cli,
 # faces.notebook, settings.presets, faces.export, ...), which uses the leaves and never the reverse.
-SHARED = {"agents", "envs", "core.fields", "core.parallel"}
+SHARED = {"agents", "envs", "settings.fields", "core.parallel"}
 
 
 def _floor(name: str) -> tuple[str, ...]:
@@ -28,7 +28,7 @@ def _floor(name: str) -> tuple[str, ...]:
 # The host layer's floors, lowest first: each a sub-package of mjx_hopper/ named for what it owns
 # (docs/design.md), its modules those of its folder. A module imports only from its own floor and
 # those below, and from agents/ and envs/.
-FLOORS = {name: _floor(name) for name in ("process", "core", "settings", "store", "run", "faces")}
+FLOORS = {name: _floor(name) for name in ("process", "settings", "core", "store", "run", "faces")}
 
 HISTORY = re.compile(r"\b\d{4}-\d{2}-\d{2}\b|H100|H200|\b2 cores\b|\b2-core\b|BENCHMARKS\.md"
                      r"|history\.md", re.IGNORECASE)
@@ -93,9 +93,9 @@ def host_imports(source: str, package: list[str]) -> list[tuple[int, str, str]]:
     "import mjx_hopper.run.loop",
     "import mjx_hopper.run.sweep as sweep",
     "from mjx_hopper import checkpoint",
-    "from mjx_hopper.core import fields, train",
+    "from mjx_hopper.settings import fields, config",
     "from mjx_hopper.settings.presets import ROBOT_PRESETS",
-    "from mjx_hopper.run.runs.sub import x",
+    "from mjx_hopper.run.trainers.sub import x",
     "from ..faces import cli",
     "from ..faces.notebook import tiny",
     "from ..settings import config",
@@ -109,7 +109,7 @@ def test_a_host_import_is_found_in_every_form(source):
 @pytest.mark.parametrize("source", [
     "import mjx_hopper",
     "from mjx_hopper.core import parallel",
-    "from mjx_hopper.core.fields import check_types",
+    "from mjx_hopper.settings.fields import check_types",
     "from mjx_hopper.agents import distributional, networks",
     "from mjx_hopper.envs.base import LocomotionEnv",
     "from . import critics",
@@ -122,10 +122,10 @@ def test_a_shared_import_passes(source):
 
 
 def test_a_host_import_reports_its_line_and_text():
-  source = "import jax\nfrom mjx_hopper.core import checkpoint, fields, train\n"
-  text = "from mjx_hopper.core import checkpoint, fields, train"
-  assert host_imports(source, ["mjx_hopper", "envs"]) == [(2, "core.checkpoint", text),
-                                                          (2, "core.train", text)]
+  source = "import jax\nfrom mjx_hopper.settings import config, fields, presets\n"
+  text = "from mjx_hopper.settings import config, fields, presets"
+  assert host_imports(source, ["mjx_hopper", "envs"]) == [(2, "settings.config", text),
+                                                          (2, "settings.presets", text)]
 
 
 def test_agents_and_envs_import_nothing_of_the_host_layer():
@@ -258,7 +258,8 @@ def package_graph() -> dict[str, set[str]]:
 
 def test_the_package_has_no_import_cycle():
   graph = package_graph()
-  assert graph["mjx_hopper.run.opening"] >= {"mjx_hopper.run.runs", "mjx_hopper.core.evaluator"}
+  assert graph["mjx_hopper.run.opening"] >= {"mjx_hopper.run.trainers",
+                                            "mjx_hopper.core.evaluator"}
   found = cycles(graph)
   assert not found, ("modules that import each other, at any depth of their code (a cycle "
                      "works only while the order of imports allows it):\n"

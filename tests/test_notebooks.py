@@ -15,17 +15,17 @@ from nbclient import NotebookClient
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(1500)]
 NOTEBOOK = pathlib.Path(__file__).parent.parent / "notebooks" / "robolympics.ipynb"
 
-# The hash of the text of a DDPG run's training chunk, as `runs.build` traces it: in the
+# The hash of the text of a DDPG run's training chunk, as `trainers.build` traces it: in the
 # notebook's kernel after all its cells, and in a fresh process.
 CHUNK_TEXT = """
 import hashlib
 import jax
-from mjx_hopper.run import runs
+from mjx_hopper.run import trainers
 
 
 def chunk_text(cfg):
-  trainer = runs.build(cfg, 1)
-  state = jax.eval_shape(lambda: runs.init(cfg, trainer, [{"seed": 0}], begin=False))
+  trainer = trainers.build(cfg, 1)
+  state = jax.eval_shape(lambda: trainers.init(cfg, trainer, [{"seed": 0}], begin=False))
   return hashlib.sha256(trainer.chunk.lower(state).as_text(debug_info=False).encode()).hexdigest()
 """
 # Run in the notebook's kernel after its own cells: what its workflow left behind.
@@ -129,7 +129,7 @@ def test_section_7_trains_a_population(executed):
 def test_a_run_after_its_cells_is_traced_as_in_a_fresh_process(executed):
   # So that a run after other work in the kernel (the notebook's DDPG after its PBT cell) loads
   # its programs from the compile cache: JAX's in-memory caches, once full, changed how it was
-  # traced (runs.build empties them).
+  # traced (trainers.build empties them).
   _, facts = executed
   fresh = subprocess.run(
       [sys.executable, "-c", CHUNK_TEXT + "import sys\nsys.path.insert(0, 'tests')\n"

@@ -10,7 +10,7 @@ import pytest
 import mjx_hopper
 from mjx_hopper import agents, store
 from mjx_hopper.faces import cli
-from mjx_hopper.run import runs
+from mjx_hopper.run import checkpoints
 from mjx_hopper.settings import config
 from checkpoint_worker import state
 
@@ -68,7 +68,7 @@ def test_a_checkpoint_with_old_names_is_refused_and_kept(tmp_path):
   store.wait_and_record(mngr)
   files = store.manifests.files(str(directory))
   with pytest.raises(store.ConfigMismatch) as error:
-    runs.saved_config(str(directory), print_fn=lambda line: pytest.fail(f"printed {line!r}"))
+    checkpoints.saved_config(str(directory), print_fn=lambda line: pytest.fail(f"printed {line!r}"))
   message = str(error.value)
   assert "\n" not in message
   assert message.startswith(f"{directory}: the saved config (checkpoint format "

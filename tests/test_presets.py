@@ -12,6 +12,7 @@ from mjx_hopper.core import train
 from mjx_hopper.faces import cli
 from mjx_hopper.run import loop, opening
 from mjx_hopper.settings import flags, presets
+from mjx_hopper.settings.training import TrainConfig
 from configs import POPULATION  # four members of a tiny run: 4 envs, eval every 40 env steps
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent.parent / "benchmarks"))
@@ -30,7 +31,7 @@ def test_every_robot_has_a_valid_gpu_and_cpu_preset():
                                                                    preset.train, 1.0)
       assert cfg.total_env_steps == preset.env_steps
   # The 2-core CPU's Hopper preset is what the README's main job runs.
-  assert presets.get("Hopper", "cpu").train == train.TrainConfig()
+  assert presets.get("Hopper", "cpu").train == TrainConfig()
 
 
 @pytest.mark.parametrize("kind, table", [("gpu", report.GPU), ("cpu", report.CPU)])
@@ -111,7 +112,7 @@ def test_every_agents_robot_settings_are_valid():
 def test_run_config_merges_agent_overrides():
   cfg = presets.run_config("Ant", "gpu", agent_overrides={"sigma": 0.2})
   assert cfg.agent_overrides == {**presets.get("Ant", "gpu").agent_overrides, "sigma": 0.2}
-  layout = train.TrainConfig(replay_ratio=8.0)
+  layout = TrainConfig(replay_ratio=8.0)
   cfg = presets.run_config("Ant", "cpu", train=layout, seed=3)
   assert (cfg.train, cfg.seed, cfg.eval_every) == (layout, 3, presets.get("Ant", "cpu").eval_every)
 
@@ -142,10 +143,10 @@ def test_cli_starts_from_the_robot_preset():
   # Another agent than the preset's gets its own preset and the trainer's defaults.
   cfg = run_config("--env", "Walker2D", "--preset", "gpu", "--agent", "ddpg")
   assert (cfg.agent, cfg.agent_preset, cfg.train, cfg.agent_overrides) == (
-      "ddpg", "gpu", train.TrainConfig(), {})
+      "ddpg", "gpu", TrainConfig(), {})
   # ... and the robot's own settings for that agent where it has them; --set wins.
   cfg = run_config("--env", "Hopper", "--agent", "ddpg", "--set", "sigma=0.3")
-  assert (cfg.agent, cfg.agent_preset, cfg.train) == ("ddpg", "cpu", train.TrainConfig())
+  assert (cfg.agent, cfg.agent_preset, cfg.train) == ("ddpg", "cpu", TrainConfig())
   assert cfg.agent_overrides == {**presets.AGENT_OVERRIDES["Hopper", "cpu", "ddpg"], "sigma": 0.3}
   # D4PG's Hopper networks are 128-128 on the CPU; DDPG keeps its preset's 256-256.
   d4pg = run_config("--env", "Hopper").agent_config()
@@ -171,7 +172,7 @@ def test_cli_starts_from_the_robot_preset():
   # With no flags: D4PG's cpu preset and the trainer's defaults (the README's main job).
   cfg = run_config()
   assert (cfg.agent, cfg.agent_preset, cfg.train, cfg.eval_every) == (
-      "d4pg", "cpu", train.TrainConfig(), 200_000)
+      "d4pg", "cpu", TrainConfig(), 200_000)
 
 
 @pytest.mark.slow

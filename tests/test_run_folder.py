@@ -9,9 +9,9 @@ import pytest
 
 from mjx_hopper import store
 from mjx_hopper.faces import cli, export
-from mjx_hopper.run import runs
+from mjx_hopper.run import checkpoints, trainers
 from mjx_hopper.settings import config
-from mjx_hopper.store.run_folder import RunFolder, Saved, check_processes, config_item
+from mjx_hopper.store.run_folder import RunFolder, Saved, check_processes
 from configs import TINY
 
 
@@ -22,11 +22,11 @@ def partial(tmp_path_factory):
   cfg = dataclasses.replace(TINY, seeds=(0, 1, 2, 3),
                             out_dir=str(tmp_path_factory.mktemp("partial")))
   folder = RunFolder.of(cfg)
-  trainer = runs.build(cfg, 2)
-  state = runs.init(cfg, trainer, cfg.member_settings()[2:])
+  trainer = trainers.build(cfg, 2)
+  state = trainers.init(cfg, trainer, cfg.member_settings()[2:])
   record = {"best_return": [1.0, 5.0], "best_env_steps": [40, 40]}
   mngr = store.manager(folder.checkpoints)
-  store.save(mngr, state, {**config_item(cfg, [2, 3]), "record": record})
+  store.save(mngr, state, {**cfg.saved([2, 3]), "record": record})
   store.wait_and_record(mngr)
   return folder.checkpoints, state
 
@@ -38,7 +38,7 @@ def test_a_member_is_its_index_not_its_position(partial):
   assert [m["seed"] for m in saved.member_settings()] == [2, 3]
   assert [saved.position(m) for m in (2, 3, "best")] == [0, 1, 1]
   for index, position in ((2, 0), (3, 1), ("best", 1)):
-    agent = runs.load_member(directory, index, which="latest", print_fn=lambda _: None).agent
+    agent = checkpoints.load_member(directory, index, which="latest", print_fn=lambda _: None).agent
     jax.tree.map(np.testing.assert_array_equal, agent,
                  jax.tree.map(lambda x: x[position], jax.device_get(state.agent)))
 
@@ -51,7 +51,7 @@ def test_a_member_the_checkpoint_lacks_is_refused_in_one_line(partial, member, m
                                                                tmp_path):
   directory, _ = partial
   with pytest.raises(store.ConfigMismatch, match=message):
-    runs.load_member(directory, member, print_fn=lambda _: None)
+    checkpoints.load_member(directory, member, print_fn=lambda _: None)
   with pytest.raises(ValueError, match=message):
     export.export_checkpoint(directory, str(tmp_path / "policy.npz"), member=member)
   assert not (tmp_path / "policy.npz").exists()
@@ -72,18 +72,18 @@ def test_config_json_is_the_config_item(tmp_path):
   cfg = dataclasses.replace(TINY, out_dir=str(tmp_path))
   folder = RunFolder.of(cfg)
   assert folder.path == str(tmp_path) and folder.log == str(tmp_path / "log.csv")
-  folder.write_config(config_item(cfg, [0]))
+  folder.write_config(cfg.saved([0]))
   assert config.load(str(tmp_path / "config.json")).to_json() == cfg.to_json()
   assert folder.grid() == {}
 
 
 def test_a_run_over_processes_resumes_on_as_many(tmp_path):
   cfg = dataclasses.replace(TINY, seeds=(0, 1), out_dir=str(tmp_path))
-  assert "processes" not in config_item(cfg, [0, 1])
-  trainer = runs.build(cfg, 2)
+  assert "processes" not in cfg.saved([0, 1])
+  trainer = trainers.build(cfg, 2)
   mngr = store.manager(RunFolder.of(cfg).checkpoints)
   check_processes(mngr, 2)  # nothing saved yet: any number
-  store.save(mngr, runs.init(cfg, trainer, cfg.member_settings()), config_item(cfg, [0, 1], 2))
+  store.save(mngr, trainers.init(cfg, trainer, cfg.member_settings()), cfg.saved([0, 1], 2))
   store.wait_and_record(mngr)
   check_processes(mngr, 2)
   saved = Saved.read(mngr, mngr.latest_step())  # eval, export and extract read it as any

@@ -18,9 +18,10 @@ import pytest
 
 from mjx_hopper import store
 from mjx_hopper.core import train
-from mjx_hopper.core.pbt import PBT, exploit_explore
+from mjx_hopper.core.pbt import exploit_explore
 from mjx_hopper.faces import cli
-from mjx_hopper.run import loop, runs, sweep
+from mjx_hopper.run import checkpoints, loop, sweep, trainers
+from mjx_hopper.settings.training import PBT
 from configs import JUMP, JUMP_ARGS, POPULATION, TINY, TINY_ARGS
 from test_train import member
 
@@ -77,7 +78,7 @@ def assert_as_its_single_run(a, b):
 def single():
   """The trainer of a single JUMP run on one device. A member's seed and swept values are
   data, init's inputs, so this one program is every member's single run."""
-  base = runs.build(JUMP, 1)
+  base = trainers.build(JUMP, 1)
   return train.make_trainer(base.env, base.agent, JUMP.train, JUMP.eval_episodes,
                             devices=jax.local_devices()[:1])
 
@@ -95,13 +96,13 @@ def test_member_is_bit_identical_to_its_single_run(single):
   # Two members on the two CPU devices, one each: each runs the program of a single run on one
   # device, from its own seed's keys, with its learning rate as an array of the same program.
   cfg = dataclasses.replace(JUMP, seeds=(1,), grid={"learning_rate": (1e-3, 3e-4)})
-  trainer = runs.build(cfg)
+  trainer = trainers.build(cfg)
   members = cfg.member_settings()
-  state, metrics = run_chunks(trainer, runs.init(cfg, trainer, members))
+  state, metrics = run_chunks(trainer, trainers.init(cfg, trainer, members))
   # Member 1 has JUMP's own learning rate: its single run is started as `loop.run(JUMP)` starts
   # one; member 0's gets its learning rate through init.
   assert members[1] == {"seed": 1, "learning_rate": JUMP.agent_config().learning_rate}
-  user_path = run_chunks(single, runs.init(dataclasses.replace(JUMP, seed=1), single,
+  user_path = run_chunks(single, trainers.init(dataclasses.replace(JUMP, seed=1), single,
                                            [{"seed": 1}]))
   for i, (one, one_metrics) in enumerate([single_run(single, members[0]), user_path]):
     assert_as_its_single_run(member(state, i), member(one))
@@ -149,15 +150,15 @@ def test_sweep_writes_results_resumes_exactly_and_extracts(single, tmp_path, cap
   assert (tmp_path / "straight" / "curves.png").stat().st_size > 10_000
 
   # Member 2 (seed 0, sigma 0.3) becomes a single run's checkpoint.
-  target = runs.extract(str(tmp_path / "straight" / "checkpoints"), 2, str(tmp_path / "m2"))
-  one_cfg, one_state, _ = runs.restore(target)
+  target = checkpoints.extract(str(tmp_path / "straight" / "checkpoints"), 2, str(tmp_path / "m2"))
+  one_cfg, one_state, _ = checkpoints.restore(target)
   assert (one_cfg.seed, one_cfg.agent_overrides["sigma"], one_cfg.seeds, one_cfg.grid) == (
       0, 0.3, (), {})
   assert_same(member(one_state), member(straight.state, 2))
   with pytest.raises(ValueError, match="already holds a checkpoint"):
-    runs.extract(str(tmp_path / "straight" / "checkpoints"), 2, str(tmp_path / "m2"))
+    checkpoints.extract(str(tmp_path / "straight" / "checkpoints"), 2, str(tmp_path / "m2"))
   with pytest.raises(ValueError, match=r"member 7 is not in .*: it holds members \[0, 1, 2, 3\]"):
-    runs.extract(str(tmp_path / "straight" / "checkpoints"), 7, str(tmp_path / "m7"))
+    checkpoints.extract(str(tmp_path / "straight" / "checkpoints"), 7, str(tmp_path / "m7"))
 
 
 @pytest.mark.parametrize("grid, message", [
@@ -185,9 +186,9 @@ def test_bad_seeds_and_cli_spec(capsys):
 
 def test_replay_ratio_and_n_step_sweep_each_member_their_own():
   cfg = dataclasses.replace(TINY, grid={"replay_ratio": (1.0, 2.0), "n_step": (1, 3)})
-  trainer = runs.build(cfg)
+  trainer = trainers.build(cfg)
   assert trainer.agent.n_step == 3  # the replay reads the longest window
-  state, _ = run_chunks(trainer, runs.init(cfg, trainer, cfg.member_settings()), chunks=1)
+  state, _ = run_chunks(trainer, trainers.init(cfg, trainer, cfg.member_settings()), chunks=1)
   # Learning starts at iteration 3 of 5: 3 iterations of 1 or 2 updates per iteration.
   ratios = [m["replay_ratio"] for m in cfg.member_settings()]
   assert list(state.updates) == [3 * int(r) for r in ratios]  # 8 transitions, batch 8
@@ -304,13 +305,13 @@ def test_a_diverged_member_is_frozen_and_the_others_go_on_unchanged(tmp_path, ca
             "frozen at its last finite agent" in out)
   # Members 0 and 2 run as they do beside sane neighbours, bit for bit (the same program): a
   # diverged member leaves the members vmapped with it alone.
-  trainer = runs.build(cfg)
+  trainer = trainers.build(cfg)
   sane = dataclasses.replace(cfg, grid={"sigma": (0.1, 0.3), "learning_rate": (1e-3, 3e-4)})
-  beside_sane, _ = run_chunks(trainer, runs.init(sane, trainer, sane.member_settings()), 3)
+  beside_sane, _ = run_chunks(trainer, trainers.init(sane, trainer, sane.member_settings()), 3)
   for m in (0, 2):
     assert_same(member(result.state, m), member(beside_sane, m))
   # Members 1 and 3 diverged in their first chunk: their agents stay the ones they started with.
-  start = runs.init(cfg, trainer, cfg.member_settings())
+  start = trainers.init(cfg, trainer, cfg.member_settings())
   for m in (1, 3):
     assert_same(member(result.state.agent, m), member(start.agent, m))
   with open(tmp_path / "log.csv") as f:
@@ -351,10 +352,10 @@ def test_pbt_replaces_a_diverged_member_resumes_exactly_and_extracts(tmp_path, c
     assert [r[5] for r in evals[1:]] == ["0", "0"]
   assert (tmp_path / "straight" / "pbt.png").stat().st_size > 10_000
   # The best member becomes a single run that eval and train take.
-  target = runs.extract(str(tmp_path / "straight" / "checkpoints"), "best",
+  target = checkpoints.extract(str(tmp_path / "straight" / "checkpoints"), "best",
                         str(tmp_path / "best"))
   best = int(np.argmax(straight.best_return))
-  one_cfg, agent, _ = runs.load_policy(target)
+  one_cfg, agent, _ = checkpoints.load_policy(target)
   assert one_cfg.grid == {} and one_cfg.pbt is None
   last = [r for r in logs["straight"] if r[1] == str(best)][-1]
   assert one_cfg.agent_overrides["learning_rate"] == float(last[3])
@@ -475,8 +476,8 @@ def test_two_processes_train_one_population_as_one_process_through_their_faults(
   assert f"resumed from {checkpoints}, step {killed}" in outs[0]
   assert "done: 200 env steps" in outs[0] and "done: " not in outs[1]  # process 0 says them
   assert (two / "log.csv").exists() and not (two / "process0").exists()
-  _, states, _ = runs.restore(checkpoints)
-  _, one, _ = runs.restore(str(tmp_path / "one" / "checkpoints"))
+  _, states, _ = checkpoints.restore(checkpoints)
+  _, one, _ = checkpoints.restore(str(tmp_path / "one" / "checkpoints"))
   assert_same(jax.device_get(states), jax.device_get(one))
   evaluations = eval_rows(two)
   assert evaluations == eval_rows(tmp_path / "one")

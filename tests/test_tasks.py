@@ -16,7 +16,7 @@ from mjx_hopper import envs
 from mjx_hopper.core import train
 from mjx_hopper.envs.events import AntLongJump, HighJump
 from mjx_hopper.faces import cli, notebook
-from mjx_hopper.run import loop, runs
+from mjx_hopper.run import checkpoints, loop, trainers
 from mjx_hopper.settings import presets
 from configs import JUMP, TINY_ARGS
 
@@ -95,7 +95,7 @@ def test_bad_rewards_are_refused_before_any_compile(task, message, monkeypatch):
     raise AssertionError("the trainer was built")
   monkeypatch.setattr(train, "make_trainer", no_compile)
   with pytest.raises(ValueError, match=message):
-    runs.build(dataclasses.replace(JUMP, env=task, env_settings={}))
+    trainers.build(dataclasses.replace(JUMP, env=task, env_settings={}))
 
 
 def test_a_reward_that_turns_nan_mid_episode_ends_the_episode():
@@ -152,7 +152,7 @@ def test_another_task_or_setting_is_refused_and_nothing_changes(jump_run):
              progress=False)
   with pytest.raises(ValueError, match=r"not mjx_hopper.envs.events:HighJump "
                                        r"\(episode_steps=30, height_weight=3.0\)"):
-    runs.load_policy(ckpt, env=HighJump(height_weight=3.0, episode_steps=30))
+    checkpoints.load_policy(ckpt, env=HighJump(height_weight=3.0, episode_steps=30))
   assert _files(out) == before
 
 
@@ -171,11 +171,11 @@ def test_a_notebook_class_is_passed_again_in_a_new_process(jump_run, tmp_path, m
   with pytest.raises(ValueError, match="cannot import; pass the class itself again"):
     loop.resume(str(tmp_path / "checkpoints"))
   monkeypatch.setattr(sys.modules["__main__"], "NotebookJump", NotebookJump, raising=False)
-  _, agent_state, trainer = runs.load_policy(str(tmp_path / "checkpoints"))  # a notebook ran
+  _, agent_state, trainer = checkpoints.load_policy(str(tmp_path / "checkpoints"))  # a notebook ran
   assert type(trainer.env) is NotebookJump                                   # its cell again
   monkeypatch.delattr(sys.modules["__main__"], "NotebookJump")
   monkeypatch.delitem(envs.tasks._SEEN, "__main__:NotebookJump")
-  _, _, trainer = runs.load_policy(str(tmp_path / "checkpoints"), env=NotebookJump)
+  _, _, trainer = checkpoints.load_policy(str(tmp_path / "checkpoints"), env=NotebookJump)
   assert type(trainer.env) is NotebookJump
 
 

@@ -13,14 +13,14 @@ from mjx_hopper import agents, store
 from mjx_hopper.core import evaluator, start, train
 from mjx_hopper.faces import cli
 from mjx_hopper.process import distributed
-from mjx_hopper.run import logger, loop, opening, runs
+from mjx_hopper.run import checkpoints, logger, loop, opening, trainers
 
 from configs import TINY, tiny_args
 
 
 @pytest.fixture(scope="module")
 def trainer():
-  return runs.build(TINY)  # the trainer that loop.run(TINY) below reuses
+  return trainers.build(TINY)  # the trainer that loop.run(TINY) below reuses
 
 
 @pytest.fixture(scope="module")
@@ -153,16 +153,16 @@ def test_run_logs_checkpoints_and_resumes(tmp_path, capsys):
   assert np.mean(again["return"][0]) == pytest.approx(float(best["eval_return"]), rel=1e-5)
   directory = str(tmp_path / "run" / "checkpoints")
   for which, want in (("best", longer.best), ("latest", longer.state.agent)):
-    _, agent, trainer = runs.load_policy(directory, which=which)
+    _, agent, trainer = checkpoints.load_policy(directory, which=which)
     jax.tree.map(np.testing.assert_array_equal, agent, member(want))
-    assert trainer is longer.trainer  # conftest's shared builds cover runs.load_policy too
+    assert trainer is longer.trainer  # conftest's shared builds cover checkpoints.load_policy too
   assert f"return {longer.best_return[0]:.1f} at {int(best['env_steps']):,} env steps" in (
       capsys.readouterr().out)
   # Another config is refused, naming what differs, before a trainer is built for it, and the
   # checkpoint is left alone.
   with pytest.MonkeyPatch.context() as patch, pytest.raises(
       ValueError, match="from another config .*agent_config"):
-    patch.setattr(runs, "build", lambda *_: pytest.fail("a trainer was built"))
+    patch.setattr(trainers, "build", lambda *_: pytest.fail("a trainer was built"))
     loop.run(dataclasses.replace(cfg, agent_overrides={**cfg.agent_overrides, "n_step": 2}),
              progress=False)
   assert max(int(p) for p in os.listdir(tmp_path / "run" / "checkpoints") if p.isdigit()) == (

@@ -3,77 +3,11 @@ a better member's agent and perturb the grid's settings (docs/pbt.md)."""
 
 from __future__ import annotations
 
-import dataclasses
-
 import jax
 import numpy as np
 
-from mjx_hopper.core.fields import check_types
 from mjx_hopper.process import distributed
-
-
-@dataclasses.dataclass(frozen=True)
-class PBT:
-  """Population-based training's choices (docs/pbt.md says why each default).
-
-  every: evaluations (their env steps) between two exploit-and-explore steps.
-  fraction: the worst `fraction` of the members (at least one), and every diverged member, each
-    take a copy of the agent of a healthy member drawn from the best `fraction` (parameters,
-    optimizer state, target networks, dynamic settings); each keeps its own replay, envs and
-    key, but for a diverged member, whose replay and envs hold non-finite steps: it takes its
-    source's too.
-  factors: each of the grid's settings of a copy is multiplied by one of these, drawn at random
-    (an integer setting moves at least by 1), then clipped to its bounds.
-  bounds: {setting: (low, high)}; a setting not given is bounded by the grid's smallest and
-    largest value.
-  """
-
-  every: int = 2
-  fraction: float = 0.25
-  factors: tuple[float, ...] = (0.8, 1.25)
-  bounds: dict = dataclasses.field(default_factory=dict)
-
-  def __post_init__(self):
-    check_types(self)
-    if not isinstance(self.every, int) or self.every < 1:
-      raise ValueError(f"PBT's every must be an integer >= 1 (evaluations), got {self.every!r}")
-    if not 0 < self.fraction <= 0.5:
-      raise ValueError(f"PBT's fraction must be in (0, 0.5], got {self.fraction}")
-    if not self.factors or any(f <= 0 for f in self.factors):
-      raise ValueError(f"PBT's factors must be positive numbers, got {self.factors}")
-    bounds = {}
-    for name, pair in self.bounds.items():
-      if (not isinstance(pair, (tuple, list)) or len(pair) != 2
-          or not all(isinstance(v, (int, float)) for v in pair) or not pair[0] < pair[1]):
-        raise ValueError(f"PBT's bounds for {name!r} must be (low, high) with low < high, got "
-                         f"{pair!r}")
-      bounds[name] = tuple(float(v) for v in pair)
-    object.__setattr__(self, "bounds", bounds)
-
-  def check(self, grid: dict, num_members: int, config_of) -> None:
-    """Raises ValueError when this PBT cannot run on `grid`'s `num_members` members (per
-    process): fewer than 2, nothing to perturb, a bound on an unswept setting, a bound that
-    `config_of(name, value)` (which raises ValueError) refuses."""
-    if num_members < 2:
-      raise ValueError(f"PBT needs at least 2 members (per process), got {num_members}")
-    if not grid:
-      raise ValueError("PBT perturbs the grid's settings: give it at least one, such as "
-                       "grid={'learning_rate': (1e-4, 1e-3)}")
-    for name in self.bounds:
-      if name not in grid:
-        raise ValueError(f"PBT's bounds name {name!r}, which the grid does not sweep; it "
-                         f"sweeps {sorted(grid)}")
-    for name, (low, high) in self.ranges(grid).items():
-      if low == high:
-        raise ValueError(f"PBT cannot perturb {name!r}: the grid has one value, {low:g}; give "
-                         "two or more, or bounds={name: (low, high)}")
-      for value in (low, high):
-        config_of(name, int(value) if isinstance(grid[name][0], int) else value)
-
-  def ranges(self, grid: dict) -> dict[str, tuple[float, float]]:
-    """Each swept setting's (low, high)."""
-    return {name: self.bounds.get(name, (min(values), max(values)))
-            for name, values in grid.items()}
+from mjx_hopper.settings.training import PBT
 
 
 def exploit_explore(pbt: PBT, returns, diverged, values: dict, ranges: dict, quanta: dict,

@@ -7,7 +7,6 @@ of S members (a sweep; a single run is one), laid out over the local devices by 
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import math
 from typing import Any, Callable, NamedTuple
@@ -17,69 +16,13 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
 
-from mjx_hopper.core import kept, parallel, replay, rollout
-from mjx_hopper.core.fields import check_types, setting
 from mjx_hopper.agents.base import Agent
+from mjx_hopper.core import kept, parallel, replay, rollout
 from mjx_hopper.envs import EpisodeStarts, LocomotionEnv
+from mjx_hopper.settings.training import TrainConfig
 
 AXIS = "devices"    # a member's devices: its envs, replay and batches are split over them
 MEMBERS = "members"
-
-
-@dataclasses.dataclass(frozen=True)
-class TrainConfig:
-  """How to train; sizes count transitions (one env step of one env).
-
-  The defaults suit D4PG's cpu preset on a CPU. `replay_ratio` may differ per member, up to the
-  trainer's; the others shape the program.
-  """
-
-  num_envs: int = setting(512, "envs stepped at once")
-  unroll_length: int = setting(4, "env steps per env per iteration")
-  batch_size: int = setting(256, "transitions per update")
-  replay_ratio: float = setting(4.0, "samples drawn per transition inserted")
-  replay_size: int = setting(1_000_000, "transitions kept in the replay")
-  min_replay: int = setting(20_000, "transitions collected before learning starts")
-  iterations_per_chunk: int = setting(25, "iterations per compiled chunk")
-
-  @property
-  def steps_per_iteration(self) -> int:
-    """Env steps one iteration collects: num_envs x unroll_length."""
-    return self.num_envs * self.unroll_length
-
-  @property
-  def updates_per_iteration(self) -> int:
-    """Learner updates per iteration: replay_ratio x its env steps / batch_size, rounded."""
-    return round(self.replay_ratio * self.steps_per_iteration / self.batch_size)
-
-  def check(self, num_devices: int = 1) -> None:
-    """Raises ValueError naming the first bad setting."""
-    check_types(self)
-    for name in ("num_envs", "unroll_length", "batch_size", "iterations_per_chunk"):
-      value = getattr(self, name)
-      if not isinstance(value, int) or value < 1:
-        raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
-    if self.replay_size < self.batch_size:
-      raise ValueError(f"replay_size ({self.replay_size}) must be at least batch_size "
-                       f"({self.batch_size})")
-    if self.min_replay > self.replay_size:
-      raise ValueError(f"min_replay ({self.min_replay}) must be at most replay_size "
-                       f"({self.replay_size})")
-    updates = self.replay_ratio * self.steps_per_iteration / self.batch_size
-    if self.replay_ratio <= 0 or abs(updates - round(updates)) > 1e-9:
-      raise ValueError(
-          f"replay_ratio * num_envs * unroll_length / batch_size must be a whole number of "
-          f"updates >= 1, got {self.replay_ratio} * {self.num_envs} * {self.unroll_length} / "
-          f"{self.batch_size} = {updates:g}")
-    for name in ("num_envs", "batch_size"):
-      if getattr(self, name) % num_devices:
-        raise ValueError(f"{name} ({getattr(self, name)}) must divide evenly over the "
-                         f"{num_devices} devices")
-
-  def replay_rows(self) -> int:
-    """Rows of the replay ring: at least replay_size / num_envs, a multiple of the unroll."""
-    rows = -(-self.replay_size // self.num_envs)
-    return -(-rows // self.unroll_length) * self.unroll_length
 
 
 class TrainState(NamedTuple):
@@ -188,7 +131,7 @@ def make_trainer(env: LocomotionEnv, agent: Agent, cfg: TrainConfig, eval_episod
 
   With `dynamic_updates` each member's update count follows its own replay_ratio, up to `cfg`'s;
   without, all run `cfg`'s. With `identity` (a text naming the env, agent and settings, the
-  same in every process: `runs.assemble`'s), its programs are kept as traced (`kept`).
+  same in every process: `trainers.assemble`'s), its programs are kept as traced (`kept`).
   """
   where = layout(num_members, list(jax.devices() if devices is None else devices))
   cfg.check(where.group_size)
@@ -283,14 +226,14 @@ def learn(agent: Agent, cfg: TrainConfig, where: Layout, dynamic_updates: bool, 
           buffer, key, n_updates):
   """One member's updates of an iteration, of which the first `n_updates` count: (agent state,
   their mean metrics)."""
-  hp = agent_state.hparams
+  n_step, discount = agent.transitions(agent_state.hparams)
   max_updates = cfg.updates_per_iteration
 
   def one(agent_state, x):
     i, update_key = x
     sample_key = jax.random.fold_in(update_key, where.device_index())
-    batch = replay.sample(buffer, sample_key, cfg.batch_size // where.group_size, hp["n_step"],
-                          hp["discount"], window=agent.n_step)
+    batch = replay.sample(buffer, sample_key, cfg.batch_size // where.group_size, n_step,
+                          discount, window=agent.n_step)
     new, metrics = agent.update(agent_state, batch, update_key, axis_name=where.axis)
     if dynamic_updates:
       new = jax.tree.map(lambda a, b: jnp.where(i < n_updates, a, b), new, agent_state)
@@ -316,12 +259,10 @@ def _metric_shapes(env: LocomotionEnv, agent: Agent):
 def _make_chunk(train_env: EpisodeStarts, agent: Agent, cfg: TrainConfig, where: Layout,
                 dynamic_updates: bool, identity: str | None):
   """Trainer.chunk: `iterations_per_chunk` iterations, under shard_map over the mesh."""
-  each_member, env = where.each_member, train_env.env
+  each_member = where.each_member
   member_collect = functools.partial(collect, agent, train_env, cfg.unroll_length)
-  member_learn = functools.partial(learn, agent, cfg, where, dynamic_updates)
-  min_rows = max(-(-cfg.min_replay // cfg.num_envs), agent.n_step)
-  max_updates = cfg.updates_per_iteration
-  metric_shapes = _metric_shapes(env, agent)
+  learn_if_filled = functools.partial(_learn_if_filled, agent, cfg, where, dynamic_updates,
+                                      _metric_shapes(train_env.env, agent))
 
   def iteration(state: TrainState, _):
     """The local members' collection and insert, then their updates."""
@@ -330,21 +271,7 @@ def _make_chunk(train_env: EpisodeStarts, agent: Agent, cfg: TrainConfig, where:
     env_state, ep_return, steps, (ended, ended_return) = each_member(member_collect)(
         state.agent, state.env, state.episode_return, act_key)
     buffer = each_member(replay.insert)(state.replay, steps)
-    # The members insert in lockstep, so they all start learning at the same iteration: one
-    # branch for all of them. (A branch per member would be a select under the member vmap,
-    # which runs the updates of members that are not learning yet.)
-    learning = buffer.filled[0] >= min_rows
-    zeros = jax.tree.map(lambda s: jnp.zeros((where.local_members,) + s.shape, s.dtype),
-                         metric_shapes)
-    if dynamic_updates:
-      n_updates = each_member(lambda ratio: jnp.round(
-          ratio * cfg.steps_per_iteration / cfg.batch_size).astype(jnp.int32))(state.replay_ratio)
-      update, args = each_member(member_learn), (state.agent, buffer, learn_key, n_updates)
-    else:
-      n_updates = max_updates
-      update = each_member(lambda a, b, k: member_learn(a, b, k, max_updates))
-      args = (state.agent, buffer, learn_key)
-    agent_state, metrics = jax.lax.cond(learning, update, lambda a, *_: (a, zeros), *args)
+    agent_state, metrics, learning, n_updates = learn_if_filled(state, buffer, learn_key)
     new = state._replace(agent=agent_state, replay=buffer, env=env_state,
                          episode_return=ep_return, key=key, iteration=state.iteration + 1,
                          updates=state.updates + learning * n_updates)
@@ -368,6 +295,31 @@ def _make_chunk(train_env: EpisodeStarts, agent: Agent, cfg: TrainConfig, where:
                     out_specs=(where.specs, P(MEMBERS)), check_vma=False),
       identity, "chunk", in_shardings=(where.shardings,),
       out_shardings=(where.shardings, per_member_out), donate_argnums=0)
+
+
+def _learn_if_filled(agent: Agent, cfg: TrainConfig, where: Layout, dynamic_updates: bool,
+                     metric_shapes, state: TrainState, buffer, learn_key):
+  """The local members' updates of an iteration, once their replay (`buffer`, after this
+  iteration's insert) holds `min_replay` transitions: (agent states, metrics, whether they
+  learned, the updates that count)."""
+  each_member = where.each_member
+  member_learn = functools.partial(learn, agent, cfg, where, dynamic_updates)
+  # The members insert in lockstep, so they all start learning at the same iteration: one
+  # branch for all of them. (A branch per member would be a select under the member vmap,
+  # which runs the updates of members that are not learning yet.)
+  learning = buffer.filled[0] >= max(-(-cfg.min_replay // cfg.num_envs), agent.n_step)
+  zeros = jax.tree.map(lambda s: jnp.zeros((where.local_members,) + s.shape, s.dtype),
+                       metric_shapes)
+  if dynamic_updates:
+    n_updates = each_member(lambda ratio: jnp.round(
+        ratio * cfg.steps_per_iteration / cfg.batch_size).astype(jnp.int32))(state.replay_ratio)
+    update, args = each_member(member_learn), (state.agent, buffer, learn_key, n_updates)
+  else:
+    n_updates = cfg.updates_per_iteration
+    update = each_member(lambda a, b, k: member_learn(a, b, k, n_updates))
+    args = (state.agent, buffer, learn_key)
+  agent_state, metrics = jax.lax.cond(learning, update, lambda a, *_: (a, zeros), *args)
+  return agent_state, metrics, learning, n_updates
 
 
 def seed_bits(seeds) -> np.ndarray:

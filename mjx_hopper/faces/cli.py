@@ -204,8 +204,8 @@ def settings(args: argparse.Namespace) -> None:
 
 def extract(args: argparse.Namespace) -> None:
   """Writes one member of a sweep's checkpoint as a single run's checkpoint."""
-  from mjx_hopper.run import runs
-  runs.extract(args.checkpoint, args.member, args.out)
+  from mjx_hopper.run import checkpoints
+  checkpoints.extract(args.checkpoint, args.member, args.out)
 
 
 def export(args: argparse.Namespace) -> None:
@@ -229,8 +229,8 @@ def evaluate(args: argparse.Namespace) -> None:
     export_lib.evaluate_file(args.policy, args.episodes, args.seed, args.video or VIDEO,
                              env=args.env)
   else:
-    from mjx_hopper.run import runs
-    runs.evaluate_checkpoint(args.checkpoint, args.member, args.episodes, args.seed,
+    from mjx_hopper.run import checkpoints
+    checkpoints.evaluate_checkpoint(args.checkpoint, args.member, args.episodes, args.seed,
                              args.video or VIDEO, which="latest" if args.latest else "best",
                              env=args.env)
 

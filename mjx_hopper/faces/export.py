@@ -209,10 +209,10 @@ def export_checkpoint(directory: str, out: str, member: int | str | None = None,
   single run. `env` is the run's task, for a class that cannot be imported (see
   `loop.resume`). Errors are one-line ValueErrors or FileNotFoundErrors, and nothing is
   written."""
-  from mjx_hopper.run import runs
+  from mjx_hopper.run import checkpoints
 
-  cfg, state, trainer, saved, position, best = runs.load_member(directory, member, env, which,
-                                                                print_fn)
+  cfg, state, trainer, saved, position, best = checkpoints.load_member(directory, member, env,
+                                                                       which, print_fn)
   evaluation = _evaluation(saved.record, position, best, cfg.eval_episodes,
                            saved.step * trainer.config.steps_per_iteration)
   policy = policy_of(cfg.agent, cfg.agent_config(), state.policy,
@@ -332,7 +332,7 @@ def fingerprint(env) -> dict:
   and action sizes. A shipped file records it; a change means the file needs retraining."""
   import hashlib
 
-  from mjx_hopper.envs.base import ASSETS
+  from mjx_hopper.envs.model import ASSETS
   with open(os.path.join(ASSETS, env.xml_file), "rb") as f:
     model = hashlib.sha256(f.read()).hexdigest()[:16]
   return {"model_sha256": model, "observation_size": env.observation_size,

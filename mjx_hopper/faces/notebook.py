@@ -4,6 +4,7 @@ curve, and the tiny settings the tests run the notebook with.
 
     from mjx_hopper.faces import notebook
     from mjx_hopper.run import loop
+from mjx_hopper.settings.training import TrainConfig
     result = loop.run(cfg)
     episodes = notebook.evaluate(result, num_episodes=5)  # its best evaluation's policy
     notebook.video(result.trainer.env, episodes, "policy.mp4")
@@ -22,11 +23,12 @@ import jax
 import numpy as np
 
 from mjx_hopper import agents
-from mjx_hopper.core import rollout, train
+from mjx_hopper.core import rollout
 from mjx_hopper.envs import render
 from mjx_hopper.run import loop
+from mjx_hopper.settings.training import TrainConfig
 
-TINY_TRAIN = train.TrainConfig(num_envs=4, unroll_length=2, batch_size=8, replay_ratio=2.0,
+TINY_TRAIN = TrainConfig(num_envs=4, unroll_length=2, batch_size=8, replay_ratio=2.0,
                                replay_size=64, min_replay=24, iterations_per_chunk=5)
 
 

@@ -35,7 +35,7 @@ def start() -> None:
 
 def note(event: str, name: str) -> None:
   """Appends an event of the caller's own to the ledger, where one is kept: `name` once built
-  (`run.runs.assemble` notes each trainer configuration it builds, as "trainer")."""
+  (`run.trainers.assemble` notes each trainer configuration it builds, as "trainer")."""
   if os.environ.get(VARIABLE):
     _append(event, 0.0, name)
 

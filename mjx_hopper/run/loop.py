@@ -22,7 +22,7 @@ from mjx_hopper import store
 from mjx_hopper.core import train
 from mjx_hopper.process import distributed, runlock
 from mjx_hopper.process.stop import StopRequest
-from mjx_hopper.run import opening, runs
+from mjx_hopper.run import checkpoints, opening
 from mjx_hopper.run.logger import check_services
 from mjx_hopper.run.opening import ProgressFn
 from mjx_hopper.settings.config import RunConfig
@@ -44,7 +44,7 @@ class Result:
   def policy(self, which: str = "best", member: int = 0):
     """Member `member`'s agent state without the member axis: at its best evaluation (before
     any, the latest), or with which="latest", the latest."""
-    runs.check_which(which)
+    checkpoints.check_which(which)
     agent = self.state.agent if which == "latest" or self.best is None else self.best
     return jax.tree.map(lambda x: x[member], agent)
 
@@ -89,7 +89,7 @@ def resume(directory: str, progress: bool = True, print_fn=print, env: Any = Non
   fields that may change between a run and its resumption (total_env_steps, max_minutes, ...);
   one the saved state depends on is refused, naming it. `env` is the run's task, for one that
   cannot be imported (defined in a notebook)."""
-  cfg = runs.saved_config(directory, print_fn, env)
+  cfg = checkpoints.saved_config(directory, print_fn, env)
   return run(dataclasses.replace(cfg, **changes), checkpoint_dir=directory, progress=progress,
              print_fn=print_fn, progress_fn=progress_fn)
 

@@ -19,10 +19,10 @@ from mjx_hopper.core import evaluator as evaluation, pbt, start, train
 from mjx_hopper.core.evaluator import Evaluator
 from mjx_hopper.core.members import Members
 from mjx_hopper.process import distributed
-from mjx_hopper.run import runs, sweep
+from mjx_hopper.run import sweep, trainers
 from mjx_hopper.run.logger import Logger
 from mjx_hopper.settings.config import RunConfig
-from mjx_hopper.store.run_folder import RunFolder, check_processes, config_item
+from mjx_hopper.store.run_folder import RunFolder, check_processes
 
 ProgressFn = Callable[[int, dict], Any]
 
@@ -74,8 +74,8 @@ class Plan:
   host: Any
 
   def fresh(self, begin: bool = True) -> train.TrainState:
-    """The members' fresh TrainState (`runs.init`)."""
-    return runs.init(self.cfg, self.trainer, self.members, begin)
+    """The members' fresh TrainState (`trainers.init`)."""
+    return trainers.init(self.cfg, self.trainer, self.members, begin)
 
   def compile(self) -> start.Started:
     """The programs that train the run, compiling (`start.start`)."""
@@ -97,10 +97,10 @@ def resolve(cfg: RunConfig, folder: RunFolder, checkpoint_dir: str | None) -> Pl
   mine = cfg.member_settings()
   os.makedirs(folder.path, exist_ok=True)
   checkpoint_dir = checkpoint_dir or folder.checkpoints
-  saved_config = config_item(cfg, list(range(len(mine))), distributed.count())
-  defaults = {"agent_config": field_defaults(cfg.agent_config()), "env_settings": {}}
+  saved_config = cfg.saved(list(range(len(mine))), distributed.count())
+  defaults = cfg.saved_defaults()
   mngr = checked_manager(cfg, checkpoint_dir, saved_config, defaults)
-  trainer = runs.build(cfg, len(mine))
+  trainer = trainers.build(cfg, len(mine))
   # Evaluating on the host's CPU beside training is one process's choice: not over processes.
   on_host = cfg.evaluates_on_host(jax.default_backend()) and distributed.count() == 1
   return Plan(cfg, mine, folder, checkpoint_dir, saved_config, defaults, mngr, trainer,
@@ -238,8 +238,3 @@ def header(cfg: RunConfig, trainer: train.Trainer, count: int, single: bool) -> 
           f"{config.updates_per_iteration * config.iterations_per_chunk:,} updates per chunk"
           f"{'' if single else ' per member'}")
 
-
-def field_defaults(config) -> dict:
-  """A config dataclass's fields' default values."""
-  return {f.name: f.default for f in dataclasses.fields(config)
-          if f.default is not dataclasses.MISSING}

@@ -1,13 +1,13 @@
 """Batch sweeps: S members (seeds x values of dynamic settings) trained at once, as the leading
 axis of one TrainState in one compiled program.
 
-    from mjx_hopper.run import curves, loop, runs, sweep
+    from mjx_hopper.run import checkpoints, curves, loop, sweep
     cfg = loop.RunConfig(env="Hopper", agent="d4pg", seeds=(0, 1, 2, 3),
                          grid={"learning_rate": (1e-4, 3e-4)}, out_dir="runs/sweep")
     result = loop.run(cfg)                       # 8 members; log.csv has one row per member
     print(sweep.ranking(result.history, cfg.grid))   # loop.run prints it, and
     curves.plot(result.history, cfg.grid, "runs/sweep/curves.png")  # writes this, itself
-    runs.extract("runs/sweep/checkpoints", member=3, out_dir="runs/member3")
+    checkpoints.extract("runs/sweep/checkpoints", member=3, out_dir="runs/member3")
 
 A single run is a sweep of one member (no seeds or grid). Only dynamic settings can be swept:
 the agent's `Config.DYNAMIC` (learning rates, discount, n-step, sigma, vmin/vmax, MPO's
@@ -16,7 +16,7 @@ compilation serves every value. Structural settings (network sizes, atoms, sampl
 batch_size, ...) shape the program: sweeping them is refused with an error that says to run one
 sweep per value.
 
-Population-based training (`RunConfig(pbt=pbt.PBT())`, `mjx-hopper sweep --pbt`): every
+Population-based training (`RunConfig(pbt=PBT())`, `mjx-hopper sweep --pbt`): every
 `PBT.every` evaluations, the worst members take a copy of a better member's agent and perturb
 the grid's settings within bounds (docs/pbt.md). A member whose learning goes non-finite is marked diverged: frozen at its
 last finite agent, or under PBT, the first to be replaced.
@@ -32,7 +32,7 @@ import numpy as np
 from mjx_hopper.run import curves
 from mjx_hopper.run.curves import group_label, mean_interval
 from mjx_hopper.run.logger import RETURNS
-from mjx_hopper.run.runs import check_which
+from mjx_hopper.run.checkpoints import check_which
 
 
 def member_evaluations(rows: list[dict], which: str = "best") -> dict[int, float]:

@@ -14,14 +14,18 @@ from typing import Any
 
 import mjx_hopper
 from mjx_hopper import agents, envs
-from mjx_hopper.core.fields import setting
-from mjx_hopper.core.pbt import PBT
-from mjx_hopper.core.train import TrainConfig
+from mjx_hopper.settings.fields import setting
+from mjx_hopper.settings.training import PBT, TrainConfig
 
 EVAL_ON = ("auto", "host", "train")
-# What a saved config holds besides RunConfig's fields (a checkpoint's config item, config.json).
+# A saved config (a checkpoint's config item, config.json): RunConfig's fields, resolved
+# (`RunConfig.saved`), and these.
 SAVED_EXTRAS = ("agent_config", "member_indices", "processes", "record", "versions",
                 "checkpoint_format")
+# The saved settings that a checkpoint's state depends on, which a run resuming it must share;
+# the others (run length, logging, evaluation) may change between a run and its resumption.
+MUST_MATCH = ("env", "env_settings", "agent", "agent_config", "train", "episode_steps", "seed",
+              "seeds", "grid", "pbt", "member_indices")
 TRAINER_DYNAMIC = ("replay_ratio",)  # the trainer's settings a sweep may vary
 
 
@@ -88,7 +92,8 @@ class RunConfig:
     check_grid(self.agent, self.agent_preset, self.grid, self.train, self.agent_overrides)
     if self.pbt is not None:
       if not isinstance(self.pbt, PBT):
-        raise ValueError(f"pbt takes a pbt.PBT or None, got {self.pbt!r}")
+        raise ValueError(f"pbt takes a PBT (mjx_hopper.settings.training) or None, got "
+                         f"{self.pbt!r}")
       self.pbt.check(self.grid, len(self.member_settings()), lambda name, value: check_value(
           self.agent, self.agent_preset, name, value, self.train, self.agent_overrides))
 
@@ -149,6 +154,19 @@ class RunConfig:
                pbt=None if self.pbt is None else dataclasses.asdict(self.pbt),
                agent_config=dataclasses.asdict(self.agent_config()))
     return json.loads(json.dumps(out))
+
+  def saved(self, indices: list[int], processes: int = 1) -> dict:
+    """What a checkpoint's config item and config.json hold of this run training members
+    `indices` over `processes` (its record is added at each save)."""
+    item = {**self.to_json(), "member_indices": list(indices)}
+    if processes > 1:
+      item["processes"] = processes
+    return item
+
+  def saved_defaults(self) -> dict:
+    """{saved key: {setting: default}} for the nested settings in MUST_MATCH: what a config
+    saved before a setting existed ran with (a newer agent setting at its default)."""
+    return {"agent_config": field_defaults(self.agent_config()), "env_settings": {}}
 
   @classmethod
   def from_json(cls, saved: dict, env: Any = None) -> "RunConfig":
@@ -275,3 +293,9 @@ def member_settings(seeds: tuple[int, ...], grid: dict) -> list[dict[str, Any]]:
   names = list(grid)
   return [{"seed": seed, **dict(zip(names, combo))}
           for combo in itertools.product(*(grid[n] for n in names)) for seed in seeds]
+
+
+def field_defaults(config) -> dict:
+  """A config dataclass's fields' default values."""
+  return {f.name: f.default for f in dataclasses.fields(config)
+          if f.default is not dataclasses.MISSING}

@@ -8,10 +8,9 @@ import argparse
 import ast
 import dataclasses
 
-from mjx_hopper.core.pbt import PBT
-from mjx_hopper.core.train import TrainConfig
 from mjx_hopper.settings import config, presets
 from mjx_hopper.settings.config import RunConfig
+from mjx_hopper.settings.training import PBT, TrainConfig
 
 
 def fields() -> list:

@@ -15,8 +15,8 @@ from __future__ import annotations
 import dataclasses
 
 from mjx_hopper import envs
-from mjx_hopper.core import train
 from mjx_hopper.settings.config import RunConfig
+from mjx_hopper.settings.training import TrainConfig
 
 KINDS = ("gpu", "cpu")
 
@@ -29,7 +29,7 @@ class Preset:
 
   agent: str
   agent_overrides: dict
-  train: train.TrainConfig
+  train: TrainConfig
   eval_every: int           # env steps between evaluations
   target: float             # the evaluation return that counts as solved
   env_steps: int            # a run's budget in env steps and in minutes (compile included):
@@ -43,7 +43,7 @@ class Preset:
 
 
 # D4PG's cpu preset and the trainer's default layout: a few hundred envs, small batches.
-_CPU = dict(agent="d4pg", agent_overrides={}, train=train.TrainConfig(),
+_CPU = dict(agent="d4pg", agent_overrides={}, train=TrainConfig(),
             eval_every=200_000)
 # The Hopper's own D4PG settings: a penalty on the squared pre-tanh actions keeps the policy off
 # the tanh's limits early on, which lets it learn at a higher rate, with mixed exploration noise
@@ -54,7 +54,7 @@ _CPU_TUNED = {**_CPU, "agent_overrides": {**_HOPPER_CPU, **_SMALL_NETWORKS}}
 
 # One GPU: few envs and many updates (FastTD3's layout): 1,024 envs stepped once per iteration
 # feed 8 updates of 8,192 transitions, with mixed noise.
-_GPU_TRAIN = train.TrainConfig(num_envs=1024, unroll_length=1, batch_size=8192,
+_GPU_TRAIN = TrainConfig(num_envs=1024, unroll_length=1, batch_size=8192,
                                replay_ratio=64.0, replay_size=4_000_000, min_replay=40_960,
                                iterations_per_chunk=50)
 _GPU = dict(agent="d4pg", agent_overrides={"sigma": 0.4, "sigma_min": 0.05},

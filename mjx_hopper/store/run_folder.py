@@ -20,7 +20,6 @@ from mjx_hopper.store.items import (ConfigMismatch, has_best, manager, read_conf
                                     read_agent)
 
 CONFIG, LOG, CHECKPOINTS = "config.json", "log.csv", "checkpoints"
-PROCESSES = "processes"  # the config item's number of processes, where more than one
 
 
 class RunFolder:
@@ -45,7 +44,7 @@ class RunFolder:
     return os.path.join(self.path, CHECKPOINTS)
 
   def write_config(self, item: dict) -> None:
-    """Writes config.json: a checkpoint's config `item` (`config_item`)."""
+    """Writes config.json: a checkpoint's config `item` (`RunConfig.saved`)."""
     with open(os.path.join(self.path, CONFIG), "w") as f:
       json.dump(item, f, indent=1)
 
@@ -59,15 +58,6 @@ class RunFolder:
       return {}
 
 
-def config_item(cfg: RunConfig, indices: list[int], processes: int = 1) -> dict:
-  """What a checkpoint's config item and config.json hold of a run training members
-  `indices` over `processes` (its record is added at each save)."""
-  item = {**cfg.to_json(), "member_indices": list(indices)}
-  if processes > 1:
-    item[PROCESSES] = processes
-  return item
-
-
 def check_processes(mngr: ocp.CheckpointManager, processes: int) -> None:
   """A ConfigMismatch where the newest checkpoint was saved by a run over another number of
   processes than `processes` (its members' layout over the devices, and so its numbers, would
@@ -76,7 +66,7 @@ def check_processes(mngr: ocp.CheckpointManager, processes: int) -> None:
   if step is None:
     return
   try:
-    saved = read_config(mngr, step).get(PROCESSES, 1)
+    saved = read_config(mngr, step).get("processes", 1)  # RunConfig.saved
   except ConfigMismatch:
     raise
   except Exception:  # noqa: BLE001 - an unreadable step: `store.read_latest` says so

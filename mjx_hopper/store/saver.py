@@ -11,14 +11,11 @@ import orbax.checkpoint as ocp
 
 from mjx_hopper.core import train
 from mjx_hopper.process import errors
+from mjx_hopper.settings.config import MUST_MATCH
 from mjx_hopper.store.failures import SaveFailed, quiet_failed_saves
 from mjx_hopper.store.items import ConfigMismatch, read_best, read_config, read_state, save
 from mjx_hopper.store.manifests import damage, wait_and_record
 
-# The settings a checkpoint's state depends on; the others (run length, logging, evaluation)
-# may change between a run and its resumption.
-MUST_MATCH = ("env", "env_settings", "agent", "agent_config", "train", "episode_steps", "seed",
-              "seeds", "grid", "pbt", "member_indices")
 
 
 def load_newest(mngr: ocp.CheckpointManager, load, print_fn=print):
