@@ -50,6 +50,9 @@ class Config(CommonConfig):
   # the other updates, so that the trainer's mean over an iteration's updates is the mean over
   # those that learned the policy (exactly where policy_every divides the updates per iteration).
   policy_every: int = 1
+  # LayerNorm after every hidden layer of the critics (FastSAC's), not after the first alone
+  # (acme's LayerNormMLP): it keeps the critic's features at one scale under many updates.
+  critic_norm: bool = False
 
   def __post_init__(self):
     super().__post_init__()
@@ -226,7 +229,8 @@ def make(obs_size: int, action_size: int, cfg: Config,
   dtype = COMPUTE_DTYPES[cfg.compute_dtype]
   hp = base.hparams(cfg)
   nets = Networks(networks.TanhPolicy(cfg.policy_layers, action_size, dtype),
-                  networks.Critic(cfg.critic_layers, head(hp).num_outputs, dtype),
+                  networks.Critic(cfg.critic_layers, head(hp).num_outputs, dtype,
+                                  norm_every=cfg.critic_norm),
                   cfg.num_critics, head)
   return Agent(init=functools.partial(init, nets, cfg, obs_size, action_size),
                act=functools.partial(act, nets, cfg), policy=functools.partial(policy, nets),

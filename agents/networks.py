@@ -24,12 +24,14 @@ class LayerNormMLP(nn.Module):
   """acme's LayerNormMLP: Dense, LayerNorm, tanh, then an ELU MLP over the other sizes.
 
   The last layer has no activation unless `activate_final`. Without it, the last layer is an
-  output layer: float32 whatever `dtype` is.
+  output layer: float32 whatever `dtype` is. With `norm_every`, LayerNorm also comes before
+  each ELU (FastSAC's critic), not after the first layer alone.
   """
 
   layer_sizes: Sequence[int]
   activate_final: bool = False
   dtype: Any = jnp.float32
+  norm_every: bool = False
 
   @nn.compact
   def __call__(self, x: jax.Array) -> jax.Array:
@@ -40,7 +42,7 @@ class LayerNormMLP(nn.Module):
       output = i == last and not self.activate_final
       x = nn.Dense(size, kernel_init=_INIT, dtype=jnp.float32 if output else self.dtype)(x)
       if not output:
-        x = nn.elu(x)
+        x = nn.elu(nn.LayerNorm(dtype=self.dtype)(x) if self.norm_every else x)
     return x
 
 
@@ -63,18 +65,22 @@ class Critic(nn.Module):
 
   With `num_atoms` = 1 it returns a scalar Q of shape (...,); otherwise the (..., num_atoms)
   logits of a categorical distribution over fixed atoms (acme's DiscreteValuedHead).
+  `norm_every`: LayerNorm after every hidden layer (LayerNormMLP's).
   """
 
   hidden: Sequence[int]
   num_atoms: int = 1
   dtype: Any = jnp.float32
+  norm_every: bool = False
 
   @nn.compact
   def __call__(self, obs: jax.Array, action: jax.Array) -> jax.Array:
     x = jnp.concatenate([obs, jnp.clip(action, -1.0, 1.0)], axis=-1)
     if self.num_atoms == 1:
-      return LayerNormMLP(tuple(self.hidden) + (1,), dtype=self.dtype)(x)[..., 0]
-    x = LayerNormMLP(tuple(self.hidden), activate_final=True, dtype=self.dtype)(x)
+      return LayerNormMLP(tuple(self.hidden) + (1,), dtype=self.dtype,
+                          norm_every=self.norm_every)(x)[..., 0]
+    x = LayerNormMLP(tuple(self.hidden), activate_final=True, dtype=self.dtype,
+                     norm_every=self.norm_every)(x)
     return nn.Dense(self.num_atoms, kernel_init=_INIT, dtype=jnp.float32)(x)
 
 

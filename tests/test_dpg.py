@@ -348,3 +348,38 @@ def test_unknown_agent_and_settings():
     agents.config("d4pg", sgima=0.2)
   with pytest.raises(ValueError, match=r"unknown preset 'gpu2' for d4pg"):
     agents.config("d4pg", preset="gpu2")
+
+
+def reference_critic(params: dict, obs, action, norm_every: bool) -> np.ndarray:
+  """The critic's logits in plain NumPy: Dense, LayerNorm, tanh; then Dense, (LayerNorm with
+  `norm_every`), ELU for each other hidden layer; then the output Dense."""
+  def layer_norm(x, p):
+    mean, var = x.mean(-1, keepdims=True), x.var(-1, keepdims=True)
+    return (x - mean) / np.sqrt(var + 1e-6) * p["scale"] + p["bias"]
+
+  def dense(x, p):
+    return x @ np.asarray(p["kernel"], np.float64) + np.asarray(p["bias"], np.float64)
+  mlp = jax.tree.map(lambda a: np.asarray(a, np.float64), params["params"]["LayerNormMLP_0"])
+  x = np.concatenate([obs, np.clip(action, -1, 1)], -1).astype(np.float64)
+  x = np.tanh(layer_norm(dense(x, mlp["Dense_0"]), mlp["LayerNorm_0"]))
+  for i in range(1, len([k for k in mlp if k.startswith("Dense")])):
+    x = dense(x, mlp[f"Dense_{i}"])
+    x = layer_norm(x, mlp[f"LayerNorm_{i}"]) if norm_every else x
+    x = np.where(x > 0, x, np.expm1(np.minimum(x, 0)))
+  return dense(x, params["params"]["Dense_0"])
+
+
+@pytest.mark.parametrize("norm_every", [False, True])
+def test_critic_norm_puts_a_layer_norm_after_every_hidden_layer(norm_every):
+  """acme's critic normalises its first layer's output; with critic_norm, every hidden layer's
+  (D4PG's critic against a NumPy forward pass on random inputs)."""
+  cfg = dataclasses.replace(SMALL["d4pg"], critic_layers=(32, 16, 8), critic_norm=norm_every)
+  state = agents.make("d4pg", OBS, ACT, cfg).init(jax.random.PRNGKey(6))
+  norms = [k for k in state.critic["params"]["LayerNormMLP_0"] if k.startswith("LayerNorm")]
+  assert len(norms) == (3 if norm_every else 1)
+  net = networks.Critic(cfg.critic_layers, cfg.num_atoms, norm_every=norm_every)
+  k = jax.random.split(jax.random.PRNGKey(7))
+  obs, action = jax.random.normal(k[0], (64, OBS)), jax.random.uniform(k[1], (64, ACT), minval=-2)
+  np.testing.assert_allclose(net.apply(state.critic, obs, action),
+                             reference_critic(state.critic, np.asarray(obs), np.asarray(action),
+                                              norm_every), rtol=1e-4, atol=1e-4)
