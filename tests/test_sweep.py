@@ -444,7 +444,7 @@ def test_two_processes_train_one_population_as_one_process_through_their_faults(
   # mesh of one process with two devices, so the same program.
   cli.main(["--cpu-devices", "2", "sweep", *PBT_SWEEP, "--out-dir", str(tmp_path / "one")])
   two = tmp_path / "two"
-  checkpoints = str(two / "checkpoints")
+  ckpt_dir = str(two / "checkpoints")
 
   # Process 1 killed after the first save: process 0 ends in one line that names it.
   with two_processes(two, explicit(free_port())) as procs:
@@ -458,7 +458,7 @@ def test_two_processes_train_one_population_as_one_process_through_their_faults(
     assert last == (f"mjx-hopper: process 1 (pid {procs[1].pid} on {socket.gethostname()}) is "
                     "gone: this process ends too; run the same command on every process to "
                     "resume from the last checkpoint")
-  killed = store.manager(checkpoints).latest_step()
+  killed = store.manager(ckpt_dir).latest_step()
   assert killed is not None and killed < 25
 
   # Resumed under SLURM (jax.distributed reads each process's place from SLURM's variables), to
@@ -473,10 +473,10 @@ def test_two_processes_train_one_population_as_one_process_through_their_faults(
       "SLURM_PROCID": str(i), "SLURM_LOCALID": str(i), "SLURM_STEP_NUM_NODES": "1",
       "LATE_EVALUATION_S": "15"}, cli_=LATE) as procs:
     outs = [finish(proc) for proc in procs]
-  assert f"resumed from {checkpoints}, step {killed}" in outs[0]
+  assert f"resumed from {ckpt_dir}, step {killed}" in outs[0]
   assert "done: 200 env steps" in outs[0] and "done: " not in outs[1]  # process 0 says them
   assert (two / "log.csv").exists() and not (two / "process0").exists()
-  _, states, _ = checkpoints.restore(checkpoints)
+  _, states, _ = checkpoints.restore(ckpt_dir)
   _, one, _ = checkpoints.restore(str(tmp_path / "one" / "checkpoints"))
   assert_same(jax.device_get(states), jax.device_get(one))
   evaluations = eval_rows(two)
@@ -508,14 +508,14 @@ def test_two_processes_train_one_population_as_one_process_through_their_faults(
     outs = [finish(proc) for proc in procs]
   assert "done: 240 env steps" in outs[0], outs[0]
   assert sorted(int(r[0]) for r in eval_rows(two) if r[1] == "240") == [0, 1, 2, 3]
-  assert store.manager(checkpoints).latest_step() == 30
+  assert store.manager(ckpt_dir).latest_step() == 30
 
   # Resuming on another number of processes is refused, and changes nothing.
   with pytest.raises(SystemExit, match=r"saved by a run over 2 process\(es\), and this run "
                      r"has 1: resume it on 2"):
     cli.main(["--cpu-devices", "2", "sweep", *PBT_SWEEP, "--total-env-steps", "280",
               "--out-dir", str(two)])
-  assert store.manager(checkpoints).latest_step() == 30
+  assert store.manager(ckpt_dir).latest_step() == 30
 
 
 def _port_free(port: int) -> bool:
