@@ -108,10 +108,12 @@ def task_id(cls: type[LocomotionEnv]) -> str:
 
 
 def robot_of(cls: type[LocomotionEnv]) -> str:
-  """The built-in robot a task subclasses, e.g. 'Hopper' for a Hopper high jump."""
+  """The robot a task is, or subclasses: the nearest class of its own model (`xml_file`) by its
+  registered name ('Hopper' for a Hopper high jump), or by its class name where it is a robot
+  of one's own that is not registered."""
   for base in cls.__mro__:
-    if base.__name__ in BUILT_IN and _REGISTRY.get(base.__name__) is base:
-      return base.__name__
+    if "xml_file" in vars(base):
+      return next((name for name, c in _REGISTRY.items() if c is base), base.__name__)
   raise ValueError(f"{cls.__name__} subclasses none of the robots {list(BUILT_IN)}")
 
 

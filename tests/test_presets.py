@@ -192,3 +192,32 @@ def test_run_stops_once_every_member_reaches_the_target(tmp_path, capsys):
 def test_the_gpu_preset_on_a_cpu_says_so():
   assert "bash scripts/setup.sh cuda" in opening.preset_warning("gpu", "cpu")
   assert opening.preset_warning("gpu", "gpu") is None and opening.preset_warning("cpu", "cpu") is None
+
+
+class Stilts(envs.LocomotionEnv):
+  """A robot of one's own: a model of its own (here the Hopper's file, with longer strides), its
+  joints, feet and constants; its tasks, presets and flags need nothing more."""
+
+  xml_file = envs.Hopper.xml_file
+  joints, feet, power, initial_z = envs.Hopper.joints, envs.Hopper.feet, 1.5, 1.25
+  power_coefs = envs.Hopper.power_coefs
+  alive_bonus = envs.Hopper.alive_bonus
+
+
+class StiltsJump(Stilts):
+  """A task of that robot."""
+
+
+def test_a_robot_of_ones_own_is_registered_in_one_place(monkeypatch):
+  monkeypatch.setitem(envs.tasks._REGISTRY, "Stilts", Stilts)
+  assert envs.robot_of(Stilts) == envs.robot_of(StiltsJump) == "Stilts"
+  assert envs.robot_of(envs.events.HighJump) == "Hopper"
+  for kind in presets.KINDS:  # no measured preset: D4PG's of the kind, RunConfig's budget
+    assert presets.get("Stilts", kind) == presets.get(StiltsJump, kind) == presets.UNMEASURED[kind]
+  cfg = run_config("--env", "Stilts", "--preset", "gpu")
+  assert (cfg.task_id, cfg.agent, cfg.train, cfg.total_env_steps, cfg.max_minutes) == (
+      "Stilts", "d4pg", presets.UNMEASURED["gpu"].train, 1_000_000, None)
+  assert flags.unmeasured_budget(cli.build_parser().parse_args(["train", "--env", "Stilts"])) == (
+      "no preset is measured for Stilts (cpu): it trains d4pg with its cpu settings for "
+      "1,000,000 env steps, RunConfig's default, which may not reach a score; set "
+      "--total-env-steps or --max-minutes")

@@ -31,7 +31,7 @@ class Preset:
   agent_overrides: dict
   train: TrainConfig
   eval_every: int           # env steps between evaluations
-  target: float             # the evaluation return that counts as solved
+  target: float | None      # the evaluation return that counts as solved (None: unmeasured)
   env_steps: int            # a run's budget in env steps and in minutes (compile included):
   minutes: float            # whichever comes first ends it
   why: str                  # one line: the choice, and the commit holding its evidence
@@ -99,13 +99,22 @@ PRESETS: dict[tuple[str, str], Preset] = {
 }
 
 
+# A robot of one's own, with no measured preset: D4PG's preset of the kind with its trainer
+# layout, RunConfig's budget, no score.
+UNMEASURED = {"cpu": Preset(**_CPU, target=None, env_steps=RunConfig.total_env_steps,
+                            minutes=None, why="no preset is measured for this robot"),
+              "gpu": Preset(**_GPU, target=None, env_steps=RunConfig.total_env_steps,
+                            minutes=None, why="no preset is measured for this robot")}
+
+
 def get(env, kind: str) -> Preset:
   """The preset for `kind` ("gpu" or "cpu") of robot `env`, or of the robot that the task `env`
-  (a class, an instance or a `module:Class` path) subclasses."""
+  (a class, an instance or a `module:Class` path) subclasses; `UNMEASURED`'s for a robot of
+  one's own."""
   robot = envs.robot_of(envs.task_class(env))
   if kind not in KINDS:
     raise ValueError(f"unknown robot preset {kind!r}; valid presets are {list(KINDS)}")
-  return PRESETS[robot, kind]
+  return PRESETS.get((robot, kind), UNMEASURED[kind])
 
 
 # Other agents' settings on a robot where they were measured, over the agent's own preset.
@@ -127,8 +136,7 @@ def agent_run_config(env, kind: str, agent: str, **changes):
   the trainer's defaults and the robot's settings for this agent (`AGENT_OVERRIDES`); fields
   replaced by `changes` as in `run_config`."""
   robot = envs.robot_of(envs.task_class(env))
-  preset = PRESETS.get((robot, kind))
-  if preset is not None and preset.agent == agent:
+  if get(env, kind).agent == agent:
     return run_config(env, kind, **changes)
   overrides = {**AGENT_OVERRIDES.get((robot, kind, agent), {}),
                **changes.pop("agent_overrides", {})}
@@ -145,6 +153,10 @@ def unmeasured_budget(env, kind: str, agent: str) -> str | None:
   own, which takes its robot's."""
   cls = envs.task_class(env)
   robot, name = envs.robot_of(cls), envs.task_id(cls)
+  if (robot, kind) not in PRESETS:
+    return (f"no preset is measured for {robot} ({kind}): it trains {agent} with its {kind} "
+            f"settings for {RunConfig.total_env_steps:,} env steps, RunConfig's default, which "
+            "may not reach a score; set --total-env-steps or --max-minutes")
   if get(cls, kind).agent != agent and (robot, kind, agent) not in AGENT_BUDGETS:
     return (f"no budget is measured for {agent} on {robot} ({kind}): it trains "
             f"{RunConfig.total_env_steps:,} env steps, RunConfig's default, which may not reach "
