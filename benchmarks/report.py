@@ -472,9 +472,8 @@ def learner_changes_section() -> tuple[str, str, str, list[str]]:
                    num(t["median"] / base["median"], 2)])
       names += files
   return ("One learner change at a time on one GPU",
-          f"The Hopper's gpu preset, one change each, to 2,500, seeds run {base['method']}; "
-          "× preset: over the median of the preset measured in the same sitting (one session, "
-          "named by its commit).",
+          f"The Hopper's gpu preset to 2,500, one change each, seeds run {base['method']}; "
+          "× preset: over the preset's median in the same sitting (a session, by its commit).",
           table(["sitting", "change", "seeds reaching", "median (s)", "env steps (M)",
                  "× preset"], rows), names)
 
@@ -548,13 +547,21 @@ def sources(names: list[str]) -> str:
   for (date, where, commit, command), files in made.items():
     base = next((k for k in lines if k[:3] == (date, where, commit)
                  and command.startswith(k[3] + " ")), None)
-    listed = [f"`{n.removesuffix('.json')}`" for n in files]
+    listed = [n.removesuffix(".json") for n in files]
     if base is None:
       lines[(date, where, commit, command)] = listed
     else:
-      lines[base] += [f"{name} + `{command[len(base[3]) + 1:]}`" for name in listed]
-  return "\n".join(f"- {', '.join(listed)} ({date}, {where}, {commit}): `{command}`"
+      lines[base] += [f"{name}` + `{command[len(base[3]) + 1:]}" for name in listed]
+  return "\n".join(f"- {_names(listed)} ({date}, {where}, {commit}): `{command}`"
                    for (date, where, commit, command), listed in lines.items())
+
+
+def _names(names: list[str]) -> str:
+  """Results files' names in backticks, those after the first that share its prefix (up to its
+  last "_") written "…" and the rest."""
+  prefix = names[0][:names[0].rfind("_") + 1]
+  return ", ".join(f"`{n}`" if i == 0 or not prefix or not n.startswith(prefix)
+                   else f"`…{n[len(prefix) - 1:]}`" for i, n in enumerate(names))
 
 
 def readme_table() -> str:
