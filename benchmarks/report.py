@@ -257,9 +257,9 @@ def time_section(title: str, method: str, runs: dict, unit: str, scale: float, d
 def sections() -> list[tuple[str, str, str, list[str]]]:
   """(title, method, table, results files) of each question after the summary."""
   explained = set()
-  out = [time_section("Time to score on one GPU", "Each robot's gpu preset, compiled afresh and "
-                      "timed until an evaluation reaches the score. Budget: the preset's, "
-                      f"{MARGIN:g} × the slowest seed's env steps and minutes.", GPU, "s", 1, 0,
+  out = [time_section("Time to score on one GPU", "Each robot's gpu preset, timed until an "
+                      "evaluation reaches the score; budget: the preset's, "
+                      f"{MARGIN:g} × the slowest seed's need.", GPU, "s", 1, 0,
                       explained),
          time_section("Time to score on 2 CPU cores", "Each robot's cpu preset (another agent: "
                       "its own with the robot's settings), timed as above.", CPU, "min", 60, 1,
@@ -306,9 +306,8 @@ def sections() -> list[tuple[str, str, str, list[str]]]:
               num(r["updates_per_s"]), num(r["env_steps_per_s"] / base["env_steps_per_s"], 2)]
              for r in found]
   out.append(("Sweeps", "S seeds of D4PG on Hopper in one program, each S in a fresh "
-              "process: the compiled chunk alone, timed after a warm-up chunk, with the "
-              "command's sizes (not `mjx-hopper sweep` from process start); × one run: over one "
-              "member on one device.",
+              "process: the compiled chunk alone, after a warm-up chunk (not `mjx-hopper sweep` "
+              "from process start); × one run: over one member on one device.",
               table(["machine", "devices", "members", "env steps/s", "updates/s", "× one run"],
                     rows), list(SWEEPS)))
   rows = [[machine(name), r["processes"], r["devices"], num(r["first_row_s"], 1),
@@ -325,8 +324,8 @@ def sections() -> list[tuple[str, str, str, list[str]]]:
               [PBT]))
   nb = load(NOTEBOOK)["figures"]
   out.append(("The notebook on 2 CPU cores", "`notebooks/robolympics.ipynb` in full mode "
-              "from an empty compile cache, in a kernel that had the project (no install timed; "
-              "sections under 30 s left out); first video from the kernel's start.",
+              "from an empty compile cache, the project installed (sections under 30 s left "
+              "out); first video from the kernel's start.",
               table(["section", "minutes"], [[t, num(s / 60, 1)] for t, s in
                                              nb["sections_s"].items() if s >= 30]
                     + [["all", num(nb["total_s"] / 60, 1)],
@@ -467,15 +466,15 @@ def learner_changes_section() -> tuple[str, str, str, list[str]]:
     for label, files in sitting.items():
       t = time_to_score(files)
       change = re.findall(r"--(?:train-)?set (\S+)", load(files[0])["command"])
-      rows.append([commit, ", ".join(change) or "none (the preset)",
+      rows.append([", ".join(change) or f"none (the preset at {commit})",
                    f"{t['reached']}/{t['seeds']}", num(t["median"], 1), num(t["env_steps"], 2),
                    num(t["median"] / base["median"], 2)])
       names += files
   return ("One learner change at a time on one GPU",
           f"The Hopper's gpu preset to 2,500, one change each, seeds run {base['method']}; "
-          "× preset: over the preset's median in the same sitting (a session, by its commit).",
-          table(["sitting", "change", "seeds reaching", "median (s)", "env steps (M)",
-                 "× preset"], rows), names)
+          "× preset: over the median of the preset above it, in the same session.",
+          table(["change", "seeds reaching", "median (s)", "env steps (M)", "× preset"], rows),
+          names)
 
 
 def c_physics_section() -> tuple[str, str, str, list[str]]:
@@ -547,21 +546,13 @@ def sources(names: list[str]) -> str:
   for (date, where, commit, command), files in made.items():
     base = next((k for k in lines if k[:3] == (date, where, commit)
                  and command.startswith(k[3] + " ")), None)
-    listed = [n.removesuffix(".json") for n in files]
+    listed = [f"`{n.removesuffix('.json')}`" for n in files]
     if base is None:
       lines[(date, where, commit, command)] = listed
     else:
-      lines[base] += [f"{name}` + `{command[len(base[3]) + 1:]}" for name in listed]
-  return "\n".join(f"- {_names(listed)} ({date}, {where}, {commit}): `{command}`"
+      lines[base] += [f"{name} + `{command[len(base[3]) + 1:]}`" for name in listed]
+  return "\n".join(f"- {', '.join(listed)} ({date}, {where}, {commit}): `{command}`"
                    for (date, where, commit, command), listed in lines.items())
-
-
-def _names(names: list[str]) -> str:
-  """Results files' names in backticks, those after the first that share its prefix (up to its
-  last "_") written "…" and the rest."""
-  prefix = names[0][:names[0].rfind("_") + 1]
-  return ", ".join(f"`{n}`" if i == 0 or not prefix or not n.startswith(prefix)
-                   else f"`…{n[len(prefix) - 1:]}`" for i, n in enumerate(names))
 
 
 def readme_table() -> str:
