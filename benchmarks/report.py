@@ -221,8 +221,7 @@ def summary() -> str:
                  num(e["mjx1"] / e["pybullet"], 1), num(published.get("sac")),
                  num(published.get("tqc"))])
   return "\n\n".join([
-      "Each robot's score, median time to it (compile included, timed as the sections below "
-      "say) and seeds reaching it: gpu preset on one GPU, cpu preset on 2 CPU cores. "
+      "Each robot's score, median time to it (compile included) and seeds reaching it: gpu preset on one GPU, cpu preset on 2 CPU cores. "
       "× PyBullet: MJX's env steps/s over PyBullet's, on one core each. rl-zoo: "
       f"rl-baselines3-zoo's published SAC and TQC on PyBullet after 1M env steps (`{RL_ZOO}`).",
       table(["robot", "one GPU", "2 CPU cores", "× PyBullet", "rl-zoo SAC", "rl-zoo TQC"],
@@ -264,9 +263,9 @@ def sections() -> list[tuple[str, str, str, list[str]]]:
          time_section("Time to score on 2 CPU cores", "Each robot's cpu preset (another agent: "
                       "its own with the robot's settings), timed as above.", CPU, "min", 60, 1,
                       explained),
-         ("Peers", "Hopper: our D4PG beside Brax's SAC and PPO on our env (one after another, "
-          "each alone on the GPU) and SB3's SAC on PyBullet (2 cores), each for its minutes, "
-          "from process start; 16-episode evaluations.",
+         ("Peers", "Hopper: our D4PG beside Brax's SAC and PPO on our env (each alone on the "
+          "GPU) and SB3's SAC on PyBullet (2 cores), each for its minutes, from process start; "
+          "16-episode evaluations.",
           table(PEER_HEAD, peer_rows()), list(PEERS))]
   rates = {robot: env_rates(robot) for robot in ROBOTS}
   env_files = sorted({ENV.get(robot, ENV_OTHERS) for robot in ROBOTS})
@@ -448,12 +447,12 @@ def pretrained_section(names: list[str]) -> tuple[str, str, str, list[str]]:
   rows = []
   for name in names:
     r = load(name)["figures"]
-    rows.append([r["robot"], num(r["target"]), r["seed"], num(r["env_steps"]),
+    rows.append([r["robot"], num(r["target"]), r["seed"], num(r["env_steps"] / 1e6, 2),
                  num(r["wall_s"]), num(r["best_eval_return"]),
                  f"{num(r['return'])} ± {num(r['return_std'])}", num(r["file_bytes"] / 1024)])
   return ("Pretrained policies", "`mjx_hopper/faces/pretrained/`: each robot's gpu preset "
           "trained past its score, the best policy exported, the file evaluated.",
-          table(["robot", "score", "seed", "env steps", "training (s)", "best evaluation",
+          table(["robot", "score", "seed", "env steps (M)", "training (s)", "best evaluation",
                  "the file's return", "file (KiB)"], rows), names)
 
 
