@@ -138,13 +138,8 @@ class LocomotionEnv(Env):
     self._mid, self._half_range = (lower + upper) / 2, (upper - lower) / 2
     self._torso = model.body(self.torso).id
     self._root = robot_model.root_kind(model, self._torso, self.xml_file)
-    parts = robot_model.bullet_parts(model)
-    self._part_bodies, self._after_hinge = parts["bodies"], parts["after_hinge"]
-    self._after_slide_anchor, self._after_slide_body = (parts["after_slide_anchor"],
-                                                        parts["after_slide_body"])
-    self._n_parts = parts["count"]
-    self._foot_geom, self._foot_half_length, self._foot_radius, self._foot_mask = (
-        robot_model.foot_geoms(model, self.feet, self.xml_file))
+    self._parts = robot_model.bullet_parts(model)
+    self._foot_geoms = robot_model.foot_geoms(model, self.feet, self.xml_file)
     # One compiled program, rather than MJX's eager one-op programs for each field.
     self._data0 = jax.jit(lambda: mjx.make_data(self.mjx_model),
                           out_shardings=jax.sharding.SingleDeviceSharding(device))()
@@ -290,10 +285,11 @@ class LocomotionEnv(Env):
 
   def robot(self, data: mjx.Data, feet_contact: jax.Array) -> Robot:
     """PyBullet's `calc_state` quantities of `data`."""
-    parts_xy = (data.xanchor[self._after_hinge, :2].sum(0)
-                + data.xanchor[self._after_slide_anchor, :2].sum(0)
-                + data.xpos[self._after_slide_body, :2].sum(0)
-                + data.xipos[self._part_bodies, :2].sum(0)) / self._n_parts
+    parts = self._parts
+    parts_xy = (data.xanchor[parts.after_hinge, :2].sum(0)
+                + data.xanchor[parts.after_slide_anchor, :2].sum(0)
+                + data.xpos[parts.after_slide_body, :2].sum(0)
+                + data.xipos[parts.bodies, :2].sum(0)) / parts.count
     torso_pos = data.xipos[self._torso]
     speed = self._torso_speed(data.qpos, data.qvel)
     return Robot(
@@ -320,10 +316,10 @@ class LocomotionEnv(Env):
 
   def _feet_contact(self, data: mjx.Data) -> jax.Array:
     """(F,) 1.0 where a foot's lowest point is within `contact_distance` of the floor (z = 0)."""
-    axis_z = data.geom_xmat[self._foot_geom, 2, 2]  # z of each capsule's long axis
-    lowest = (data.geom_xpos[self._foot_geom, 2] - jnp.abs(axis_z) * self._foot_half_length
-              - self._foot_radius)
-    return jnp.any(self._foot_mask & (lowest <= self.contact_distance), axis=1).astype(jnp.float32)
+    feet = self._foot_geoms
+    axis_z = data.geom_xmat[feet.ids, 2, 2]  # z of each capsule's long axis
+    lowest = data.geom_xpos[feet.ids, 2] - jnp.abs(axis_z) * feet.half_length - feet.radius
+    return jnp.any(feet.mask & (lowest <= self.contact_distance), axis=1).astype(jnp.float32)
 
   def _kinematics(self, data: mjx.Data) -> mjx.Data:
     """Poses of every body and geom for the current qpos."""
@@ -352,7 +348,7 @@ class LocomotionEnv(Env):
   def body_positions(self, state: State) -> dict[str, jax.Array]:
     """World position (m) of each body part's centre of mass, by name."""
     xipos = state.pipeline_state.xipos
-    return {self.mj_model.body(i).name: xipos[..., i, :] for i in self._part_bodies}
+    return {self.mj_model.body(i).name: xipos[..., i, :] for i in self._parts.bodies}
 
   def torso_speed(self, state: State) -> jax.Array:
     """(3,) world-frame linear velocity of the torso (m/s), PyBullet's `robot_body.speed()`."""

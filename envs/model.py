@@ -4,6 +4,7 @@ that its env reads from it: its root joints, PyBullet's parts and its feet."""
 from __future__ import annotations
 
 import os
+from typing import NamedTuple
 
 import mujoco
 import numpy as np
@@ -51,24 +52,42 @@ def root_kind(model: mujoco.MjModel, torso: int, xml_file: str) -> str:
                    "slide z and hinge y at its origin")
 
 
-def bullet_parts(model: mujoco.MjModel) -> dict[str, np.ndarray | int]:
+class BulletParts(NamedTuple):
   """Where PyBullet's "parts" are, whose x, y it averages: the floor (fixed at the origin), a
-  link per body, and a massless link placed after each joint but a free one. After a hinge that
-  link sits at the hinge's anchor; after a slide, where the slide took it: at the next joint's
-  anchor of the same body, or at the body's frame after its last joint."""
+  link per body (`bodies`), and a massless link placed after each joint but a free one. After a
+  hinge that link sits at the hinge's anchor (`after_hinge`: joints); after a slide, where the
+  slide took it: at the next joint's anchor of the same body (`after_slide_anchor`: joints), or
+  at the body's frame after its last joint (`after_slide_body`: bodies). `count`: all of them."""
+  bodies: np.ndarray
+  after_hinge: np.ndarray
+  after_slide_anchor: np.ndarray
+  after_slide_body: np.ndarray
+  count: int
+
+
+def bullet_parts(model: mujoco.MjModel) -> BulletParts:
+  """`model`'s `BulletParts`."""
   hinge, free = int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_FREE)
   last = np.append(model.jnt_bodyid[1:] != model.jnt_bodyid[:-1], True)
   kinds = np.asarray(model.jnt_type)
   bodies = np.arange(1, model.nbody)
-  return {"bodies": bodies, "after_hinge": np.flatnonzero(kinds == hinge),
-          "after_slide_anchor": np.flatnonzero((kinds != hinge) & (kinds != free) & ~last) + 1,
-          "after_slide_body": model.jnt_bodyid[(kinds != hinge) & (kinds != free) & last],
-          "count": int(np.sum(kinds != free)) + len(bodies) + 1}
+  return BulletParts(bodies, np.flatnonzero(kinds == hinge),
+                     np.flatnonzero((kinds != hinge) & (kinds != free) & ~last) + 1,
+                     model.jnt_bodyid[(kinds != hinge) & (kinds != free) & last],
+                     int(np.sum(kinds != free)) + len(bodies) + 1)
 
 
-def foot_geoms(model: mujoco.MjModel, feet: tuple[str, ...], xml_file: str
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+class FootGeoms(NamedTuple):
   """The feet's capsule and sphere geoms: ids, half-lengths, radii (G,), owner mask (F, G)."""
+  ids: np.ndarray
+  half_length: np.ndarray
+  radius: np.ndarray
+  mask: np.ndarray
+
+
+def foot_geoms(model: mujoco.MjModel, feet: tuple[str, ...], xml_file: str) -> FootGeoms:
+  """`model`'s `FootGeoms` of the bodies `feet`; a ValueError for a foot geom of another
+  shape."""
   capsule, sphere = int(mujoco.mjtGeom.mjGEOM_CAPSULE), int(mujoco.mjtGeom.mjGEOM_SPHERE)
   ids, owner = [], []
   for f, foot in enumerate(feet):
@@ -83,4 +102,4 @@ def foot_geoms(model: mujoco.MjModel, feet: tuple[str, ...], xml_file: str
   is_capsule = model.geom_type[ids] == capsule
   half_length = np.where(is_capsule, model.geom_size[ids, 1], 0.0)
   mask = np.arange(len(feet))[:, None] == np.array(owner)[None, :]
-  return ids, half_length, model.geom_size[ids, 0], mask
+  return FootGeoms(ids, half_length, model.geom_size[ids, 0], mask)

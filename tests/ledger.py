@@ -19,7 +19,7 @@ def pytest_configure(config):
   if _FOLDER not in os.environ:  # the controller (xdist's workers inherit its environment)
     os.environ[_FOLDER] = tempfile.mkdtemp(prefix="mjx_hopper_ledger_")
     config._ledger_owner = True
-  ledger.start()
+  # The ledger's listeners are mjx_hopper.setup's, which conftest calls.
 
 
 @pytest.hookimpl(tryfirst=True)

@@ -89,7 +89,7 @@ def test_timing_root_and_feet(robot):
   assert env.initial_z == pytest.approx(bullet["initial_z"], abs=1e-6)
   assert env.electricity_cost == bullet["electricity_cost"]
   assert env.stall_torque_cost == pytest.approx(bullet["stall_torque_cost"])
-  assert env._n_parts == bullet["part_count"]
+  assert env._parts.count == bullet["part_count"]
 
 
 @pytest.mark.parametrize("robot", ROBOTS)

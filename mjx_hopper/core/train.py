@@ -65,6 +65,10 @@ class Trainer(NamedTuple):
   num_members: int
   shardings: TrainState          # of NamedSharding
 
+  def env_steps(self, state: TrainState) -> int:
+    """The env steps that `state` has trained, every member's alike."""
+    return iterations(state) * self.config.steps_per_iteration
+
   def train_chunk(self, state: TrainState) -> tuple[TrainState, dict]:
     """A chunk, then fresh episode starts for the next: (state, metrics)."""
     state, metrics = self.chunk(state)

@@ -25,9 +25,10 @@ def setup(compile_cache: str | None = None, cpu_devices: int | None = None) -> s
   (`SHARDY_CRASHES`), XLA's C++ log at errors. Then JAX's config: the persistent compile cache,
   keeping every program, in `compile_cache` (None: the folder already set, else
   $MJX_HOPPER_JAX_CACHE, else ~/.cache/mjx_hopper/jax) per `cpu_key()`, GSPMD where Shardy
-  crashes, gloo's CPU collectives where none is chosen, and where $MJX_HOPPER_COMPILE_LEDGER is
-  set, the compile ledger. Unset environment variables only are set. Returns the compile
-  cache's folder. A `cpu_devices` that JAX's started backends do not have is a ValueError."""
+  crashes, gloo's CPU collectives where none is chosen, and the compile ledger's listeners
+  (which write only while $MJX_HOPPER_COMPILE_LEDGER names a file). Unset environment
+  variables only are set. Returns the compile cache's folder. A `cpu_devices` that JAX's
+  started backends do not have is a ValueError."""
   if cpu_devices is not None and cpu_devices < 1:
     raise ValueError(f"cpu_devices must be >= 1, got {cpu_devices}")
   from mjx_hopper.process import jax_private, ledger  # import no JAX
@@ -50,8 +51,7 @@ def setup(compile_cache: str | None = None, cpu_devices: int | None = None) -> s
     jax.config.update("jax_use_shardy_partitioner", False)
   if jax.config.jax_cpu_collectives_implementation is None:
     jax.config.update("jax_cpu_collectives_implementation", "gloo")
-  if os.environ.get(ledger.VARIABLE):
-    ledger.start()
+  ledger.start()
   return directory
 
 

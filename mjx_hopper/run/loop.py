@@ -120,7 +120,7 @@ def _train(p: opening.Parts, state: train.TrainState, progress: bool, stop, user
            ) -> train.TrainState:
   """Chunks until the env steps or deadline, a stop, the target, or every member diverged."""
   cfg, members, evaluator = p.cfg, p.members, p.evaluator
-  env_steps = p.env_steps(state)
+  env_steps = p.trainer.env_steps(state)
   bar = _progress_bar(cfg.total_env_steps, env_steps) if progress and not (
       p.until.total_reached(env_steps)) else None
   next_eval = (env_steps // cfg.eval_every + 1) * cfg.eval_every
@@ -161,9 +161,9 @@ def _train(p: opening.Parts, state: train.TrainState, progress: bool, stop, user
 def _one_chunk(p: opening.Parts, user: "_UserCode", state: train.TrainState):
   """A chunk, checked, its diverged members frozen, and logged: (state, env steps, env steps/s,
   whether progress_fn asked to stop)."""
-  before, t0 = p.env_steps(state), time.perf_counter()
+  before, t0 = p.trainer.env_steps(state), time.perf_counter()
   state, metrics, agents_before = p.chunk(state)
-  env_steps = p.env_steps(state)
+  env_steps = p.trainer.env_steps(state)
   p.members.check(env_steps, metrics, p.chunk.finite(state.agent))
   state = p.chunk.freeze(state, agents_before, p.members.diverged)
   rate = (env_steps - before) * len(p.members) / (time.perf_counter() - t0)
@@ -299,7 +299,7 @@ def _finish(p: opening.Parts, state: train.TrainState, stop) -> Result:
              "continues (a lower learning rate may avoid it)" if kept is not None
              else "no checkpoint was saved before it"))
   why = stop.reason if stop.requested else p.members.outcome()
-  parts = [f"{why}: {p.env_steps(state):,} env steps in {p.until.elapsed():.0f} s"]
+  parts = [f"{why}: {p.trainer.env_steps(state):,} env steps in {p.until.elapsed():.0f} s"]
   if p.members.single and evaluation is not None:
     parts.append(f"evaluation return {np.mean(evaluation['return']):.1f} over "
                  f"{len(evaluation['return'])} episodes")

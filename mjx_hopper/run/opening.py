@@ -44,10 +44,6 @@ class Parts:
   progress_fn: ProgressFn | None
   say: Callable[[str], None]
 
-  def env_steps(self, state) -> int:
-    """The env steps that `state` has trained, every member's alike."""
-    return train.iterations(state) * self.trainer.config.steps_per_iteration
-
   def pbt_due(self, before: int, env_steps: int) -> bool:
     """Whether PBT steps after the chunk from `before` to `env_steps`: at every `pbt.every`-th
     evaluation, but not at the run's end."""
@@ -121,7 +117,7 @@ def restore(plan: Plan, say):
                               plan.saved_config, say, plan.defaults)
   if distributed.primary():
     plan.folder.write_config(plan.saved_config)  # once resuming is agreed
-  if train.iterations(resumed.state) * per_iteration >= cfg.total_env_steps:
+  if plan.trainer.env_steps(resumed.state) >= cfg.total_env_steps:
     started = None  # nothing left to train
   elif started is None:  # an older step than the newest was read
     started = plan.compile()
@@ -139,7 +135,7 @@ def assemble(plan: Plan, resumed, started, saver, say, progress_fn, t_start: flo
   display = sweep.Report(cfg.grid, members, say)
   logger = Logger(plan.folder.log if primary else None, cfg.log_every, display.logger_print,
                   agents.learner_fields(cfg.agent), cfg.tensorboard_dir if primary else None,
-                  start_step=train.iterations(resumed.state) * trainer.config.steps_per_iteration,
+                  start_step=trainer.env_steps(resumed.state),
                   id_fields=display.id_fields, wandb_project=cfg.wandb if primary else None,
                   wandb_config=plan.saved_config)
   say(header(cfg, trainer, len(mine), members.single))

@@ -101,10 +101,9 @@ PRESETS: dict[tuple[str, str], Preset] = {
 
 # A robot of one's own, with no measured preset: D4PG's preset of the kind with its trainer
 # layout, RunConfig's budget, no score.
-UNMEASURED = {"cpu": Preset(**_CPU, target=None, env_steps=RunConfig.total_env_steps,
-                            minutes=None, why="no preset is measured for this robot"),
-              "gpu": Preset(**_GPU, target=None, env_steps=RunConfig.total_env_steps,
-                            minutes=None, why="no preset is measured for this robot")}
+UNMEASURED = {kind: Preset(**settings, target=None, env_steps=RunConfig.total_env_steps,
+                           minutes=None, why="no preset is measured for this robot")
+              for kind, settings in (("cpu", _CPU), ("gpu", _GPU))}
 
 
 def get(env, kind: str) -> Preset:
