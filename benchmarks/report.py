@@ -162,11 +162,6 @@ def score_cells(robot: str) -> list[str]:
           num(c["target"]), num(c["median"], 1), f"{c['reached']}/{c['seeds']}"]
 
 
-def score_in(cells: list[str], unit: str) -> str:
-  """A score, its median time in `unit` and its seeds, in one cell: "2,500 in 54 s (9/10)"."""
-  return f"{cells[0]} in {cells[1]} {unit} ({cells[2]})"
-
-
 def env_rates(robot: str) -> dict:
   """PyBullet's (one core), MuJoCo C's (2 threads) and MJX's best env steps/s of one robot, MJX's
   on one device (one core, "mjx1") and on 2."""
@@ -216,16 +211,14 @@ def summary() -> str:
   rows = []
   for robot in ROBOTS:
     e, published = env_rates(robot), zoo.get(robot, {})
-    cells = score_cells(robot)
-    rows.append([robot, score_in(cells[:3], "s"), score_in(cells[3:], "min"),
-                 num(e["mjx1"] / e["pybullet"], 1), num(published.get("sac")),
+    rows.append([robot, num(e["mjx1"] / e["pybullet"], 1), num(published.get("sac")),
                  num(published.get("tqc"))])
   return "\n\n".join([
-      "Each robot's score, median time to it (compile included) and seeds reaching it: gpu preset on one GPU, cpu preset on 2 CPU cores. "
+      "Each robot's times to score are in the sections below (and the README's table). "
       "× PyBullet: MJX's env steps/s over PyBullet's, on one core each. rl-zoo: "
-      f"rl-baselines3-zoo's published SAC and TQC on PyBullet after 1M env steps (`{RL_ZOO}`).",
-      table(["robot", "one GPU", "2 CPU cores", "× PyBullet", "rl-zoo SAC", "rl-zoo TQC"],
-            rows)])
+      f"rl-baselines3-zoo's published SAC and TQC returns on PyBullet after 1M env steps "
+      f"(`{RL_ZOO}`).",
+      table(["robot", "× PyBullet", "rl-zoo SAC", "rl-zoo TQC"], rows)])
 
 
 def time_section(title: str, method: str, runs: dict, unit: str, scale: float, digits: int,
@@ -465,14 +458,15 @@ def learner_changes_section() -> tuple[str, str, str, list[str]]:
     for label, files in sitting.items():
       t = time_to_score(files)
       change = re.findall(r"--(?:train-)?set (\S+)", load(files[0])["command"])
-      rows.append([", ".join(change) or f"none (the preset at {commit})",
-                   f"{t['reached']}/{t['seeds']}", num(t["median"], 1), num(t["env_steps"], 2),
+      rows.append([", ".join(change) or f"none (the preset at {commit})", t["seeds"],
+                   t["reached"], num(t["median"], 1), num(t["env_steps"], 2),
                    num(t["median"] / base["median"], 2)])
       names += files
   return ("One learner change at a time on one GPU",
           f"The Hopper's gpu preset to 2,500, one change each, seeds run {base['method']}; "
           "× preset: over the median of the preset above it, in the same session.",
-          table(["change", "seeds reaching", "median (s)", "env steps (M)", "× preset"], rows),
+          table(["change", "seeds", "reached", "median (s)", "env steps (M)", "× preset"],
+                rows),
           names)
 
 
