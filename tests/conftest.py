@@ -86,7 +86,7 @@ GROUPS = {"tiny trainers": ("test_train.py", "test_run_folder.py", "test_runlock
                             "test_presets.py", "test_logger.py", "test_notebook_helpers.py",
                             "test_export.py", "test_terminal.py", "test_start.py",
                             "test_compile_cache.py", "test_packaging.py", "test_kept.py"),
-          # The notebook's Ant event and high jump, trained by test_tasks.py first.
+          # The notebook's Ant event, Walker2D and high jump, trained by test_tasks.py first.
           "the notebook's programs": ("test_tasks.py", "test_notebooks.py"),
           "hopper programs": ("test_env_api.py", "test_episode_starts.py", "test_gymnasium.py",
                               "test_brax.py", "test_observation.py")}
@@ -135,13 +135,29 @@ def hopper():
 
 
 @pytest.fixture(scope="session")
-def hopper_reset(hopper):
-  return jax.jit(hopper.reset)
+def hopper_reset(hopper_resets):
+  """`hopper.reset` of one key, through `hopper_resets`' program."""
+  return lambda key: jax.device_put(jax.tree.map(lambda x: x[0],
+                                                 hopper_resets(np.asarray(key)[None])))
 
 
 @pytest.fixture(scope="session")
 def hopper_step(hopper):
   return jax.jit(hopper.step)
+
+
+@pytest.fixture(scope="session")
+def hopper_resets(hopper):
+  """`hopper.reset` of each of `keys` (any number), through one program of 64 resets: host
+  arrays."""
+  program, batch = jax.jit(jax.vmap(hopper.reset)), 64
+
+  def reset(keys):
+    keys = np.asarray(keys)
+    padded = np.concatenate([keys, np.zeros((-len(keys) % batch, *keys.shape[1:]), keys.dtype)])
+    batches = [jax.device_get(program(b)) for b in padded.reshape(-1, batch, *keys.shape[1:])]
+    return jax.tree.map(lambda *x: np.concatenate(x)[:len(keys)], *batches)
+  return reset
 
 
 _EPISODES = {}

@@ -110,18 +110,23 @@ def seed_style_task(base):
   return Custom(episode_steps=40)
 
 
-def test_edit_model_changes_the_physics(hopper, hopper_step):
+def test_edit_model_changes_the_physics(hopper, hopper_reset, hopper_step):
   class MoonHopper(type(hopper)):
     def edit_model(self, model):
       model.opt.gravity[2] = -1.62
 
   moon = MoonHopper()
   assert hopper.mj_model.opt.gravity[2] == pytest.approx(-9.8)  # the shipped one is untouched
-  for env, g in ((hopper, 9.8), (moon, 1.62)):  # at rest 1 m up, the robot falls for a step
-    qpos = np.array(env.mj_model.qpos0)
-    qpos[1] += 1.0  # the root's z slide
-    state = jax.jit(env.init_state)(qpos, np.zeros(env.mj_model.nv))
-    state = (hopper_step if env is hopper else jax.jit(env.step))(state, jnp.zeros(3))
+  # At rest 1 m up, the robot falls for a step: a reset state so placed (the step computes the
+  # rest from qpos and qvel), stepped by each env's own program.
+  reset = hopper_reset(jax.random.PRNGKey(0))
+  ps = reset.pipeline_state
+  qpos = np.array(hopper.mj_model.qpos0)
+  qpos[1] += 1.0  # the root's z slide
+  falling = reset.replace(pipeline_state=ps.replace(qpos=jnp.asarray(qpos, ps.qpos.dtype),
+                                                    qvel=jnp.zeros_like(ps.qvel)))
+  for env, g in ((hopper, 9.8), (moon, 1.62)):
+    state = (hopper_step if env is hopper else jax.jit(env.step))(falling, jnp.zeros(3))
     np.testing.assert_allclose(state.pipeline_state.qvel[:3], [0, -g * env.control_dt, 0],
                                rtol=1e-3, atol=1e-4)
 

@@ -239,9 +239,10 @@ def test_an_exported_file_evaluates_and_films_as_its_checkpoint(run_dir, tmp_pat
   result = export.evaluate_file(path, episodes=2, seed=3, video_path=video,
                                 print_fn=lines.append)
   cfg, agent_state, trainer = checkpoints.load_policy(directory, print_fn=lambda _: None)
-  from mjx_hopper.core import train
-  want = jax.device_get(jax.jit(lambda s, k: train.evaluate(
-      trainer.env, trainer.agent, s, k, 2))(agent_state, jax.random.PRNGKey(3)))
+  # The run's own evaluation program, of one member, from the same key.
+  want = jax.device_get(trainer.evaluate(jax.tree.map(lambda x: x[None], agent_state),
+                                         jax.random.PRNGKey(3)[None]))
+  want = jax.tree.map(lambda x: x[0], want)
   np.testing.assert_array_equal(result["length"], want["length"])
   np.testing.assert_allclose(result["return"], want["return"], rtol=1e-4, atol=1e-4)
   assert os.path.getsize(video) > 0

@@ -160,8 +160,8 @@ def test_progress_is_float32_safe(hopper):
   assert worst_naive > 1e-3  # the naive way would not do
 
 
-def test_reset_noise_is_uniform_on_joints(hopper, hopper_reset):
-  states = jax.vmap(hopper_reset)(jax.random.split(jax.random.PRNGKey(0), 2000))
+def test_reset_noise_is_uniform_on_joints(hopper, hopper_resets):
+  states = hopper_resets(jax.random.split(jax.random.PRNGKey(0), 2000))
   qpos = np.asarray(states.pipeline_state.qpos)
   np.testing.assert_array_equal(qpos[:, :3], 0.0)  # the root is not randomised
   joints = qpos[:, 3:]

@@ -212,16 +212,20 @@ def test_a_set_value_of_the_wrong_type_is_a_one_line_error(command, value, messa
   assert not (tmp_path / "checkpoints").exists()
 
 
-# The notebook's Ant event as its short mode trains it, one member (a sweep of a task of one's
-# own is the notebook's population of high jumps): the notebook's programs, which the compile
-# cache shares between the two.
+# The notebook's Ant event and its Walker2D, as its short mode trains them, one member each (a
+# sweep of a task of one's own is the notebook's population of high jumps): the notebook's
+# programs, which the compile cache shares between the two (this file runs before the notebook,
+# in the same worker: conftest.GROUPS). Walker2D is a second robot of the package's own through
+# the trainer, with its robot's cpu preset.
 @pytest.mark.slow
-def test_an_ant_event_trains(tmp_path):
-  cfg = dataclasses.replace(notebook.tiny(presets.agent_run_config(AntLongJump, "gpu", "d4pg")),
+@pytest.mark.parametrize("task, kind, term", [(AntLongJump, "gpu", "flight"),
+                                              ("Walker2D", "cpu", "progress")])
+def test_the_notebooks_ant_event_and_walker_train(task, kind, term, tmp_path):
+  cfg = dataclasses.replace(notebook.tiny(presets.agent_run_config(task, kind, "d4pg")),
                             log_every=0.0, out_dir=str(tmp_path))
   result = loop.run(cfg, progress=False)
-  assert isinstance(result.trainer.env, AntLongJump)
+  assert type(result.trainer.env) is envs.task_class(task)
   evals = [row for row in result.history if row["kind"] == "eval"]
   assert [row["env_steps"] for row in evals] == [40, 80]
   assert np.isfinite([row["eval_return"] for row in evals]).all()
-  assert "flight" in result.evaluation
+  assert term in result.evaluation
