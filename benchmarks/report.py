@@ -25,11 +25,8 @@ RESULTS = ROOT / "benchmarks" / "results"
 ROBOTS = ("Hopper", "Walker2D", "HalfCheetah", "Ant", "Humanoid")
 TTS = "time_to_score_{}.json"
 GPU = {"Hopper": [TTS.format("Hopper_gpu_heldout")],
-       "Walker2D": [TTS.format("Walker2D_h100_cold5_2026-11-26"), TTS.format("Walker2D_gpu_heldout")],
-       "HalfCheetah": [TTS.format("HalfCheetah_h100_small_batch"),
-                       TTS.format("HalfCheetah_gpu_heldout")],
-       "Ant": [TTS.format("Ant_h100_cold5_2026-11-26"), TTS.format("Ant_gpu_heldout")],
-       "Humanoid": [TTS.format("Humanoid_gpu_seeds23-24"), TTS.format("Humanoid_gpu_seed25")],
+       **{robot: [TTS.format(f"{robot}_gpu_heldout"), TTS.format(f"{robot}_gpu_heldout2")]
+          for robot in ROBOTS[1:]},
        "AntLongJump (an event)": [TTS.format("AntLongJump_h100")]}
 CPU = {"Hopper": [TTS.format("Hopper_cpu_heldout")],
        "Walker2D": [TTS.format("Walker2D_cpu_tuned_2026-11-26")],

@@ -56,6 +56,12 @@ def evaluate(result: loop.Result, num_episodes: int, seed: int = 0, which: str =
   else:
     print_fn(f"the latest policy{'' if which == 'latest' else ' (no evaluation yet)'}")
 
+  # Traced as in a fresh process (docs/upstream.md: a program's compile-cache key depends on
+  # what the process traced before), so that the same evaluation in another cell, kernel or
+  # test loads from the compile cache what one of them compiled. JAX's compiled programs are
+  # dropped from memory; a later run loads its own again from that cache.
+  jax.clear_caches()
+
   @jax.jit
   def run(agent_state, key):
     return rollout.episodes(env, lambda obs, _: agent.policy(agent_state, obs), key,
