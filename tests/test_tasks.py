@@ -212,11 +212,11 @@ def test_a_set_value_of_the_wrong_type_is_a_one_line_error(command, value, messa
   assert not (tmp_path / "checkpoints").exists()
 
 
-# The notebook's Ant event and its Walker2D, as its short mode trains them, one member each (a
-# sweep of a task of one's own is the notebook's population of high jumps): the notebook's
-# programs, which the compile cache shares between the two (this file runs before the notebook,
-# in the same worker: conftest.GROUPS). Walker2D is a second robot of the package's own through
-# the trainer, with its robot's cpu preset.
+# The notebook's Ant event and its Walker2D, as its short mode trains and evaluates them, one
+# member each (a sweep of a task of one's own is the notebook's population of high jumps): the
+# notebook's programs, which the compile cache shares between the two (this file runs before
+# the notebook, in the same worker: conftest.GROUPS). Walker2D is a second robot of the
+# package's own through the trainer, with its robot's cpu preset.
 @pytest.mark.slow
 @pytest.mark.parametrize("task, kind, term", [(AntLongJump, "gpu", "flight"),
                                               ("Walker2D", "cpu", "progress")])
@@ -229,3 +229,8 @@ def test_the_notebooks_ant_event_and_walker_train(task, kind, term, tmp_path):
   assert [row["env_steps"] for row in evals] == [40, 80]
   assert np.isfinite([row["eval_return"] for row in evals]).all()
   assert term in result.evaluation
+  # The notebook's recorded evaluation of it (a robot on a free joint, too).
+  episodes = notebook.evaluate(result, num_episodes=5, print_fn=lambda _: None)
+  assert episodes["rewards"].shape == (5, 30)
+  assert episodes["qpos"].shape == (31, result.trainer.env.mj_model.nq)
+  np.testing.assert_allclose(episodes["rewards"].sum(1), episodes["return"], rtol=1e-5, atol=1e-4)

@@ -74,7 +74,7 @@ PRESETS: dict[tuple[str, str], Preset] = {
                                   "(evidence: 275635e)"),
     ("Walker2D", "cpu"): Preset(**_CPU_TUNED, target=2000.0, env_steps=7_500_000, minutes=9.0,
                                 why=_CPU_TUNED_WHY.format("9d394f9")),
-    ("Walker2D", "gpu"): Preset(**_GPU, target=2500.0, env_steps=20_000_000, minutes=5.0,
+    ("Walker2D", "gpu"): Preset(**_GPU, target=2500.0, env_steps=23_000_000, minutes=5.0,
                                 why=_GPU_WHY),
     ("HalfCheetah", "cpu"): Preset(**_CPU, target=3000.0, env_steps=17_500_000, minutes=35.0,
                                    why="D4PG's cpu preset: the Hopper's settings left it standing "
@@ -84,17 +84,17 @@ PRESETS: dict[tuple[str, str], Preset] = {
         **_GPU, "agent_overrides": {"sigma": 0.6, "sigma_min": 0.2, "learning_rate": 1e-3},
         "train": dataclasses.replace(_GPU_TRAIN, num_envs=512, batch_size=1024,
                                      replay_size=1_000_000),
-        "eval_every": 250_000}, target=3000.0, env_steps=3_500_000, minutes=3.0,
+        "eval_every": 250_000}, target=3000.0, env_steps=2_500_000, minutes=3.0,
         why="512 envs, 32 updates of 1,024, 1e-3, noise 0.2 to 0.6 (evidence: 60e8b34)"),
     ("Ant", "cpu"): Preset(**_CPU_TUNED, target=3000.0, env_steps=11_500_000, minutes=19.0,
                            why=_CPU_TUNED_WHY.format("9ac1947")),
-    ("Ant", "gpu"): Preset(**_GPU, target=3000.0, env_steps=14_000_000, minutes=3.0,
+    ("Ant", "gpu"): Preset(**_GPU, target=3000.0, env_steps=12_500_000, minutes=3.0,
                            why=_GPU_WHY),
     ("Humanoid", "cpu"): Preset(**_CPU_TUNED, target=2500.0, env_steps=9_500_000, minutes=25.0,
                                 why=_CPU_TUNED_WHY.format("6ae7853")),
     ("Humanoid", "gpu"): Preset(**{**_GPU, "agent_overrides": {
         **_GPU["agent_overrides"], "critic_layers": (1024, 512, 256),
-        "policy_layers": (512, 256, 128)}}, target=2500.0, env_steps=11_000_000, minutes=4.0,
+        "policy_layers": (512, 256, 128)}}, target=2500.0, env_steps=11_500_000, minutes=5.0,
         why="the gpu layout with FastTD3's larger networks (evidence: 60e8b34)"),
 }
 
