@@ -50,7 +50,9 @@ def evaluate(result: loop.Result, num_episodes: int, seed: int = 0, which: str =
   episode_steps: each step's reward, 0 after the episode's end) and "qpos" (episode 0's poses,
   (episode_steps + 1, nq))."""
   env, agent = result.trainer.env, result.trainer.agent
-  agent_state = result.policy(which, member)
+  # On the host: a member's agent lies where its run placed it (a population's, on one of the
+  # devices), and the program would be compiled again for each placement.
+  agent_state = jax.device_get(result.policy(which, member))
   if which == "best" and result.best is not None:
     print_fn(f"the policy of the best evaluation (return {result.best_return[member]:,.1f})")
   else:
