@@ -114,7 +114,7 @@ def test_reset_begins_from_the_first_of_fresh_starts(wrapped, hopper_resets):
   assert len({tuple(np.asarray(x).round(6)) for x in firsts.obs}) == 3  # all differ
 
 
-def test_one_refill_program_refills_and_begins(short_hopper, wrapped):
+def test_one_refill_program_refills_and_begins(wrapped):
   """A trainer's init begins its envs with the refill that follows each chunk: one program,
   whose `begin` says which."""
   _, reset, refill, blank = wrapped
