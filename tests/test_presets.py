@@ -8,7 +8,6 @@ import sys
 import pytest
 
 from mjx_hopper import agents, envs
-from mjx_hopper.core import train
 from mjx_hopper.faces import cli
 from mjx_hopper.run import loop, opening
 from mjx_hopper.settings import flags, presets
@@ -184,7 +183,7 @@ def test_run_stops_once_every_member_reaches_the_target(tmp_path, capsys):
   kinds = [r["kind"] for r in result.history]
   first = kinds.index("eval")
   assert int(result.history[first]["env_steps"]) == 40 and set(kinds[first:]) == {"eval"}
-  env_steps = train.iterations(result.state) * cfg.train.steps_per_iteration
+  env_steps = result.trainer.env_steps(result.state)
   assert (f"every member reached -1e+09 by the evaluation at 40 env steps: {env_steps:,} env "
           "steps") in capsys.readouterr().out
 

@@ -124,7 +124,7 @@ def test_sweep_writes_results_resumes_exactly_and_extracts(single, tmp_path, cap
   straight = loop.run(cfg, progress=False)
   split_cfg = dataclasses.replace(cfg, out_dir=str(tmp_path / "split"))
   stopped = loop.run(split_cfg, progress=False, print_fn=stop_after_first_chunk)
-  assert train.iterations(stopped.state) * cfg.train.steps_per_iteration == 40
+  assert stopped.trainer.env_steps(stopped.state) == 40
   after_one = jax.device_get(stopped.state)
   resumed = loop.run(split_cfg, progress=False)
   assert_same(jax.device_get(straight.state), jax.device_get(resumed.state))

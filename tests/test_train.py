@@ -123,7 +123,7 @@ def test_where_evaluations_run():
 def test_run_logs_checkpoints_and_resumes(tmp_path, capsys):
   cfg = dataclasses.replace(TINY, out_dir=str(tmp_path / "run"))
   result = loop.run(cfg, progress=False)
-  assert train.iterations(result.state) * cfg.train.steps_per_iteration >= 80
+  assert result.trainer.env_steps(result.state) >= 80
   with open(tmp_path / "run" / "log.csv") as f:
     rows = list(csv.DictReader(f))
   assert {"env_steps", "steps_per_s", "episode_return", "critic_loss", "eval_return"} <= set(
@@ -448,6 +448,6 @@ def test_a_signal_to_another_process_stops_this_one_after_its_chunk_saved(tmp_pa
   monkeypatch.setattr(distributed, "agree", signalled_elsewhere)
   cfg = dataclasses.replace(TINY, total_env_steps=160, out_dir=str(tmp_path))
   result = loop.run(cfg, progress=False)
-  assert train.iterations(result.state) * cfg.train.steps_per_iteration == 40
+  assert result.trainer.env_steps(result.state) == 40
   assert store.manager(str(tmp_path / "checkpoints")).latest_step() == 5
   assert "stopped by a signal to another process: 40 env steps" in capsys.readouterr().out
