@@ -18,6 +18,7 @@ from mjx_hopper.agents import networks
 from mjx_hopper.agents.base import Agent, CommonConfig, hparams
 from mjx_hopper.faces import export, notebook
 from mjx_hopper.run import loop
+from mjx_hopper.run.logger import Logger
 
 
 @dataclasses.dataclass(frozen=True)
@@ -87,11 +88,23 @@ def linear():
 
 
 def test_a_registered_agent_trains_sweeps_checkpoints_and_resumes(linear, tmp_path, capsys):
+  # Four members, by replay ratio and n-step window: the trainer's own dynamic settings, which
+  # every agent's sweep takes (each member's update count and window are its own data).
   cfg = dataclasses.replace(
-      notebook.tiny(loop.RunConfig(env="Hopper", agent=linear)), seeds=(0, 1),
-      grid={"sigma": (0.2, 0.4)}, log_every=0.0, out_dir=str(tmp_path))
+      notebook.tiny(loop.RunConfig(env="Hopper", agent=linear)),
+      grid={"replay_ratio": (1.0, 2.0), "n_step": (1, 3)}, log_every=0.0, out_dir=str(tmp_path))
+  # The agent's own dynamic setting is sweepable as the built-in agents' are.
+  assert len(dataclasses.replace(cfg, grid={"sigma": (0.2, 0.4)}).member_settings()) == 2
   result = loop.run(cfg, progress=False)
+  assert result.trainer.agent.n_step == 3  # the replay reads the longest window
   assert result.best_return.shape == (4,)
+  # Learning starts at iteration 3 of the first chunk's 5 (24 transitions, 8 an iteration):
+  # 3 + 5 iterations of 1 or 2 updates each.
+  members = cfg.member_settings()
+  assert np.asarray(result.state.updates).tolist() == [8 * int(m["replay_ratio"])
+                                                       for m in members]
+  assert np.asarray(result.state.agent.hparams["n_step"]).tolist() == [m["n_step"]
+                                                                       for m in members]
   with open(tmp_path / "log.csv") as f:
     rows = list(csv.DictReader(f))
   trained = [r for r in rows if r["kind"] == "train"]
@@ -110,13 +123,14 @@ def test_a_registered_agent_trains_sweeps_checkpoints_and_resumes(linear, tmp_pa
   np.testing.assert_allclose(policy(obs), np.tanh(obs @ np.asarray(state.policy)), rtol=1e-6)
 
 
-@pytest.mark.slow
-def test_the_terminal_line_shows_its_learner_metrics(linear, tmp_path, capsys):
-  cfg = dataclasses.replace(notebook.tiny(loop.RunConfig(env="Hopper", agent=linear)),
-                            log_every=0.0, out_dir=str(tmp_path))
-  loop.run(cfg, progress=False)
-  last = [l for l in capsys.readouterr().out.splitlines() if l.startswith("[train]")][-1]
-  assert "| linear loss " in last
+def test_the_terminal_line_shows_its_learner_metrics(linear):
+  # A single run's logger takes the agent's learner fields (run/opening.py, as for each
+  # built-in agent: test_train.test_every_agent_trains_from_the_same_cli).
+  lines = []
+  logger = Logger(None, log_every=0.0, print_fn=lines.append,
+                  learner_fields=agents.learner_fields(linear))
+  logger.write({"kind": "train", "env_steps": 80, "steps_per_s": 100.0, "linear_loss": 0.25})
+  assert lines[-1].endswith("| linear loss 0.25")
 
 
 def test_an_agent_without_an_exported_policy_trains_but_is_not_exported():
