@@ -1,5 +1,6 @@
 """The Robolympics notebook in its full mode (MJX_HOPPER_SHORT unset), executed top to bottom as a
-Colab user runs it, with each section's wall-clock time (its first cell's start to its last's end).
+Colab user runs it, with each section's wall-clock time (its first cell's start to its last's end)
+and each run's score: its best evaluation against the return it stops at.
 
     python benchmarks/notebook_time.py --out runs/notebook_full
 
@@ -12,7 +13,9 @@ that films (a newcomer's first wait), and writes notebook_first_video_LABEL.json
 
 from __future__ import annotations
 
+import csv
 import datetime
+import json
 import os
 import pathlib
 import time
@@ -29,6 +32,28 @@ def seconds(cell) -> tuple[float, float] | None:
     return None
   parse = lambda t: datetime.datetime.fromisoformat(t.replace("Z", "+00:00")).timestamp()
   return parse(timing["iopub.execute_input"]), parse(timing["shell.execute_reply"])
+
+
+def scores(runs: str) -> dict[str, dict]:
+  """Each run the notebook trained (a folder of `runs`): the return it stops at (None: it
+  trains its budget), its best evaluation (a population's best member's), its env steps, and the
+  seconds of its clock at the evaluation that first reached its score (None: none did)."""
+  out = {}
+  for name in sorted(os.listdir(runs)):
+    log, config = (os.path.join(runs, name, f) for f in ("log.csv", "config.json"))
+    if not os.path.exists(log):
+      continue
+    with open(config) as f:
+      target = json.load(f)["stop_at_return"]
+    with open(log) as f:
+      evals = [r for r in csv.DictReader(f) if r["kind"] == "eval"]
+    reached = [float(r["wall_s"]) for r in evals
+               if target is not None and float(r["eval_return"]) >= target]
+    out[name] = {"target": target,
+                 "best_return": round(max(float(r["eval_return"]) for r in evals), 1),
+                 "env_steps": max(int(r["env_steps"]) for r in evals),
+                 "target_wall_s": round(reached[0], 1) if reached else None}
+  return out
 
 
 def main() -> None:
@@ -73,10 +98,14 @@ def main() -> None:
   print(f"the notebook in {total / 60:.1f} min; its first video after {first_video:.0f} s")
   print(common.table(["section", "wall-clock (s)"],
                      [[t, f"{s:,.0f}"] for t, s in seconds_.items()]))
+  figures = {"total_s": round(total, 1), "first_video_s": first_video, "sections_s": seconds_}
+  if not args.first_video:
+    figures["runs"] = scores(os.path.join(args.out, "runs"))
+    print(common.table(["run", "stops at", "best evaluation", "reached after (s)"],
+                       [[n, r["target"], f"{r['best_return']:,.0f}", r["target_wall_s"]]
+                        for n, r in figures["runs"].items()]))
   name = "notebook_first_video" if args.first_video else "notebook_time"
-  common.write_results(f"{name}_{args.label}", {"total_s": round(total, 1),
-                                                "first_video_s": first_video,
-                                                "sections_s": seconds_})
+  common.write_results(f"{name}_{args.label}", figures)
 
 
 if __name__ == "__main__":

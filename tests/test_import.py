@@ -53,6 +53,15 @@ def test_importing_starts_no_jax():
   assert run("import sys, mjx_hopper; print('jax' in sys.modules)") == "False"
 
 
+def test_a_run_imports_orbax_when_it_opens_checkpoints(tmp_path):
+  # The CLI and the loop without orbax (about a second of a run's start): store.items imports
+  # it where a checkpoint manager is made.
+  assert run("import sys\nfrom mjx_hopper.faces import cli\nfrom mjx_hopper.run import loop\n"
+             "print(any(m.split('.')[0] == 'orbax' for m in sys.modules))") == "False"
+  assert run(f"import sys\nfrom mjx_hopper import store\nstore.manager({str(tmp_path)!r})\n"
+             "print('orbax.checkpoint' in sys.modules)") == "True"
+
+
 def test_the_settings_before_start_per_platform(monkeypatch):
   monkeypatch.setattr(runtime, "_shardy_crashes", lambda: False)
   choose = runtime.settings_before_start

@@ -12,11 +12,14 @@ import shutil
 import sys
 import threading
 import time
+from typing import TYPE_CHECKING
 
 import jax
-import orbax.checkpoint as ocp
 
 from mjx_hopper.process import errors
+
+if TYPE_CHECKING:  # orbax is imported where a checkpoint is first opened (store.items)
+  import orbax.checkpoint as ocp
 
 
 class SaveFailed(ValueError):

@@ -12,15 +12,18 @@ from __future__ import annotations
 
 import importlib.metadata
 import os
+from typing import TYPE_CHECKING
 
 import jax
 import numpy as np
-import orbax.checkpoint as ocp
 
 import mjx_hopper
 from mjx_hopper.core import parallel, train
 from mjx_hopper.store.failures import check_space, failed
 from mjx_hopper.store.manifests import wait_and_record
+
+if TYPE_CHECKING:
+  import orbax.checkpoint as ocp
 
 # The layout of the saved items. Every change to it raises FORMAT (CHANGELOG.md says so), and
 # OLDEST_FORMAT is the oldest layout this version still reads. Checkpoints saved before formats
@@ -57,6 +60,8 @@ def versions() -> dict[str, str]:
 
 def manager(directory: str, max_to_keep: int = 3) -> ocp.CheckpointManager:
   """A CheckpointManager over `directory` (created if missing), saving asynchronously."""
+  # Imported here, not with the package: a run's first lines do not wait for orbax.
+  import orbax.checkpoint as ocp
   options = ocp.CheckpointManagerOptions(max_to_keep=max_to_keep,
                                          enable_async_checkpointing=True)
   return ocp.CheckpointManager(os.path.abspath(directory), options=options,
@@ -90,6 +95,7 @@ def save(mngr: ocp.CheckpointManager, state: train.TrainState, config: dict,
   the step. Call `wait_and_record(mngr)` before relying on it. A SaveFailed where the previous
   save failed, or where this one cannot fit on the disk (checked before anything is written) or
   start."""
+  import orbax.checkpoint as ocp
   wait_and_record(mngr)
   step = train.iterations(state)
   check_space(mngr, step, (state, best))
@@ -120,6 +126,7 @@ def _abstract(tree):
 
 def read_state(mngr: ocp.CheckpointManager, step: int, like: train.TrainState) -> train.TrainState:
   """The TrainState saved at `step`, placed like `like` (a state or its abstract shapes)."""
+  import orbax.checkpoint as ocp
   agent, trainer = _abstract(_split(like))
   out = mngr.restore(step, args=ocp.args.Composite(
       agent=ocp.args.StandardRestore(_nonempty(agent)),
@@ -130,6 +137,7 @@ def read_state(mngr: ocp.CheckpointManager, step: int, like: train.TrainState) -
 def read_config(mngr: ocp.CheckpointManager, step: int) -> dict:
   """The config item saved at `step`; a FormatMismatch when this version cannot read its
   layout."""
+  import orbax.checkpoint as ocp
   saved = mngr.restore(step, args=ocp.args.Composite(config=ocp.args.JsonRestore())).config
   check_format(saved, mngr.directory)
   return saved
@@ -161,6 +169,7 @@ def has_best(mngr: ocp.CheckpointManager, step: int) -> bool:
 def read_agent(mngr: ocp.CheckpointManager, step: int, like_agent, item: str = "agent"):
   """Only the agent's pytree saved at `step` (no replay is read): the latest ("agent") or the
   one of the best evaluations ("best")."""
+  import orbax.checkpoint as ocp
   like_agent = _abstract(like_agent)
   saved = mngr.restore(step, args=ocp.args.Composite(
       **{item: ocp.args.StandardRestore(_nonempty(like_agent))}))[item]

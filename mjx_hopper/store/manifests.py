@@ -7,11 +7,14 @@ from __future__ import annotations
 import json
 import os
 import zlib
+from typing import TYPE_CHECKING
 
 import jax
-import orbax.checkpoint as ocp
 
 from mjx_hopper.store.failures import failed
+
+if TYPE_CHECKING:  # orbax is imported where a checkpoint is first opened (store.items)
+  import orbax.checkpoint as ocp
 
 
 MANIFESTS = "manifests"  # beside the steps: the files of each finished step, with sizes and CRCs

@@ -10,14 +10,16 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import orbax.checkpoint as ocp
 
 from mjx_hopper.settings.config import RunConfig
 from mjx_hopper.store.items import (ConfigMismatch, has_best, manager, read_config,
                                     read_agent)
+
+if TYPE_CHECKING:  # orbax is imported where a checkpoint is first opened (store.items)
+  import orbax.checkpoint as ocp
 
 CONFIG, LOG, CHECKPOINTS = "config.json", "log.csv", "checkpoints"
 

@@ -5,9 +5,7 @@ from __future__ import annotations
 
 import json
 import time
-from typing import Any, NamedTuple
-
-import orbax.checkpoint as ocp
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 from mjx_hopper.core import train
 from mjx_hopper.process import errors
@@ -16,6 +14,8 @@ from mjx_hopper.store.failures import SaveFailed, quiet_failed_saves
 from mjx_hopper.store.items import ConfigMismatch, read_best, read_config, read_state, save
 from mjx_hopper.store.manifests import damage, wait_and_record
 
+if TYPE_CHECKING:  # orbax is imported where a checkpoint is first opened (store.items)
+  import orbax.checkpoint as ocp
 
 
 def load_newest(mngr: ocp.CheckpointManager, load, print_fn=print):
