@@ -13,7 +13,6 @@ that films (a newcomer's first wait), and writes notebook_first_video_LABEL.json
 
 from __future__ import annotations
 
-import csv
 import datetime
 import json
 import os
@@ -45,14 +44,14 @@ def scores(runs: str) -> dict[str, dict]:
       continue
     with open(config) as f:
       target = json.load(f)["stop_at_return"]
-    with open(log) as f:
-      evals = [r for r in csv.DictReader(f) if r["kind"] == "eval"]
-    reached = [float(r["wall_s"]) for r in evals
-               if target is not None and float(r["eval_return"]) >= target]
+    evals = [e for member in common.evaluations(log).values() for e in member]
+    # The first to reach it by env steps: a resumed run's clock starts again.
+    first = min((e for e in evals if target is not None and e["eval_return"] >= target),
+                key=lambda e: e["env_steps"], default=None)
     out[name] = {"target": target,
-                 "best_return": round(max(float(r["eval_return"]) for r in evals), 1),
-                 "env_steps": max(int(r["env_steps"]) for r in evals),
-                 "target_wall_s": round(reached[0], 1) if reached else None}
+                 "best_return": round(max(e["eval_return"] for e in evals), 1),
+                 "env_steps": max(e["env_steps"] for e in evals),
+                 "target_wall_s": round(first["wall_s"], 1) if first else None}
   return out
 
 
