@@ -1,7 +1,6 @@
-"""C physics: the Hopper with its physics run by MuJoCo C (`mujoco.batch` on threads, called
-from the compiled program through `jax.pure_callback`: the step's substeps and the resets'
-kinematics) beside MJX's, on the CPU; the observation, reward and termination stay the env's, in
-JAX. For each, a program of U env steps of B auto-resetting envs (`rollout.make_stepper`, as
+"""C physics: the Hopper with its physics run by MuJoCo C (c_hopper.py: `mujoco.batch` on
+threads, called from the compiled program through `jax.pure_callback`) beside MJX's, on the CPU.
+For each, a program of U env steps of B auto-resetting envs (`rollout.make_stepper`, as
 env_throughput.py times it), in a fresh process split into XLA CPU devices with an empty compile
 cache: its trace, lower and XLA compile seconds, and its env steps/s. Then the C path's
 observations against MJX's after 1 and 100 env steps from the same resets and actions (beside
@@ -14,98 +13,26 @@ MuJoCo C's physics alone (env_throughput.py's `mujoco.rollout` row) at each B.
 
 from __future__ import annotations
 
-import functools
 import os
 import statistics
 import sys
 import tempfile
-import threading
 import time
-from unittest import mock
 
 import common
 
-# What the C step reads of an env's mjx.Data and writes back: the state it continues from
-# (MuJoCo's mjSTATE_INTEGRATION but for inputs the env never sets), and the positions that
-# LocomotionEnv.step reads, which mj_step leaves one substep behind the state, as mjx.step does.
-STATE = ("time", "qpos", "qvel", "act", "qacc_warmstart")
-POSES = ("xpos", "xipos", "xquat", "xanchor", "geom_xpos", "geom_xmat")
-INPUTS = STATE + ("ctrl",)
 # tests/test_episodes.py's tolerances for the Hopper's episode statistics: (relative, absolute).
 EPISODE_TOLERANCE = {"length": (0.25, 1.0), "return": (0.15, 2.0), "alive": (0.0, 0.05),
                      "progress": (0.0, 0.2), "electricity_cost": (0.15, 0.02),
                      "joints_at_limit_cost": (0.0, 0.05), "feet_collision_cost": (0.0, 1e-9)}
 
 
-def c_physics_env(threads: int):
-  """A Hopper whose physics substeps, and its resets' kinematics, run in MuJoCo C on `threads`
-  threads per call (a call per device's share of the batch)."""
-  import jax
-  import mujoco.batch
-  import numpy as np
-
-  from mjx_hopper import envs
-  from mjx_hopper.envs import base
-
-  class CPhysicsHopper(envs.Hopper):
-
-    def __init__(self, **kwargs):
-      super().__init__(**kwargs)
-      self._shapes = {f: getattr(self._data0, f).shape for f in STATE + POSES}
-      # Batches not in use, by size: a mujoco.batch.Batch serves one call at a time, and the
-      # devices' calls come at once, each from any of XLA's threads (one Batch per thread, in a
-      # threading.local, was freed with the thread's state and crashed the process).
-      self._idle = {}
-      self._lock = threading.Lock()
-
-    def step(self, state, action):
-      # `base._physics` is the step's only physics call: traced with the C path in its place.
-      with mock.patch.object(base, "_physics", self._c_physics):
-        return super().step(state, action)
-
-    def _c_physics(self, model, data, substeps):
-      """`data` after `substeps` mj_steps; `model` (a swapped env.sys) is not followed."""
-      return self._in_c(data, STATE + POSES, lambda batch: batch.step(nstep=substeps))
-
-    def _kinematics(self, data):
-      """A reset's poses, from MuJoCo C's position stage."""
-      return self._in_c(data, POSES,
-                        lambda batch: batch.forward(stage=mujoco.mjtStage.mjSTAGE_POS))
-
-    def _in_c(self, data, fields, run):
-      """`data` with `fields` as MuJoCo C leaves them after `run(batch)` from its state."""
-      out = {f: jax.ShapeDtypeStruct(getattr(data, f).shape, getattr(data, f).dtype)
-             for f in fields}
-      new = jax.pure_callback(functools.partial(self._host, run, fields), out,
-                              *(getattr(data, f) for f in INPUTS), vmap_method="broadcast_all")
-      return data.replace(**new)
-
-    def _host(self, run, fields, *inputs):
-      lead = np.shape(inputs[0])  # the batch's shape, from time's; () for one env
-      n = int(np.prod(lead))
-      with self._lock:
-        idle = self._idle.setdefault(n, [])
-        batch = idle.pop() if idle else None
-      if batch is None:
-        batch = mujoco.batch.Batch(self.mj_model, n, nthread=threads)
-        for f in POSES:  # bound before a call, or it reads zeros until the next
-          batch.bind(f)
-      for name, x in zip(INPUTS, inputs):
-        field = batch.bind(name)
-        field[:] = np.reshape(x, field.shape)
-      run(batch)
-      out = {f: np.reshape(batch.bind(f), lead + self._shapes[f]).astype(np.float32)
-             for f in fields}
-      with self._lock:
-        self._idle[n].append(batch)
-      return out
-
-  return CPhysicsHopper()
-
-
 def make_env(engine: str, threads: int):
   from mjx_hopper import envs
-  return envs.Hopper() if engine == "MJX" else c_physics_env(threads)
+  if engine == "MJX":
+    return envs.Hopper()
+  import c_hopper
+  return c_hopper.CHopper(threads=threads)
 
 
 def program_row(args) -> dict:
