@@ -11,7 +11,7 @@ A task of your own is a subclass of a robot; `mjx_hopper.envs.tasks` says how on
 """
 
 from mjx_hopper.envs.ant import Ant
-from mjx_hopper.envs.base import REWARD_TERMS, LocomotionEnv, Robot, State
+from mjx_hopper.envs.base import PHYSICS, REWARD_TERMS, LocomotionEnv, Robot, State
 from mjx_hopper.envs.half_cheetah import HalfCheetah
 from mjx_hopper.envs.hopper import Hopper
 from mjx_hopper.envs.humanoid import Humanoid
@@ -37,6 +37,6 @@ def __getattr__(name: str):
 
 
 __all__ = ["Ant", "Array", "AutoReset", "BoundedArray", "EnvironmentSpec", "EpisodeStarts", "HalfCheetah", "Hopper",
-           "Humanoid", "LocomotionEnv", "REWARD_TERMS", "Robot", "State", "Walker2D", "check_task",
+           "Humanoid", "LocomotionEnv", "PHYSICS", "REWARD_TERMS", "Robot", "State", "Walker2D", "check_task",
            "list_envs", "make", "register", "robot_of", "settings_of", "task_class", "task_id",
            "task_settings", "tasks", "to_gymnasium"]

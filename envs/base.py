@@ -24,8 +24,10 @@ with contextlib.redirect_stdout(io.StringIO()):
 from brax.envs.base import Env, State
 from flax import struct
 
-from mjx_hopper.envs import model as robot_model, specs
+from mjx_hopper.envs import model as robot_model, mujoco_c, specs
 
+# An env's physics engines: MJX (JAX, on any device), or MuJoCo C on the host's CPU (mujoco_c).
+PHYSICS = ("mjx", "c")
 REWARD_TERMS = ("alive", "progress", "electricity_cost", "joints_at_limit_cost",
                 "feet_collision_cost")
 # Brax's EpisodeWrapper (which `brax.envs.training.wrap` and Brax's trainers add) keeps this key
@@ -82,7 +84,10 @@ class LocomotionEnv(Env):
   """A PyBullet locomotion task (WalkerBaseBulletEnv) on MuJoCo MJX.
 
   A robot sets the class constants and `alive_bonus`; a custom task overrides `reward` and/or
-  `is_done`, and `edit_model` changes the physics.
+  `is_done`, and `edit_model` changes the physics. `episode_steps` is the time limit.
+  `physics` is the engine that steps the task, not part of it (a run's setting, which the
+  task's settings leave out): "mjx" (MJX, on any device) or "c" (MuJoCo C on the host's CPU,
+  envs/mujoco_c.py), which compiles and steps faster there.
   """
 
   xml_file: ClassVar[str]
@@ -120,17 +125,23 @@ class LocomotionEnv(Env):
         env._given_settings.update(value)
       elif kind != inspect.Parameter.VAR_POSITIONAL:
         env._given_settings[name] = value
+    env._given_settings.pop("physics", None)  # how the task is stepped, not what it is
     return env
 
-  def __init__(self, episode_steps: int = 1000):
+  def __init__(self, episode_steps: int = 1000, physics: str = "mjx"):
     if not isinstance(episode_steps, (int, np.integer)) or episode_steps < 1:
       raise ValueError(f"episode_steps must be an integer >= 1, got {episode_steps!r}")
-    self.episode_steps = int(episode_steps)
+    if physics not in PHYSICS:
+      raise ValueError(f"physics must be one of {list(PHYSICS)}, got {physics!r}")
+    self.episode_steps, self.physics = int(episode_steps), physics
     model = self.mj_model = robot_model.load(self)
     # This process's first device (under jax.distributed, MJX's default, jax.devices()[0], may
     # be another process's).
     device = jax.local_devices()[0]
-    self.mjx_model = mjx.put_model(model, device=device)
+    if physics == "c" and device.platform != "cpu":
+      raise ValueError(f"physics='c' runs MuJoCo C on the host's CPU, between the device's "
+                       f"steps; JAX runs on {device.platform} here: use physics='mjx'")
+    self.mjx_model = self._own_model = mjx.put_model(model, device=device)
     joint_ids = [model.joint(n).id for n in self.joints]
     self._qadr = np.array([model.jnt_qposadr[j] for j in joint_ids])
     self._dofadr = np.array([model.jnt_dofadr[j] for j in joint_ids])
@@ -143,6 +154,7 @@ class LocomotionEnv(Env):
     # One compiled program, rather than MJX's eager one-op programs for each field.
     self._data0 = jax.jit(lambda: mjx.make_data(self.mjx_model),
                           out_shardings=jax.sharding.SingleDeviceSharding(device))()
+    self._c = mujoco_c.CPhysics(model, self._data0) if physics == "c" else None
 
   def edit_model(self, model: mujoco.MjModel) -> None:
     """Edits the MuJoCo model before the env is built; a no-op by default."""
@@ -220,7 +232,7 @@ class LocomotionEnv(Env):
           f"{type(self).__name__} takes an action of shape ({self.action_size},), got "
           f"{action.shape}; for a batch of envs use jax.vmap(env.step)")
     data = state.pipeline_state.replace(ctrl=action)  # MuJoCo clips ctrl to [-1, 1]
-    data = _physics(self.mjx_model, data, self.n_substeps)
+    data = self._physics(data)
     # Like PyBullet, observe joint angles and the torso speed after the last substep, but body
     # poses and contacts as the last substep's kinematics left them, one substep (4 ms) earlier.
     robot = self.robot(data, state.info["feet_contact"])
@@ -321,9 +333,24 @@ class LocomotionEnv(Env):
     lowest = data.geom_xpos[feet.ids, 2] - jnp.abs(axis_z) * feet.half_length - feet.radius
     return jnp.any(feet.mask & (lowest <= self.contact_distance), axis=1).astype(jnp.float32)
 
+  def _physics(self, data: mjx.Data) -> mjx.Data:
+    """`data` after a control step's `n_substeps` physics steps, in MJX or MuJoCo C."""
+    if self._c is None:
+      return _physics(self.mjx_model, data, self.n_substeps)
+    self._check_own_model()
+    return self._c.step(data, self.n_substeps)
+
   def _kinematics(self, data: mjx.Data) -> mjx.Data:
     """Poses of every body and geom for the current qpos."""
-    return _forward_kinematics(self.mjx_model, data)
+    if self._c is None:
+      return _forward_kinematics(self.mjx_model, data)
+    self._check_own_model()
+    return self._c.kinematics(data)
+
+  def _check_own_model(self) -> None:
+    if self.mjx_model is not self._own_model:
+      raise ValueError("physics='c' steps the env's own MuJoCo model; a wrapper that swaps "
+                       "env.sys (Brax's domain randomisation) needs physics='mjx'")
 
   # ---- What the NMA notebook inspects ------------------------------------------------------
 

@@ -125,7 +125,7 @@ def _parameters(cls) -> dict[str, inspect.Parameter]:
       continue
     params = list(inspect.signature(vars(base)["__init__"]).parameters.values())[1:]
     for p in params:
-      if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY):
+      if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY) and p.name != "physics":
         out.setdefault(p.name, p)
     if not any(p.kind == p.VAR_KEYWORD for p in params) or base is LocomotionEnv:
       break
@@ -179,11 +179,20 @@ def settings_of(env: LocomotionEnv) -> dict:
   return task_settings(type(env), getattr(env, "_given_settings", {}))
 
 
-def make(spec: Any, **settings) -> LocomotionEnv:
-  """Builds the task `spec` (a name, a `module:Class` path, a class) with these settings."""
+def make(spec: Any, physics: str = "mjx", **settings) -> LocomotionEnv:
+  """Builds the task `spec` (a name, a `module:Class` path, a class) with these settings,
+  stepped by `physics` (LocomotionEnv's)."""
   cls = task_class(spec)
   _check_names(cls, settings)
-  return cls(**settings)
+  if physics == "mjx":  # the default: also a task whose constructor does not pass it on
+    return cls(**settings)
+  try:
+    return cls(physics=physics, **settings)
+  except TypeError as error:
+    if "physics" not in str(error):
+      raise
+    raise ValueError(f"the task {cls.__name__} takes no physics setting: its __init__ must "
+                     "pass **settings on to its robot's") from None
 
 
 def check_task(env: LocomotionEnv) -> None:

@@ -112,12 +112,14 @@ ORACLE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "oracle")
 _ENVS, _ORACLE = {}, {}
 
 
-def make_env(env_id):
-  """One env per id for the whole session, so compiled functions are shared."""
+def make_env(env_id, physics="mjx"):
+  """One env per id and physics engine for the whole session, so compiled functions are
+  shared."""
   from mjx_hopper import envs
-  if env_id not in _ENVS:
-    _ENVS[env_id] = envs.make(env_id)
-  return _ENVS[env_id]
+  if (env_id, physics) not in _ENVS:
+    _ENVS[env_id, physics] = envs.make(env_id, **({} if physics == "mjx" else
+                                                  {"physics": physics}))
+  return _ENVS[env_id, physics]
 
 
 def oracle(name):
@@ -163,12 +165,13 @@ def hopper_resets(hopper):
 _EPISODES = {}
 
 
-def mjx_episodes(env_id, num_episodes=128):
-  """Random- and zero-action episode statistics of `env_id`, with the qpos of episode 0, from
-  one compiled program per robot (`scale` 1 is random actions, 0 zero actions)."""
+def mjx_episodes(env_id, num_episodes=128, physics="mjx"):
+  """Random- and zero-action episode statistics of `env_id` stepped by `physics`, with the qpos
+  of episode 0, from one compiled program per robot and engine (`scale` 1 is random actions, 0
+  zero actions)."""
   from mjx_hopper.core import rollout
-  if env_id not in _EPISODES:
-    env = make_env(env_id)
+  if (env_id, physics) not in _EPISODES:
+    env = make_env(env_id, physics)
 
     @functools.partial(jax.jit, compiler_options=LONG_RUNNING)
     def run(key, scale):
@@ -176,6 +179,6 @@ def mjx_episodes(env_id, num_episodes=128):
       return rollout.episodes(env, lambda obs, k: scale * random(obs, k), key, num_episodes,
                               record_qpos=True)
 
-    _EPISODES[env_id] = {policy: jax.device_get(run(jax.random.PRNGKey(1), scale))
-                         for policy, scale in (("random", 1.0), ("zero", 0.0))}
-  return _EPISODES[env_id]
+    _EPISODES[env_id, physics] = {policy: jax.device_get(run(jax.random.PRNGKey(1), scale))
+                                  for policy, scale in (("random", 1.0), ("zero", 0.0))}
+  return _EPISODES[env_id, physics]

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from conftest import ROBOTS, make_env, mjx_episodes, oracle
-from mjx_hopper.envs import render
+from mjx_hopper.envs import base, render
 
 pytestmark = pytest.mark.slow
 
@@ -43,13 +43,15 @@ BULLET_EPISODES = {"random": 30, "zero": 10}
 FEWER_EPISODES = {("HalfCheetah", "random"): 10, ("Ant", "random"): 10}
 
 
+@pytest.mark.parametrize("physics", base.PHYSICS)
 @pytest.mark.parametrize("policy", ["random", "zero"])
 @pytest.mark.parametrize("robot", ROBOTS)
-def test_episode_statistics_match_bullet(robot, policy):
+def test_episode_statistics_match_bullet(robot, policy, physics):
+  """In either physics engine: MuJoCo C's episodes agree with Bullet's as MJX's do."""
   episodes = FEWER_EPISODES.get((robot, policy), BULLET_EPISODES[policy])
   bullet = {name: oracle(robot)[f"{policy}_{name}"] for name in TOLERANCE}
   assert {len(v) for v in bullet.values()} == {episodes}
-  ours = {k: v for k, v in mjx_episodes(robot)[policy].items() if k != "qpos"}
+  ours = {k: v for k, v in mjx_episodes(robot, physics=physics)[policy].items() if k != "qpos"}
   assert set(ours) == set(TOLERANCE)
   tolerance = dict(TOLERANCE, **LOOSER.get((robot, policy), {}))
   for name, (rel, atol) in tolerance.items():

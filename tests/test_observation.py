@@ -30,6 +30,11 @@ def start_and_step():
   return get
 
 
+def named(name, physics):
+  """`start_and_step`'s name for robot `name` stepped by `physics` (MJX's: the robot's own)."""
+  return name if physics == "mjx" else f"{name} {physics}"
+
+
 def init_state(program, env, qpos, qvel):
   """`env.init_state(qpos, qvel)` through `start_and_step`'s `program`."""
   return program(qpos, qvel, np.zeros(env.action_size, np.float32))[0]
@@ -49,14 +54,15 @@ def test_reset_observation_matches_bullet(robot, start_and_step):
     assert state.obs.dtype == jnp.float32
 
 
+@pytest.mark.parametrize("physics", base.PHYSICS)
 @pytest.mark.parametrize("robot", ROBOTS)
-def test_observation_matches_bullet_at_random_states(robot, start_and_step):
+def test_observation_matches_bullet_at_random_states(robot, physics, start_and_step):
   """At 10 random states (every joint within its limits, a perturbed root, random speeds) put
-  into Bullet's robot by hand."""
-  env, bullet = make_env(robot), oracle(robot)
+  into Bullet's robot by hand; the poses from either physics engine's kinematics."""
+  env, bullet = make_env(robot, physics), oracle(robot)
   assert len(bullet["random_qpos"]) == 10
   for i, (qpos, qvel) in enumerate(zip(bullet["random_qpos"], bullet["random_qvel"])):
-    state = init_state(start_and_step(robot), env, qpos, qvel)
+    state = init_state(start_and_step(named(robot, physics), env), env, qpos, qvel)
     np.testing.assert_allclose(state.obs, bullet["random_obs"][i], atol=5e-5)
     robot_state = state.info["robot"]
     np.testing.assert_allclose(robot_state.body_xyz, bullet["random_body_xyz"][i], atol=1e-5)
@@ -86,12 +92,13 @@ def one_step(program, bullet, seed):
     yield start.obs, state.obs, bullet_obs, float(state.metrics["progress"]), bullet_progress
 
 
+@pytest.mark.parametrize("physics", base.PHYSICS)
 @pytest.mark.parametrize("robot", ROBOTS)
-def test_one_step_matches_bullet(robot, start_and_step):
-  """After a control step PyBullet reports poses one substep old: so must we. In the air, with
-  no contact, only the integrators differ."""
-  env = BulletHumanoid() if robot == "Humanoid" else make_env(robot)
-  program = start_and_step(type(env).__name__, env)
+def test_one_step_matches_bullet(robot, physics, start_and_step):
+  """After a control step PyBullet reports poses one substep old: so must we, in either physics
+  engine. In the air, with no contact, only the integrators differ."""
+  env = BulletHumanoid(physics=physics) if robot == "Humanoid" else make_env(robot, physics)
+  program = start_and_step(named(type(env).__name__, physics), env)
   speed = np.zeros(env.observation_size, bool)
   speed[3:6] = True  # Bullet takes the link speed from a part-updated pose: see fidelity.md
   if robot == "Humanoid":  # Bullet's arms collide with its body, ours do not: leave them out

@@ -62,10 +62,11 @@ def trainer_key(cfg: RunConfig, num_members: int | None = None) -> tuple:
   """Everything `build(cfg, num_members)` makes its trainer from, comparable and hashable: the
   task's class (given as the class, an instance or a name) and its settings with the episode
   length, the agent and its config, the train config, the evaluation's episodes, the number of
-  members and whether their update counts are dynamic (not out_dir, budgets or seeds)."""
+  members, whether their update counts are dynamic, and the physics engine (not out_dir,
+  budgets or seeds)."""
   return (envs.task_class(cfg.env), _frozen(cfg.task_settings()), cfg.agent,
           _frozen(dataclasses.asdict(cfg.agent_config())), cfg.train_config(), cfg.eval_episodes,
-          num_members or len(cfg.member_settings()), "replay_ratio" in cfg.grid)
+          num_members or len(cfg.member_settings()), "replay_ratio" in cfg.grid, cfg.physics)
 
 
 # A dynamic setting that also shapes the programs: the longest n-step window the replay reads.

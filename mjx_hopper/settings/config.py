@@ -55,6 +55,8 @@ class RunConfig:
                                         "reaches this return")
   episode_steps: int | None = setting(None, "the task's time limit in steps; None: the task's "
                                      "own (1000 for the robots)")
+  physics: str = setting("mjx", "the physics engine: mjx (MJX, on any device) or c (MuJoCo C "
+                        "on the CPU, which compiles and steps faster there)")
   eval_every: int = setting(200_000, "env steps between evaluations")
   eval_episodes: int = setting(16, "episodes per evaluation")
   eval_on: str = setting("auto", "where evaluations run: host (the host's CPU, beside "
@@ -83,6 +85,12 @@ class RunConfig:
         raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
     if settings["episode_steps"] < 1:
       raise ValueError(f"episode_steps must be >= 1, got {settings['episode_steps']}")
+    if self.physics not in envs.PHYSICS:
+      raise ValueError(f"physics must be one of {', '.join(envs.PHYSICS)}, got "
+                       f"{self.physics!r}")
+    if isinstance(self.env, envs.LocomotionEnv) and self.env.physics != self.physics:
+      raise ValueError(f"the env given was built with physics={self.env.physics!r}, and the "
+                       f"run's physics is {self.physics!r}: give RunConfig the same")
     if self.eval_on not in EVAL_ON:
       raise ValueError(f"eval_on must be one of {', '.join(EVAL_ON)}, got {self.eval_on!r}")
     if len(set(self.seeds)) != len(self.seeds) or not all(
@@ -116,7 +124,7 @@ class RunConfig:
 
   def make_env(self) -> envs.LocomotionEnv:
     """The task's env, built with its settings."""
-    return envs.make(self.task(), **self.task_settings())
+    return envs.make(self.task(), physics=self.physics, **self.task_settings())
 
   def evaluates_on_host(self, backend: str) -> bool:
     """Whether evaluations run on the host's CPU, beside training on `backend` (as
