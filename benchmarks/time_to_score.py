@@ -120,6 +120,8 @@ def main() -> None:
   p.add_argument("--cache", choices=("cold", "warm"), default="cold",
                  help="cold: each seed on an empty compile cache; warm: on a cache that a run "
                  "of the same configuration filled first")
+  p.add_argument("--physics", default="mjx", help="the physics engine (`mjx-hopper train "
+                 "--physics`): mjx or c")
   p.add_argument("--cpu-devices", type=int, default=os.cpu_count() or 1)
   p.add_argument("--out", default=None, help="default: runs/time_to_score/ROBOT_KIND")
   p.add_argument("--label", default="", help="results: time_to_score_ROBOT_KIND_LABEL.json")
@@ -160,7 +162,8 @@ def main() -> None:
     sets += [a for name, value in layout.items() for a in ("--" + name.replace("_", "-"),
                                                            str(value))]
     return ["--cpu-devices", str(args.cpu_devices), "train", "--env", args.robot, "--preset",
-            args.kind, "--agent", agent, *sets, "--seed", str(seed), "--total-env-steps",
+            args.kind, "--agent", agent, "--physics", args.physics, *sets, "--seed", str(seed),
+            "--total-env-steps",
             str(10**12), "--max-minutes", str(minutes), "--no-progress", "--out-dir", out_dir,
             *([] if args.run_on else ["--stop-at-return", str(target)])]
 
@@ -181,7 +184,7 @@ def main() -> None:
       hit = results[seed]["target_wall_s"]
       print(f"seed {seed}: {target:g} {'not reached' if hit is None else f'at {hit:.0f} s'} "
             f"from process start, best return {results[seed]['best_return']:,.0f}", flush=True)
-  cfg = presets.agent_run_config(args.robot, args.kind, agent,
+  cfg = presets.agent_run_config(args.robot, args.kind, agent, physics=args.physics,
                                  agent_overrides=flags.overrides(args.set))  # the runs' config
   cfg = dataclasses.replace(cfg, train=dataclasses.replace(cfg.train, **layout))
   best = max(results, key=lambda s: results[s]["final_return"])
@@ -192,6 +195,7 @@ def main() -> None:
   common.write_results(f"time_to_score_{name}_{args.kind}{label}", {
       "method": METHOD.format(cache=args.cache),
       "robot": args.robot, "episode_steps": cfg.episode_steps, "kind": args.kind,
+      "physics": cfg.physics,
       "target": target, "minutes": minutes, "agent": cfg.agent, "agent_preset": cfg.agent_preset,
       "agent_overrides": cfg.agent_overrides, "train": dataclasses.asdict(cfg.train),
       "eval_episodes": cfg.eval_episodes, "device": f"{device.platform} {device.device_kind}",
