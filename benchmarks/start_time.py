@@ -8,6 +8,7 @@ this one's; with --python PYTHON, this code on another interpreter and its relea
 
     python benchmarks/start_time.py --rounds 2 --checkout /tmp/before   # beside another commit
     python benchmarks/start_time.py --python .venv-floor/bin/python      # beside the floor's JAX
+    python benchmarks/start_time.py --physics mjx,c                      # MJX beside MuJoCo C
     bash benchmarks/gpu.sh "python benchmarks/start_time.py --kind gpu --label h100"
 """
 
@@ -123,31 +124,38 @@ def main() -> None:
                  help="another interpreter, with its own releases, to time this code on beside")
   p.add_argument("--env", default="Hopper")
   p.add_argument("--kind", default="cpu", help="the robot preset: cpu or gpu")
+  p.add_argument("--physics", default="mjx",
+                 help="this checkout's physics engines, in turns: mjx, c, or mjx,c")
   p.add_argument("--label", default="cpu")
   args = p.parse_args()
   command = ["train", "--env", args.env, "--agent", "d4pg", "--preset", args.kind,
              "--total-env-steps", "1000000000", "--no-progress", "--log-every", "1"]
   released = {python: versions(python) for python in (sys.executable, args.python) if python}
-  codes = {"this checkout": (sys.executable, None)}
+  # name: (interpreter, code's folder (None: this checkout), the train command's added flags)
+  codes = {("this checkout" if physics == "mjx" else f"this checkout, --physics {physics}"):
+           (sys.executable, None, [] if physics == "mjx" else ["--physics", physics])
+           for physics in args.physics.split(",")}
   with tempfile.TemporaryDirectory(prefix="start_time_") as installed:
     if args.checkout:
       codes[args.checkout_name or args.checkout] = (
-          sys.executable, common.installed_layout(args.checkout, installed))
+          sys.executable, common.installed_layout(args.checkout, installed), [])
     if args.python:
-      codes[f"this checkout on {released[args.python]}"] = (args.python, None)
+      codes[f"this checkout on {released[args.python]}"] = (args.python, None, [])
     runs = {(name, cache): [] for name in codes for cache in ("cold", "warm")}
     for i in range(args.rounds):
-      for name, (python, code) in (codes.items() if i % 2 == 0 else reversed(codes.items())):
+      for name, (python, code, flags) in (codes.items() if i % 2 == 0
+                                          else reversed(codes.items())):
         with tempfile.TemporaryDirectory() as cache:
           for state in ("cold", "warm"):  # the second run loads what the first kept
-            runs[name, state].append(one_run(command, cache, python, code, args.seconds))
+            runs[name, state].append(one_run(command + flags, cache, python, code,
+                                             args.seconds))
             print(name, state, json.dumps(runs[name, state][-1]), flush=True)
   medians = {f"{name}, {state}": summary(r) for (name, state), r in runs.items()}
   for label, figures in medians.items():
     print(label, {k: round(v, 1) for k, v in figures.items()})
   common.write_results(f"start_time_{args.label}", {
       "preset": f"{args.env} {args.kind}", "xla_flags": os.environ.get("XLA_FLAGS"),
-      "versions": {name: released[python] for name, (python, _) in codes.items()},
+      "versions": {name: released[python] for name, (python, _, _) in codes.items()},
       "medians": medians,
       "runs": {f"{name}, {state}": r for (name, state), r in runs.items()}})
 
