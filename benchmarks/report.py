@@ -29,12 +29,12 @@ GPU = {"Hopper": [TTS.format("Hopper_gpu_heldout")],
           for robot in ROBOTS[1:]},
        "AntLongJump (an event)": [TTS.format("AntLongJump_h100")]}
 CPU = {"Hopper": [TTS.format("Hopper_cpu_heldout")],
-       "Walker2D": [TTS.format("Walker2D_cpu_tuned_2026-11-26")],
+       "Walker2D": [TTS.format("Walker2D_cpu_heldout")],
        "HalfCheetah": [TTS.format("HalfCheetah_cpu_seeds1-3")],
        "Ant": [TTS.format("Ant_cpu_tuned_2026-11-26"), TTS.format("Ant_cpu_seeds1-2")],
        "Humanoid": [TTS.format("Humanoid_cpu_tuned_2026-11-26"),
                     TTS.format("Humanoid_cpu_seed2")],
-       "Hopper, DDPG": [TTS.format("Hopper_ddpg_cpu")],
+       "Hopper, DDPG": [TTS.format("Hopper_cpu_ddpg_heldout")],
        "Hopper, DMPO": [TTS.format("Hopper_dmpo128_cpu_2026-11-26")],
        "HighJump (an event)": [TTS.format("HighJump_cpu_heldout")]}
 ENV = {"Hopper": "env_throughput_hopper_cpu.json", "Humanoid": "env_throughput_humanoid_cpu.json"}
