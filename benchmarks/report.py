@@ -70,6 +70,12 @@ SUITE_FILES = {"quick": ("suite_time_quick.json", "suite_time_quick_before.json"
 HEAVIEST_FILES = 3
 COMPILE_FLAGS = "compile_flags_cpu.json"
 C_PHYSICS = "c_physics_cpu.json"
+# The Hopper's cpu preset trained with each physics engine (--physics), one after the other, and
+# the start with each, in turns.
+PHYSICS_TTS = {"MJX": TTS.format("Hopper_cpu_mjx_after_c"),
+               "MuJoCo C": TTS.format("Hopper_cpu_c_physics")}
+PHYSICS_START = ("start_time_cpu_physics.json",
+                 {"MJX": "this checkout", "MuJoCo C": "this checkout, --physics c"})
 # The Hopper's gpu preset with one learner change each (issue 68): the baselines, then the changes.
 # One learner change at a time, in sittings of one session each: the preset ("baseline") and
 # the changes measured beside it.
@@ -485,13 +491,30 @@ def c_physics_section() -> tuple[str, str, str, list[str]]:
   checks = found["agreement"]
   passed = all(checks[k][f"{t}_pass"] for k in ("oracle_MJX", "oracle_C")
                for t in ("random_states", "one_step", "episode_statistics"))
-  return ("The env step through MuJoCo C on 2 CPU cores",
-          "The Hopper's env step, its physics in MJX or in MuJoCo C (`jax.pure_callback`), "
-          "random actions, 2 XLA devices. Both " + ("pass" if passed else "do not all pass")
-          + " the PyBullet checks; their episodes part after a contact, as MJX's own do when "
-          "its actions move by 1e-6.",
+  start_file, start_labels = PHYSICS_START
+  starts = load(start_file)["figures"]["medians"]
+  trained, first = [], {}
+  for engine, name in PHYSICS_TTS.items():
+    t = time_to_score([name], 60)
+    first[engine] = [starts[f"{start_labels[engine]}, {cache}"]["first_train"]
+                     for cache in ("cold", "warm")]
+    trained.append([engine, f"{t['reached']}/{t['seeds']}", num(t["median"], 1),
+                    num(t["fastest"], 1), num(t["slowest"], 1), num(t["env_steps"], 2),
+                    *(num(x, 1) for x in first[engine])])
+  mjx, c = (time_to_score([PHYSICS_TTS[e]])["median"] for e in PHYSICS_TTS)
+  trained.append(["C ÷ MJX", "", num(c / mjx, 2), "", "", "",
+                  *(num(a / b, 2) for a, b in zip(first["MuJoCo C"], first["MJX"]))])
+  return ("MuJoCo C physics on 2 CPU cores",
+          "The Hopper's env step, its physics in MJX or in MuJoCo C (`--physics c`), random "
+          "actions, 2 XLA devices. Both " + ("pass" if passed else "do not all pass")
+          + " the PyBullet checks.",
           table(["envs", "MJX compile (s)", "C compile (s)", "C ÷ MJX", "MJX env steps/s",
-                 "C env steps/s", "C ÷ MJX"], rows), [C_PHYSICS])
+                 "C env steps/s", "C ÷ MJX"], rows)
+          + "\n\nTrained to 2,000 (the Hopper's cpu preset), seeds run fresh, cold, one "
+          "engine after the other; the first training row (s from process start), in turns:\n\n"
+          + table(["physics", "reached", "median (min)", "fastest (min)", "slowest (min)",
+                   "M env steps to it", "first row, cold (s)", "warm (s)"], trained),
+          [C_PHYSICS, *PHYSICS_TTS.values(), start_file])
 
 
 def gymnasium_section() -> tuple[str, str, str, list[str]]:
