@@ -1,5 +1,5 @@
-"""C physics: the Hopper with its physics run by MuJoCo C (c_hopper.py: `mujoco.batch` on
-threads, called from the compiled program through `jax.pure_callback`) beside MJX's, on the CPU.
+"""C physics: the Hopper with its physics run by MuJoCo C (`physics="c"`, envs/mujoco_c.py:
+`mujoco.batch` on threads, called from the compiled program) beside MJX's, on the CPU.
 For each, a program of U env steps of B auto-resetting envs (`rollout.make_stepper`, as
 env_throughput.py times it), in a fresh process split into XLA CPU devices with an empty compile
 cache: its trace, lower and XLA compile seconds, and its env steps/s. Then the C path's
@@ -27,12 +27,9 @@ EPISODE_TOLERANCE = {"length": (0.25, 1.0), "return": (0.15, 2.0), "alive": (0.0
                      "joints_at_limit_cost": (0.0, 0.05), "feet_collision_cost": (0.0, 1e-9)}
 
 
-def make_env(engine: str, threads: int):
+def make_env(engine: str):
   from mjx_hopper import envs
-  if engine == "MJX":
-    return envs.Hopper()
-  import c_hopper
-  return c_hopper.CHopper(threads=threads)
+  return envs.Hopper(physics="mjx" if engine == "MJX" else "c")
 
 
 def program_row(args) -> dict:
@@ -45,8 +42,7 @@ def program_row(args) -> dict:
     from mjx_hopper.core import rollout
 
     devices = len(jax.devices())
-    threads = max(1, args.threads // devices)
-    env = make_env(args.engine, threads)
+    env = make_env(args.engine)
     steps = max(20, min(1000, args.steps_total // args.batch))
     init, run = rollout.make_stepper(env, args.batch, steps)
     key = jax.random.PRNGKey(0)
@@ -66,7 +62,8 @@ def program_row(args) -> dict:
       seconds.append(time.perf_counter() - start)
     rate = args.batch * steps / statistics.median(seconds)
   row = {"engine": args.engine, "devices": devices, "c_threads_per_device": (
-             threads if args.engine != "MJX" else None), "batch": args.batch, "steps": steps,
+             env._c.threads if args.engine != "MJX" else None), "batch": args.batch,
+         "steps": steps,
          "trace_s": t1 - t0, "lower_s": t2 - t1, "compile_s": t3 - t2,
          "env_steps_per_s": rate}
   print(f"  {args.engine} batch {args.batch}: trace {row['trace_s']:.1f} s, lower "
@@ -89,7 +86,7 @@ def agreement(args) -> dict:
 
     from mjx_hopper.core import rollout
 
-    envs = {e: make_env(e, args.threads) for e in ("MJX", "C")}
+    envs = {e: make_env(e) for e in ("MJX", "C")}
     n, t = args.agree_batch, args.agree_steps
     keys = jax.random.split(jax.random.PRNGKey(1), n)
     actions = jax.random.uniform(jax.random.PRNGKey(2), (t, n, 3), minval=-1.0, maxval=1.0)
@@ -192,7 +189,8 @@ def main() -> None:
                  help="B: 512 is the cpu preset's num_envs")
   p.add_argument("--devices", type=int, default=2, help="XLA CPU devices")
   p.add_argument("--threads", type=int, default=2,
-                 help="MuJoCo C threads in all, split evenly over the devices")
+                 help="MuJoCo C's threads in the rows of the physics alone (the env shares "
+                 "the cores out between the devices)")
   p.add_argument("--steps-total", type=int, default=100_000,
                  help="env steps per timed call, roughly (U = this / B)")
   p.add_argument("--agree-batch", type=int, default=256)
