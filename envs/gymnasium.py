@@ -76,17 +76,22 @@ def _key(seed, np_random: np.random.Generator) -> jax.Array:
   return jax.random.PRNGKey(int(np_random.integers(2**31)) if seed is None else seed)
 
 
-def _check_action(env: LocomotionEnv, action, shape: tuple[int, ...]) -> np.ndarray:
+def _advance(door, action) -> tuple:
+  """Steps `door` (either Gymnasium env here) by `action`, checked against its action space;
+  returns the step's outputs on the host."""
+  if door._state is None:
+    raise RuntimeError("call reset() before step()")
   action = np.asarray(action, np.float32)
+  name, shape = type(door.env).__name__, door.action_space.shape
   if action.shape != shape:
-    raise ValueError(f"{type(env).__name__} takes actions of shape {shape}, got {action.shape}")
+    raise ValueError(f"{name} takes actions of shape {shape}, got {action.shape}")
   bad = ~np.isfinite(action)
   if bad.any():
     at = tuple(int(i) for i in np.argwhere(bad)[0])
     more = f" (and {bad.sum() - 1} more)" if bad.sum() > 1 else ""
-    raise ValueError(f"{type(env).__name__} takes finite actions, got {action[at]} at index "
-                     f"{at}{more}")
-  return action
+    raise ValueError(f"{name} takes finite actions, got {action[at]} at index {at}{more}")
+  door._state, out = door._step(door._state, action)
+  return jax.device_get(out)
 
 
 class GymnasiumEnv(gymnasium.Env):
@@ -108,11 +113,7 @@ class GymnasiumEnv(gymnasium.Env):
     return np.asarray(self._state.obs), {}
 
   def step(self, action):
-    if self._state is None:
-      raise RuntimeError("call reset() before step()")
-    action = _check_action(self.env, action, self.action_space.shape)
-    self._state, out = self._step(self._state, action)
-    obs, reward, terminated, truncated, terms = jax.device_get(out)
+    obs, reward, terminated, truncated, terms = _advance(self, action)
     return (obs, float(reward), bool(terminated), bool(truncated),
             {"reward_terms": {k: float(v) for k, v in terms.items()}})
 
@@ -165,11 +166,7 @@ class GymnasiumVectorEnv(gymnasium.vector.VectorEnv):
     return np.asarray(self._state.obs), {}
 
   def step(self, actions):
-    if self._state is None:
-      raise RuntimeError("call reset() before step()")
-    actions = _check_action(self.env, actions, self.action_space.shape)
-    self._state, out = self._step(self._state, actions)
-    obs, reward, terminated, truncated, final_obs = jax.device_get(out)
+    obs, reward, terminated, truncated, final_obs = _advance(self, actions)
     info = {}
     ended = terminated | truncated
     if ended.any():
