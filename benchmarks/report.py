@@ -35,7 +35,7 @@ CPU = {"Hopper": [TTS.format("Hopper_cpu_heldout")],
        "Humanoid": [TTS.format("Humanoid_cpu_tuned_2026-11-26"),
                     TTS.format("Humanoid_cpu_seed2")],
        "Hopper, DDPG": [TTS.format("Hopper_cpu_ddpg_heldout")],
-       "Hopper, DMPO": [TTS.format("Hopper_dmpo128_cpu_2026-11-26")],
+       "Hopper, DMPO": [TTS.format("Hopper_cpu_dmpo_heldout")],
        "HighJump (an event)": [TTS.format("HighJump_cpu_heldout")]}
 ENV = {"Hopper": "env_throughput_hopper_cpu.json", "Humanoid": "env_throughput_humanoid_cpu.json"}
 ENV_OTHERS = "env_throughput_cpu_4robots.json"

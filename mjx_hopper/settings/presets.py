@@ -125,7 +125,7 @@ AGENT_OVERRIDES: dict[tuple[str, str, str], dict] = {
 # robot preset's target is theirs too.
 AGENT_BUDGETS: dict[tuple[str, str, str], tuple[int, float]] = {
     ("Hopper", "cpu", "ddpg"): (5_500_000, 7.0),
-    ("Hopper", "cpu", "dmpo"): (6_500_000, 13.0),
+    ("Hopper", "cpu", "dmpo"): (6_500_000, 8.0),
 }
 
 
