@@ -14,15 +14,15 @@ from typing import Any, Callable, NamedTuple
 from mjx_hopper.agents import d4pg, ddpg, dpg, mpo
 from mjx_hopper.agents.base import Agent
 
-PRESET_NAMES = ("cpu", "gpu")  # the presets every agent declares
+REQUIRED_DEFAULTS = ("cpu", "gpu")  # the named defaults every agent declares
 
 
 class Spec(NamedTuple):
-  """What an agent declares: how to build it, its named configs, the learner metrics its
+  """What an agent declares: how to build it, its named defaults (configs), the learner metrics its
   terminal line shows ((metric, "text {}") pairs), settings small enough for tests, and its
   exported policy (see `register`)."""
   make: Callable[[int, int, Any], Agent]
-  presets: dict[str, Any]
+  defaults: dict[str, Any]
   learner_fields: tuple[tuple[str, str], ...]
   tiny: dict
   exported_policy: Callable[[Any, Any], tuple[list, str]] | None
@@ -31,11 +31,11 @@ class Spec(NamedTuple):
 _AGENTS: dict[str, Spec] = {}
 
 
-def register(name: str, make: Callable[[int, int, Any], Agent], presets: dict[str, Any],
+def register(name: str, make: Callable[[int, int, Any], Agent], defaults: dict[str, Any],
              learner_fields: tuple[tuple[str, str], ...] = (), tiny: dict | None = None,
              exported_policy: Callable[[Any, Any], tuple[list, str]] | None = None) -> None:
   """Makes agent `name` trainable everywhere an agent's name is taken. `make(obs_size,
-  action_size, config)` builds it; `presets` ({name: config dataclass}) must hold "cpu" and
+  action_size, config)` builds it; `defaults` ({name: config dataclass}) must hold "cpu" and
   "gpu"; `learner_fields` name the metrics of its `update` shown on the terminal; `tiny`
   overrides the config for the short runs of tests and the notebook's quick mode.
 
@@ -43,20 +43,20 @@ def register(name: str, make: Callable[[int, int, Any], Agent], presets: dict[st
   its deterministic policy, from its state's `policy`, as NumPy layers: each an (arrays,
   structure) pair of `networks.exported_dense`, and the output "tanh" or "clip". Without it,
   the agent trains but cannot be exported."""
-  missing = [p for p in PRESET_NAMES if p not in presets]
+  missing = [d for d in REQUIRED_DEFAULTS if d not in defaults]
   if missing:
-    raise ValueError(f"agent {name!r} must declare the presets {list(PRESET_NAMES)}; it lacks "
-                     f"{missing}")
-  if not all(dataclasses.is_dataclass(c) for c in presets.values()):
-    raise ValueError(f"agent {name!r}'s presets must be config dataclasses, got {presets!r}")
-  _AGENTS[name] = Spec(make, dict(presets), tuple(learner_fields), dict(tiny or {}),
+    raise ValueError(f"agent {name!r} must declare the defaults {list(REQUIRED_DEFAULTS)}; it "
+                     f"lacks {missing}")
+  if not all(dataclasses.is_dataclass(c) for c in defaults.values()):
+    raise ValueError(f"agent {name!r}'s defaults must be config dataclasses, got {defaults!r}")
+  _AGENTS[name] = Spec(make, dict(defaults), tuple(learner_fields), dict(tiny or {}),
                        exported_policy)
 
 
-register("d4pg", d4pg.make, d4pg.PRESETS, d4pg.LEARNER_FIELDS, d4pg.TINY, dpg.exported_policy)
-register("ddpg", ddpg.make, ddpg.PRESETS, ddpg.LEARNER_FIELDS, ddpg.TINY, dpg.exported_policy)
-register("mpo", mpo.make, mpo.PRESETS, mpo.LEARNER_FIELDS, mpo.TINY, mpo.exported_policy)
-register("dmpo", mpo.make, mpo.DMPO_PRESETS, mpo.LEARNER_FIELDS, mpo.DMPO_TINY,
+register("d4pg", d4pg.make, d4pg.DEFAULTS, d4pg.LEARNER_FIELDS, d4pg.TINY, dpg.exported_policy)
+register("ddpg", ddpg.make, ddpg.DEFAULTS, ddpg.LEARNER_FIELDS, ddpg.TINY, dpg.exported_policy)
+register("mpo", mpo.make, mpo.DEFAULTS, mpo.LEARNER_FIELDS, mpo.TINY, mpo.exported_policy)
+register("dmpo", mpo.make, mpo.DMPO_DEFAULTS, mpo.LEARNER_FIELDS, mpo.DMPO_TINY,
          mpo.exported_policy)
 
 
@@ -77,16 +77,16 @@ def learner_fields(name: str) -> tuple[tuple[str, str], ...]:
   return spec(name).learner_fields
 
 
-def config(name: str, preset: str | None = None, **overrides):
-  """Agent `name`'s config: its preset `preset` (None: "acme", the seed's settings, where the
-  agent declares it, else "cpu") with fields replaced by `overrides`."""
-  presets = spec(name).presets
-  if preset is None:
-    preset = "acme" if "acme" in presets else "cpu"
-  if preset not in presets:
-    raise ValueError(f"unknown preset {preset!r} for {name}; valid presets are "
-                     f"{sorted(presets)}")
-  cfg = presets[preset]
+def config(name: str, defaults: str | None = None, **overrides):
+  """Agent `name`'s config: its named defaults `defaults` (None: "acme", the seed's settings,
+  where the agent declares them, else "cpu") with fields replaced by `overrides`."""
+  named = spec(name).defaults
+  if defaults is None:
+    defaults = "acme" if "acme" in named else "cpu"
+  if defaults not in named:
+    raise ValueError(f"unknown defaults {defaults!r} for {name}; valid defaults are "
+                     f"{sorted(named)}")
+  cfg = named[defaults]
   fields = {f.name for f in dataclasses.fields(cfg)}
   unknown = sorted(set(overrides) - fields)
   if unknown:

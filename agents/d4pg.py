@@ -1,6 +1,6 @@
 """D4PG: a deterministic policy with a categorical critic, after acme's JAX learner.
 
-    agent = d4pg.make(obs_size, action_size, d4pg.Config())     # or d4pg.PRESETS["cpu"]
+    agent = d4pg.make(obs_size, action_size, d4pg.Config())     # or d4pg.DEFAULTS["cpu"]
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ class Config(dpg.Config):
 # "acme": the NMA notebook's acme settings. The others widen the critic's support, since a
 # hopping Hopper earns ~2.5 per step, a discounted value of ~250 (above acme's vmax of 150), and
 # learn at 3e-4; "cpu" also has shallower networks, for a small CPU.
-PRESETS = {
+DEFAULTS = {
     "acme": Config(),
     "gpu": Config(vmin=-150.0, vmax=450.0, learning_rate=3e-4),
     "cpu": Config(policy_layers=(256, 256), critic_layers=(256, 256), vmin=-150.0, vmax=450.0,

@@ -12,9 +12,9 @@ from mjx_hopper.agents.base import Agent
 # The defaults are the NMA notebook's networks and acme's DDPG hyperparameters.
 Config = dpg.Config
 
-# "acme": the NMA notebook's acme settings; "gpu" and "cpu" learn at 3e-4 as D4PG's presets do,
+# "acme": the NMA notebook's acme settings; "gpu" and "cpu" learn at 3e-4 as D4PG's defaults do,
 # and "cpu" has D4PG's cpu networks.
-PRESETS = {
+DEFAULTS = {
     "acme": Config(),
     "gpu": Config(learning_rate=3e-4),
     "cpu": Config(policy_layers=(256, 256), critic_layers=(256, 256), learning_rate=3e-4),

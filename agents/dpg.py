@@ -1,6 +1,6 @@
 """Deterministic policy-gradient agents (DDPG and D4PG): a tanh policy, a critic with a scalar or
 categorical head, n-step TD targets from target networks, Gaussian exploration, with acme's
-learner semantics. `ddpg.py` and `d4pg.py` choose the head and the presets.
+learner semantics. `ddpg.py` and `d4pg.py` choose the head and the defaults.
 """
 
 from __future__ import annotations

@@ -75,13 +75,13 @@ class Config(CommonConfig):
 # (DMPO), and "cpu" has (256, 256) networks. Both also loosen acme's std constraint, which keeps
 # the std near its start for too long on the Hopper; a much looser one lets it collapse.
 LOOSER_STD = dict(epsilon_stddev=1e-5, init_log_alpha_stddev=10.0)
-PRESETS = {
+DEFAULTS = {
     "acme": Config(),
     "gpu": Config(learning_rate=3e-4, **LOOSER_STD),
     "cpu": Config(policy_layers=(256, 256), critic_layers=(256, 256), learning_rate=3e-4,
                   **LOOSER_STD),
 }
-DMPO_PRESETS = {
+DMPO_DEFAULTS = {
     "acme": Config(distributional=True),
     "gpu": Config(distributional=True, vmax=450.0, learning_rate=3e-4, **LOOSER_STD),
     "cpu": Config(distributional=True, vmax=450.0, learning_rate=3e-4,

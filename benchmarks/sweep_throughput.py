@@ -30,7 +30,7 @@ def measure(args) -> dict:
   from mjx_hopper.settings.training import TrainConfig
 
   cfg = config.RunConfig(
-      env=args.env, agent=args.agent, agent_preset=args.preset,
+      env=args.env, agent=args.agent, agent_defaults=args.preset,
       agent_overrides=flags.overrides(args.set),
       train=TrainConfig(num_envs=args.num_envs, unroll_length=args.unroll_length,
                         batch_size=args.batch_size, replay_ratio=args.replay_ratio,

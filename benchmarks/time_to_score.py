@@ -104,7 +104,7 @@ def main() -> None:
   p.add_argument("robot", help="a robot, or a task of your own as module:Class")
   p.add_argument("--kind", default="gpu", help="the robot preset: gpu or cpu")
   p.add_argument("--agent", default=None,
-                 help="another agent than the preset's: its own preset of --kind's name, with "
+                 help="another agent than the preset's: its own defaults of --kind's name, with "
                  "the trainer's default layout (as `mjx-hopper train --agent`)")
   p.add_argument("--seeds", default="100,101,102", help="held out: the presets were tuned on 0-9")
   p.add_argument("--minutes", type=float, default=None,
@@ -196,7 +196,8 @@ def main() -> None:
       "method": METHOD.format(cache=args.cache),
       "robot": args.robot, "episode_steps": cfg.episode_steps, "kind": args.kind,
       "physics": cfg.physics,
-      "target": target, "minutes": minutes, "agent": cfg.agent, "agent_preset": cfg.agent_preset,
+      "target": target, "minutes": minutes, "agent": cfg.agent,
+      "agent_defaults": cfg.agent_defaults,
       "agent_overrides": cfg.agent_overrides, "train": dataclasses.asdict(cfg.train),
       "eval_episodes": cfg.eval_episodes, "device": f"{device.platform} {device.device_kind}",
       "best_seed": best, "best_seed_episode": episode, "seeds": results})

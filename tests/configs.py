@@ -20,7 +20,7 @@ def tiny(agent: str = "d4pg") -> loop.RunConfig:
   """`agent`'s tiny run on the Hopper over the CPU devices: 4 envs, 80 env steps of 30-step
   episodes, an evaluation of 2 episodes every 40 env steps, no time-based logging."""
   return dataclasses.replace(
-      notebook.tiny(loop.RunConfig(env="Hopper", agent=agent, agent_preset="cpu")), log_every=0.0)
+      notebook.tiny(loop.RunConfig(env="Hopper", agent=agent, agent_defaults="cpu")), log_every=0.0)
 
 
 def tiny_args(agent: str = "d4pg", command: str = "train") -> list[str]:
@@ -33,7 +33,7 @@ def args_of(cfg: loop.RunConfig, command: str = "train") -> list[str]:
   """A tiny run `cfg` (`notebook.tiny`'s sizes, the cpu preset) on the command line of
   `mjx-hopper COMMAND` over 2 CPU devices, without its --total-env-steps."""
   t, agent = notebook.TINY_TRAIN, cfg.agent
-  assert cfg.train == t and cfg.agent_preset == "cpu", "args_of takes a tiny run"
+  assert cfg.train == t and cfg.agent_defaults == "cpu", "args_of takes a tiny run"
   # The tiny settings, and the robot's cpu preset's others back at the agent's defaults, as
   # notebook.tiny has them.
   preset = presets.agent_run_config(cfg.env, "cpu", agent).agent_overrides

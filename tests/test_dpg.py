@@ -346,8 +346,9 @@ def test_unknown_agent_and_settings():
     agents.config("d5pg")
   with pytest.raises(ValueError, match=r"unknown d4pg settings \['sgima'\]"):
     agents.config("d4pg", sgima=0.2)
-  with pytest.raises(ValueError, match=r"unknown preset 'gpu2' for d4pg"):
-    agents.config("d4pg", preset="gpu2")
+  with pytest.raises(ValueError, match=r"unknown defaults 'gpu2' for d4pg; valid defaults are "
+                     r"\['acme', 'cpu', 'gpu'\]"):
+    agents.config("d4pg", defaults="gpu2")
 
 
 def reference_critic(params: dict, obs, action, norm_every: bool) -> np.ndarray:

@@ -76,12 +76,12 @@ def linear_policy_layers(policy, cfg):
           ], "tanh"
 
 
-PRESETS = {"cpu": LinearConfig(learning_rate=1e-3), "gpu": LinearConfig(learning_rate=1e-3)}
+DEFAULTS = {"cpu": LinearConfig(learning_rate=1e-3), "gpu": LinearConfig(learning_rate=1e-3)}
 
 
 @pytest.fixture(scope="module")
 def linear():
-  agents.register("linear", make_linear, PRESETS, (("linear_loss", "linear loss {}"),),
+  agents.register("linear", make_linear, DEFAULTS, (("linear_loss", "linear loss {}"),),
                   tiny={"n_step": 2}, exported_policy=linear_policy_layers)
   yield "linear"
   agents._AGENTS.pop("linear")
@@ -134,19 +134,19 @@ def test_the_terminal_line_shows_its_learner_metrics(linear):
 
 
 def test_an_agent_without_an_exported_policy_trains_but_is_not_exported():
-  agents.register("unexported", make_linear, PRESETS)
+  agents.register("unexported", make_linear, DEFAULTS)
   try:
-    assert agents.config("unexported") == PRESETS["cpu"]  # no "acme" preset: "cpu" is its default
+    assert agents.config("unexported") == DEFAULTS["cpu"]  # no "acme" defaults: "cpu" are its own
     state = agents.make("unexported", 3, 2).init(jax.random.PRNGKey(0))
     with pytest.raises(ValueError, match="cannot export agent 'unexported': it was registered "
                                          "without an exported_policy"):
-      export.policy_of("unexported", PRESETS["cpu"], state.policy, 3, 2)
+      export.policy_of("unexported", DEFAULTS["cpu"], state.policy, 3, 2)
   finally:
     agents._AGENTS.pop("unexported")
 
 
-def test_an_agent_without_its_presets_is_refused():
-  with pytest.raises(ValueError, match=r"must declare the presets \['cpu', 'gpu'\]; it lacks "
+def test_an_agent_without_its_defaults_is_refused():
+  with pytest.raises(ValueError, match=r"must declare the defaults \['cpu', 'gpu'\]; it lacks "
                                        r"\['gpu'\]"):
     agents.register("half", make_linear, {"cpu": LinearConfig()})
   assert "half" not in agents.list_agents()

@@ -20,7 +20,7 @@ ROOT = pathlib.Path(__file__).resolve().parent.parent
 def old_named(cfg: config.RunConfig) -> dict:
   """`cfg` saved as an older version named its settings."""
   saved = cfg.to_json()
-  saved["preset"], saved["time_delta"] = saved.pop("agent_preset"), saved.pop("log_every")
+  saved["preset"], saved["time_delta"] = saved.pop("agent_defaults"), saved.pop("log_every")
   return saved
 
 
@@ -31,7 +31,7 @@ def test_the_changelog_says_0x_versions_rename_freely():
 def test_old_names_in_python_and_on_the_command_line_are_refused():
   with pytest.raises(TypeError, match="preset"):
     config.RunConfig(preset="gpu")
-  with pytest.raises(ValueError, match=r"unknown preset 'seed' for d4pg; valid presets are"):
+  with pytest.raises(ValueError, match=r"unknown defaults 'seed' for d4pg; valid defaults are"):
     agents.config("d4pg", "seed")
   with pytest.raises(ModuleNotFoundError):
     importlib.import_module("mjx_hopper.networks")
@@ -52,13 +52,20 @@ def test_a_config_json_with_old_names_is_refused_in_one_line(tmp_path):
                             "preset, time_delta;")
 
 
-def test_an_old_preset_value_is_refused_naming_the_format():
-  saved = {**config.RunConfig().to_json(), "agent_preset": "seed", "checkpoint_format": 1,
+def test_an_old_defaults_value_is_refused_naming_the_format():
+  saved = {**config.RunConfig().to_json(), "agent_defaults": "seed", "checkpoint_format": 1,
            "versions": {"mjx_hopper": "0.1.0"}}
   with pytest.raises(ValueError, match=r"^the saved config \(checkpoint format 1, saved by "
-                     r"mjx_hopper 0\.1\.0\) is not one mjx_hopper .* reads: unknown preset "
+                     r"mjx_hopper 0\.1\.0\) is not one mjx_hopper .* reads: unknown defaults "
                      r"'seed'"):
     config.RunConfig.from_json(saved)
+
+
+def test_a_config_saved_before_agent_defaults_had_its_name_loads():
+  cfg = config.RunConfig(agent="ddpg", agent_defaults="acme", agent_overrides={"sigma": 0.25})
+  saved = cfg.to_json()
+  saved["agent_preset"] = saved.pop("agent_defaults")  # format 2, as 0.3.0 first saved it
+  assert config.RunConfig.from_json(saved).to_json() == cfg.to_json()
 
 
 def test_a_checkpoint_with_old_names_is_refused_and_kept(tmp_path):

@@ -86,7 +86,7 @@ def test_other_agents_train_for_their_measured_budget_or_say_that_none_is_measur
   lines = {tuple(argv): flags.unmeasured_budget(cli.build_parser().parse_args(["train", *argv]))
            for argv in (["--agent", "ddpg"], ["--env", "Walker2D", "--agent", "ddpg"],
                         ["--env", "Walker2D", "--agent", "ddpg", "--max-minutes", "3"],
-                        ["--env", "mjx_hopper.envs.events:HighJump"], ["--agent-preset", "acme"],
+                        ["--env", "mjx_hopper.envs.events:HighJump"], ["--agent-defaults", "acme"],
                         ["--preset", "gpu"])}
   assert lines == {
       ("--agent", "ddpg"): None, ("--env", "Walker2D", "--agent", "ddpg", "--max-minutes", "3"):
@@ -97,9 +97,9 @@ def test_other_agents_train_for_their_measured_budget_or_say_that_none_is_measur
       ("--env", "mjx_hopper.envs.events:HighJump"):
       "mjx_hopper.envs.events:HighJump trains for its robot's budget (Hopper's cpu preset), "
       "measured on Hopper's own task; set --total-env-steps or --max-minutes to choose another",
-      ("--agent-preset", "acme"):
-      "no budget is measured for the acme agent preset: it trains for the cpu preset's budget; "
-      "set --total-env-steps or --max-minutes"}
+      ("--agent-defaults", "acme"):
+      "no budget is measured for the agent's acme defaults: it trains for the cpu preset's "
+      "budget; set --total-env-steps or --max-minutes"}
 
 
 def test_every_agents_robot_settings_are_valid():
@@ -139,15 +139,15 @@ def test_cli_starts_from_the_robot_preset():
   # A flag replaces its one setting and keeps the rest of the preset's.
   cfg = run_config("--env", "Walker2D", "--preset", "gpu", "--num-envs", "1024")
   assert cfg.train == dataclasses.replace(walker.train, num_envs=1024)
-  # Another agent than the preset's gets its own preset and the trainer's defaults.
+  # Another agent than the preset's gets its own defaults and the trainer's.
   cfg = run_config("--env", "Walker2D", "--preset", "gpu", "--agent", "ddpg")
-  assert (cfg.agent, cfg.agent_preset, cfg.train, cfg.agent_overrides) == (
+  assert (cfg.agent, cfg.agent_defaults, cfg.train, cfg.agent_overrides) == (
       "ddpg", "gpu", TrainConfig(), {})
   # ... and the robot's own settings for that agent where it has them; --set wins.
   cfg = run_config("--env", "Hopper", "--agent", "ddpg", "--set", "sigma=0.3")
-  assert (cfg.agent, cfg.agent_preset, cfg.train) == ("ddpg", "cpu", TrainConfig())
+  assert (cfg.agent, cfg.agent_defaults, cfg.train) == ("ddpg", "cpu", TrainConfig())
   assert cfg.agent_overrides == {**presets.AGENT_OVERRIDES["Hopper", "cpu", "ddpg"], "sigma": 0.3}
-  # D4PG's Hopper networks are 128-128 on the CPU; DDPG keeps its preset's 256-256.
+  # D4PG's Hopper networks are 128-128 on the CPU; DDPG keeps its defaults' 256-256.
   d4pg = run_config("--env", "Hopper").agent_config()
   assert (d4pg.policy_layers, d4pg.critic_layers) == ((128, 128), (128, 128))
   assert cfg.agent_config().critic_layers == (256, 256)
@@ -162,15 +162,15 @@ def test_cli_starts_from_the_robot_preset():
                                   "critic_layers": (128, 128)}
   assert dmpo.agent_config().critic_layers == (128, 128)
   assert run_config("--env", "Hopper", "--agent", "mpo").agent_overrides == {}
-  # --agent-preset acme: acme's values (the NMA notebook's), not the robot's over them; --set
+  # --agent-defaults acme: acme's values (the NMA notebook's), not the robot's over them; --set
   # still wins.
-  acme = run_config("--env", "Hopper", "--agent-preset", "acme", "--set", "sigma=0.25")
-  assert (acme.agent_preset, acme.agent_overrides) == ("acme", {"sigma": 0.25})
+  acme = run_config("--env", "Hopper", "--agent-defaults", "acme", "--set", "sigma=0.25")
+  assert (acme.agent_defaults, acme.agent_overrides) == ("acme", {"sigma": 0.25})
   assert acme.agent_config() == dataclasses.replace(agents.config("d4pg", "acme"), sigma=0.25)
-  assert run_config("--env", "Hopper", "--agent-preset", "cpu").agent_overrides == hopper
+  assert run_config("--env", "Hopper", "--agent-defaults", "cpu").agent_overrides == hopper
   # With no flags: D4PG's cpu preset and the trainer's defaults (the README's main job).
   cfg = run_config()
-  assert (cfg.agent, cfg.agent_preset, cfg.train, cfg.eval_every) == (
+  assert (cfg.agent, cfg.agent_defaults, cfg.train, cfg.eval_every) == (
       "d4pg", "cpu", TrainConfig(), 200_000)
 
 

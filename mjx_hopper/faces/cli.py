@@ -197,7 +197,7 @@ def settings(args: argparse.Namespace) -> None:
   rows = config.settings_table(base, [f for _, f in flags.fields()],
                                f"{base.task_id} {args.preset or 'cpu'}")
   widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
-  print(f"{base.agent} ({base.agent_preset}); agents: {', '.join(agents.list_agents())}")
+  print(f"{base.agent} ({base.agent_defaults}); agents: {', '.join(agents.list_agents())}")
   for row in rows:
     print("  ".join(cell.ljust(w) for cell, w in zip(row, widths)).rstrip())
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+from typing import NamedTuple
 
 import jax
 
@@ -12,9 +13,26 @@ from mjx_hopper import agents, envs
 from mjx_hopper.core import train
 from mjx_hopper.process import ledger
 from mjx_hopper.settings.config import RunConfig
+from mjx_hopper.settings.training import TrainConfig
 
 
 _last_built: list = [None]  # the program_key of the trainer this process built last
+
+
+class TrainerKey(NamedTuple):
+  """Everything `build` makes a trainer from, comparable and hashable (not out_dir, budgets or
+  seeds): the task's class (given as the class, an instance or a name) and its settings with the
+  episode length, the agent and its config, the trainer's layout, the evaluation's episodes, the
+  number of members, whether their update counts are dynamic, and the physics engine."""
+  task: type
+  task_settings: tuple
+  agent: str
+  agent_config: tuple
+  train: TrainConfig
+  eval_episodes: int
+  members: int
+  dynamic_updates: bool
+  physics: str
 
 
 def build(cfg: RunConfig, num_members: int | None = None) -> train.Trainer:
@@ -29,57 +47,55 @@ def build(cfg: RunConfig, num_members: int | None = None) -> train.Trainer:
   if key != _last_built[0]:
     jax.clear_caches()
   _last_built[0] = key
-  return assemble(cfg, num_members)
+  return assemble(cfg, num_members, key)
 
 
-def assemble(cfg: RunConfig, num_members: int | None = None) -> train.Trainer:
-  """`build`'s trainer, JAX's in-memory caches as they are. Where a compile ledger is kept, it
-  notes the trainer's configuration (`process.ledger`)."""
+def assemble(cfg: RunConfig, num_members: int | None = None,
+             key: TrainerKey | None = None) -> train.Trainer:
+  """`build`'s trainer, JAX's in-memory caches as they are (`key`: its `program_key`, where
+  already known). Where a compile ledger is kept, it notes the trainer's configuration
+  (`process.ledger`)."""
+  key = key or program_key(cfg, num_members)
   env = cfg.make_env()
   envs.check_task(env)
-  agent = agents.make(cfg.agent, env.observation_size, env.action_size, cfg.agent_config())
-  key = program_key(cfg, num_members)
-  ledger.note("trainer", f"{key[0].__name__} {cfg.agent} x{key[6]} "
+  agent = agents.make(key.agent, env.observation_size, env.action_size, cfg.agent_config())
+  ledger.note("trainer", f"{key.task.__name__} {key.agent} x{key.members} "
               + hashlib.sha256(repr(key).encode()).hexdigest()[:12])
-  return train.make_trainer(env, agent, cfg.train_config(), eval_episodes=cfg.eval_episodes,
-                            num_members=num_members or len(cfg.member_settings()),
-                            dynamic_updates="replay_ratio" in cfg.grid,
-                            identity=identity(cfg, num_members))
+  return train.make_trainer(env, agent, key.train, eval_episodes=key.eval_episodes,
+                            num_members=key.members, dynamic_updates=key.dynamic_updates,
+                            identity=identity(cfg, key))
 
 
-def identity(cfg: RunConfig, num_members: int | None = None) -> str | None:
+def identity(cfg: RunConfig, key: TrainerKey | None = None) -> str | None:
   """The text under which the trainer's programs are kept as traced (`core.kept`): its
-  `program_key` (a run of another learning rate reads the same programs), where its task's
-  class and its agent's `make` are this package's own (code of one's own may change without its
-  name changing, and is traced afresh)."""
+  `program_key` (`key`, where already known; a run of another learning rate reads the same
+  programs), where its task's class and its agent's `make` are this package's own (code of
+  one's own may change without its name changing, and is traced afresh)."""
   own = (envs.task_class(cfg.env), agents.spec(cfg.agent).make)
   if not all(x.__module__.startswith("mjx_hopper.") for x in own):
     return None
-  return repr(program_key(cfg, num_members))
+  return repr(key or program_key(cfg))
 
 
-def trainer_key(cfg: RunConfig, num_members: int | None = None) -> tuple:
-  """Everything `build(cfg, num_members)` makes its trainer from, comparable and hashable: the
-  task's class (given as the class, an instance or a name) and its settings with the episode
-  length, the agent and its config, the train config, the evaluation's episodes, the number of
-  members, whether their update counts are dynamic, and the physics engine (not out_dir,
-  budgets or seeds)."""
-  return (envs.task_class(cfg.env), _frozen(cfg.task_settings()), cfg.agent,
-          _frozen(dataclasses.asdict(cfg.agent_config())), cfg.train_config(), cfg.eval_episodes,
-          num_members or len(cfg.member_settings()), "replay_ratio" in cfg.grid, cfg.physics)
+def trainer_key(cfg: RunConfig, num_members: int | None = None) -> TrainerKey:
+  """The `TrainerKey` of `build(cfg, num_members)`."""
+  return TrainerKey(envs.task_class(cfg.env), _frozen(cfg.task_settings()), cfg.agent,
+                    _frozen(dataclasses.asdict(cfg.agent_config())), cfg.train_config(),
+                    cfg.eval_episodes, num_members or len(cfg.member_settings()),
+                    "replay_ratio" in cfg.grid, cfg.physics)
 
 
 # A dynamic setting that also shapes the programs: the longest n-step window the replay reads.
 SHAPING_DYNAMIC = ("n_step",)
 
 
-def program_key(cfg: RunConfig, num_members: int | None = None) -> tuple:
+def program_key(cfg: RunConfig, num_members: int | None = None) -> TrainerKey:
   """`trainer_key` without the agent's dynamic settings (but SHAPING_DYNAMIC): what shapes the
   trainer's programs, which read the dynamic settings from the state's `hparams` as data. Runs
   that differ only in those (another learning rate or noise) lower to the same programs."""
   key = trainer_key(cfg, num_members)
   dynamic = set(type(cfg.agent_config()).DYNAMIC) - set(SHAPING_DYNAMIC)
-  return (*key[:3], tuple(kv for kv in key[3] if kv[0] not in dynamic), *key[4:])
+  return key._replace(agent_config=tuple(kv for kv in key.agent_config if kv[0] not in dynamic))
 
 
 def _frozen(x):

@@ -27,6 +27,8 @@ SAVED_EXTRAS = ("agent_config", "member_indices", "processes", "record", "versio
 MUST_MATCH = ("env", "env_settings", "agent", "agent_config", "train", "episode_steps", "seed",
               "seeds", "grid", "pbt", "member_indices")
 TRAINER_DYNAMIC = ("replay_ratio",)  # the trainer's settings a sweep may vary
+# Saved settings renamed within checkpoint format 2, read under their new names: {old: new}.
+RENAMED_IN_FORMAT_2 = {"agent_preset": "agent_defaults"}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -43,9 +45,9 @@ class RunConfig:
   env_settings: dict = setting({}, "the task's constructor settings", flag=False)
   agent: str = setting("d4pg", "the agent: d4pg, ddpg, mpo, dmpo, or one registered with "
                       "agents.register")
-  agent_preset: str = setting("cpu", "the agent's named settings: cpu, gpu or acme (the NMA "
-                             "notebook's acme settings)")
-  agent_overrides: dict = setting({}, "agent settings that replace the preset's", flag=False)
+  agent_defaults: str = setting("cpu", "the agent's named settings it starts from: cpu, gpu or "
+                               "acme (the NMA notebook's acme settings)")
+  agent_overrides: dict = setting({}, "agent settings that replace its defaults'", flag=False)
   train: TrainConfig = setting(TrainConfig(), "the trainer's layout", flag=False)
   total_env_steps: int = setting(1_000_000, "env steps to train for")
   max_minutes: float | None = setting(None, "also stop (and save) after the chunk that ends "
@@ -79,7 +81,7 @@ class RunConfig:
     settings = self.task_settings()  # raises on an unknown task or setting
     if not isinstance(self.agent, str):
       raise ValueError(f"agent takes an agent's name, got {self.agent!r}")
-    agents.config(self.agent, self.agent_preset, **self.agent_overrides)
+    agents.config(self.agent, self.agent_defaults, **self.agent_overrides)
     for name in ("total_env_steps", "eval_every", "eval_episodes"):
       if getattr(self, name) < 1:
         raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
@@ -97,13 +99,13 @@ class RunConfig:
         isinstance(s, int) for s in self.seeds):
       raise ValueError(f"seeds must be distinct integers, got {list(self.seeds)}")
     self.train.check()
-    check_grid(self.agent, self.agent_preset, self.grid, self.train, self.agent_overrides)
+    check_grid(self.agent, self.agent_defaults, self.grid, self.train, self.agent_overrides)
     if self.pbt is not None:
       if not isinstance(self.pbt, PBT):
         raise ValueError(f"pbt takes a PBT (mjx_hopper.settings.training) or None, got "
                          f"{self.pbt!r}")
       self.pbt.check(self.grid, len(self.member_settings()), lambda name, value: check_value(
-          self.agent, self.agent_preset, name, value, self.train, self.agent_overrides))
+          self.agent, self.agent_defaults, name, value, self.train, self.agent_overrides))
 
   def task(self) -> type[envs.LocomotionEnv]:
     """The task's class, from `env` (a name, a `module:Class` path, a class or an instance)."""
@@ -141,7 +143,7 @@ class RunConfig:
     """The agent's config; in a sweep of n-step values, n_step is the largest a member may have
     (the window the replay reads), each member using its own."""
     window = {"n_step": int(self._largest("n_step"))} if "n_step" in self.grid else {}
-    return agents.config(self.agent, self.agent_preset, **{**self.agent_overrides, **window})
+    return agents.config(self.agent, self.agent_defaults, **{**self.agent_overrides, **window})
 
   def train_config(self) -> TrainConfig:
     """The trainer's config; in a sweep of replay ratios, the largest a member may have."""
@@ -183,6 +185,7 @@ class RunConfig:
     a ValueError saying which. A setting this version does not know, or a value it refuses (an
     older version's name), is a ValueError naming the saved format and this version."""
     fields = {f.name for f in dataclasses.fields(cls)}
+    saved = {RENAMED_IN_FORMAT_2.get(k, k): v for k, v in saved.items()}
     unknown = sorted(set(saved) - fields - set(SAVED_EXTRAS))
     if unknown:
       raise ValueError(_unreadable(saved, f"settings it does not know: {', '.join(unknown)}"))
@@ -239,7 +242,7 @@ def settings_table(cfg: RunConfig, flags: list, column: str) -> list[tuple[str, 
   """Rows of every setting of `cfg` (the run `flags`, then the agent's): its name, type,
   default, `cfg`'s value (headed `column`), and whether a sweep can vary it."""
   agent_cfg = cfg.agent_config()
-  dynamic = set(dynamic_settings(cfg.agent, cfg.agent_preset))
+  dynamic = set(dynamic_settings(cfg.agent, cfg.agent_defaults))
   rows = [("setting", "type", "default", column, "sweep")]
   for f in flags:
     now = getattr(cfg if hasattr(cfg, f.name) else cfg.train, f.name)
@@ -257,19 +260,19 @@ def settings_text(settings: dict) -> str:
   return "(" + ", ".join(f"{k}={v!r}" for k, v in sorted(settings.items())) + ")"
 
 
-def dynamic_settings(agent: str, agent_preset: str = "cpu") -> list[str]:
+def dynamic_settings(agent: str, agent_defaults: str = "cpu") -> list[str]:
   """The names a sweep's grid may vary for this agent."""
-  return sorted(type(agents.config(agent, agent_preset)).DYNAMIC + TRAINER_DYNAMIC)
+  return sorted(type(agents.config(agent, agent_defaults)).DYNAMIC + TRAINER_DYNAMIC)
 
 
-def check_grid(agent: str, agent_preset: str, grid: dict, train_cfg: TrainConfig,
+def check_grid(agent: str, agent_defaults: str, grid: dict, train_cfg: TrainConfig,
                overrides: dict | None = None) -> None:
   """Raises ValueError naming the first bad entry of `grid` ({name: values}): an unknown or
   structural name, an empty or repeated list, or a value the config refuses."""
-  cfg = agents.config(agent, agent_preset, **(overrides or {}))
+  cfg = agents.config(agent, agent_defaults, **(overrides or {}))
   fields = {f.name for f in dataclasses.fields(cfg)} | {
       f.name for f in dataclasses.fields(TrainConfig)}
-  allowed = dynamic_settings(agent, agent_preset)
+  allowed = dynamic_settings(agent, agent_defaults)
   for name, values in grid.items():
     if name not in fields:
       raise ValueError(f"unknown setting {name!r} in the sweep; settings that can be swept are "
@@ -283,16 +286,16 @@ def check_grid(agent: str, agent_preset: str, grid: dict, train_cfg: TrainConfig
     if len(set(values)) != len(values):
       raise ValueError(f"the sweep's {name!r} repeats a value: {list(values)}")
     for value in values:
-      check_value(agent, agent_preset, name, value, train_cfg, overrides)
+      check_value(agent, agent_defaults, name, value, train_cfg, overrides)
 
 
-def check_value(agent: str, agent_preset: str, name: str, value, train_cfg: TrainConfig,
+def check_value(agent: str, agent_defaults: str, name: str, value, train_cfg: TrainConfig,
                 overrides: dict | None = None) -> None:
   """Raises ValueError when the dynamic setting `name` cannot take `value`."""
   if name in TRAINER_DYNAMIC:
     dataclasses.replace(train_cfg, **{name: value}).check()
   else:
-    agents.config(agent, agent_preset, **{**(overrides or {}), name: value})
+    agents.config(agent, agent_defaults, **{**(overrides or {}), name: value})
 
 
 def member_settings(seeds: tuple[int, ...], grid: dict) -> list[dict[str, Any]]:

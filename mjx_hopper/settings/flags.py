@@ -83,7 +83,7 @@ def base_config(args: argparse.Namespace, command: str) -> RunConfig:
   """The config a run starts from: a saved config (--config), else the robot's preset
   (--preset) of the agent (--agent) on the task (--env)."""
   if args.config is not None:
-    for flag in ("preset", "agent_preset"):
+    for flag in ("preset", "agent_defaults"):
       if getattr(args, flag, None) is not None:
         raise ValueError(f"--{flag.replace('_', '-')} and --config both choose the settings: "
                          "give one of them")
@@ -104,9 +104,9 @@ def unmeasured_budget(args: argparse.Namespace) -> str | None:
                                     for name in ("total_env_steps", "max_minutes")):
     return None
   kind = args.preset or "cpu"
-  if getattr(args, "agent_preset", kind) != kind:
-    return (f"no budget is measured for the {args.agent_preset} agent preset: it trains for the "
-            f"{kind} preset's budget; set --total-env-steps or --max-minutes")
+  if getattr(args, "agent_defaults", kind) != kind:
+    return (f"no budget is measured for the agent's {args.agent_defaults} defaults: it trains "
+            f"for the {kind} preset's budget; set --total-env-steps or --max-minutes")
   return presets.unmeasured_budget(getattr(args, "env", "Hopper"), kind,
                                    getattr(args, "agent", "d4pg"))
 
@@ -124,7 +124,7 @@ def run_config(args: argparse.Namespace, command: str = "train") -> RunConfig:
   fixed, grid = overrides(args.set), {}
   if command == "sweep":
     dynamic = config.dynamic_settings(run_given.get("agent", base.agent),
-                                      run_given.get("agent_preset", base.agent_preset))
+                                      run_given.get("agent_defaults", base.agent_defaults))
     grid = {name: value for name, value in fixed.items() if isinstance(value, tuple) and (
         name in dynamic or any(isinstance(v, tuple) for v in value))}
     fixed = {name: value for name, value in fixed.items() if name not in grid}
@@ -136,9 +136,9 @@ def run_config(args: argparse.Namespace, command: str = "train") -> RunConfig:
     seeds = (tuple(range(seed, seed + args.seeds)) if args.seeds is not None
              else base.seeds or (seed,))
     sweep = dict(seeds=seeds, grid={**base.grid, **grid}, pbt=pbt(args) or base.pbt)
-  # Another agent preset (acme's values) is that preset's settings, not the robot's over them.
-  kept = (base.agent_overrides if run_given.get("agent_preset", base.agent_preset)
-          == base.agent_preset else {})
+  # Other agent defaults (acme's values) are those values, not the robot's settings over them.
+  kept = (base.agent_overrides if run_given.get("agent_defaults", base.agent_defaults)
+          == base.agent_defaults else {})
   return dataclasses.replace(
       base, **run_given, **sweep, train=dataclasses.replace(base.train, **train_given),
       env_settings={**base.env_settings, **overrides(args.env_set, "--env-set")},

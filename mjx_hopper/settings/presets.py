@@ -99,7 +99,7 @@ PRESETS: dict[tuple[str, str], Preset] = {
 }
 
 
-# A robot of one's own, with no measured preset: D4PG's preset of the kind with its trainer
+# A robot of one's own, with no measured preset: D4PG's defaults of the kind with its trainer
 # layout, RunConfig's budget, no score.
 UNMEASURED = {kind: Preset(**settings, target=None, env_steps=RunConfig.total_env_steps,
                            minutes=None, why="no preset is measured for this robot")
@@ -142,7 +142,7 @@ def agent_run_config(env, kind: str, agent: str, **changes):
   if (robot, kind, agent) in AGENT_BUDGETS and "total_env_steps" not in changes:
     steps, minutes = AGENT_BUDGETS[robot, kind, agent]
     changes = {"total_env_steps": steps, "max_minutes": minutes, **changes}
-  return RunConfig(env=env, agent=agent, agent_preset=kind, agent_overrides=overrides,
+  return RunConfig(env=env, agent=agent, agent_defaults=kind, agent_overrides=overrides,
                    **changes)
 
 
@@ -176,6 +176,6 @@ def run_config(env, kind: str, **changes):
     changes.setdefault("max_minutes", None)
   overrides = {**preset.agent_overrides, **changes.pop("agent_overrides", {})}
   return RunConfig(**{
-      "env": env, "agent": preset.agent, "agent_preset": kind,
+      "env": env, "agent": preset.agent, "agent_defaults": kind,
       "agent_overrides": overrides, "train": preset.train, "eval_every": preset.eval_every,
       "total_env_steps": preset.env_steps, "max_minutes": preset.minutes, **changes})
