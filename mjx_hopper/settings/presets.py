@@ -25,7 +25,7 @@ KINDS = ("gpu", "cpu")
 class Preset:
   """A robot's measured settings for one kind of machine: its agent, trainer layout,
   evaluation period, its score, and the budget that reaches it. Its agent's settings are the
-  agent's own preset of the same kind, with `agent_overrides` over them."""
+  agent's own defaults of the same kind, with `agent_overrides` over them."""
 
   agent: str
   agent_overrides: dict
@@ -42,7 +42,7 @@ class Preset:
 # seeds needed to reach it, rounded up (report.budget); tests/test_presets.py holds both to them.
 
 
-# D4PG's cpu preset and the trainer's default layout: a few hundred envs, small batches.
+# D4PG's cpu defaults and the trainer's default layout: a few hundred envs, small batches.
 _CPU = dict(agent="d4pg", agent_overrides={}, train=TrainConfig(),
             eval_every=200_000)
 # The Hopper's own D4PG settings: a penalty on the squared pre-tanh actions keeps the policy off
@@ -86,7 +86,7 @@ PRESETS: dict[tuple[str, str], Preset] = {
                                      replay_size=1_000_000),
         "eval_every": 250_000}, target=3000.0, env_steps=2_500_000, minutes=3.0,
         why="512 envs, 32 updates of 1,024, 1e-3, noise 0.2 to 0.6 (evidence: 60e8b34)"),
-    ("Ant", "cpu"): Preset(**_CPU_TUNED, target=3000.0, env_steps=11_500_000, minutes=19.0,
+    ("Ant", "cpu"): Preset(**_CPU_TUNED, target=3000.0, env_steps=8_500_000, minutes=18.0,
                            why=_CPU_TUNED_WHY.format("9ac1947")),
     ("Ant", "gpu"): Preset(**_GPU, target=3000.0, env_steps=12_500_000, minutes=3.0,
                            why=_GPU_WHY),
@@ -116,7 +116,7 @@ def get(env, kind: str) -> Preset:
   return PRESETS.get((robot, kind), UNMEASURED[kind])
 
 
-# Other agents' settings on a robot where they were measured, over the agent's own preset.
+# Other agents' settings on a robot where they were measured, over the agent's own defaults.
 AGENT_OVERRIDES: dict[tuple[str, str, str], dict] = {
     ("Hopper", "cpu", "ddpg"): _HOPPER_CPU,  # evidence: 2c5cb5a
     ("Hopper", "cpu", "dmpo"): {"learning_rate": 1e-3, **_SMALL_NETWORKS},  # evidence: d3c32d9
@@ -131,8 +131,8 @@ AGENT_BUDGETS: dict[tuple[str, str, str], tuple[int, float]] = {
 
 def agent_run_config(env, kind: str, agent: str, **changes):
   """The RunConfig of `agent` on robot or task `env` with its `kind` settings: the
-  robot's preset when it is one of this agent, else the agent's own preset of that name with
-  the trainer's defaults and the robot's settings for this agent (`AGENT_OVERRIDES`); fields
+  robot's preset when it is one of this agent, else the agent's own defaults of that name with
+  the trainer's and the robot's settings for this agent (`AGENT_OVERRIDES`); fields
   replaced by `changes` as in `run_config`."""
   robot = envs.robot_of(envs.task_class(env))
   if get(env, kind).agent == agent:
