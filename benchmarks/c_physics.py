@@ -8,7 +8,7 @@ MJX against itself with the actions moved by 1e-6), and both against PyBullet's 
 (tests/oracle/) as tests/test_observation.py and tests/test_episodes.py compare them. Last,
 MuJoCo C's physics alone (env_throughput.py's `mujoco.rollout` row) at each B.
 
-    python benchmarks/c_physics.py            # 2 devices, C on 2 threads, B 256, 512 and 1024
+    python benchmarks/c_physics.py            # 2 devices (C: a thread each), B 256, 512, 1024
 """
 
 from __future__ import annotations

@@ -192,6 +192,11 @@ class LocomotionEnv(Env):
     return self.control_dt
 
   @property
+  def calls_host(self) -> bool:
+    """Whether its step calls the host (MuJoCo C's physics): a program of it is not exported."""
+    return self._c is not None
+
+  @property
   def sys(self) -> mjx.Model:
     """The MJX model, under the name Brax's wrappers read and set."""
     return self.mjx_model

@@ -11,14 +11,16 @@ bodies) stay as the reset made them. A task of one's own that reads those needs 
 
 from __future__ import annotations
 
+import copy
 import functools
-import os
 import threading
 
 import jax
 import mujoco
 import mujoco.batch
 import numpy as np
+
+from mjx_hopper.core import parallel
 
 # What a C step reads of an env's mjx.Data and writes back: the state it continues from
 # (MuJoCo's mjSTATE_INTEGRATION but for inputs the env never sets), and the poses that
@@ -33,11 +35,19 @@ class CPhysics:
   env's or a batch's (under vmap the callback takes the whole batch at once)."""
 
   def __init__(self, model: mujoco.MjModel, data0):
-    self.model = model
+    if model.nhistory or model.nplugin:  # state that STATE does not carry between calls
+      raise ValueError(f"physics='c' carries no delay history or plugin state between steps, and "
+                       f"this model has {model.nhistory} history values and {model.nplugin} "
+                       "plugins: use physics='mjx'")
+    # A state that is not finite stays so, ending its episode as under MJX, rather than being
+    # reset to the model's start by MuJoCo's warning handler.
+    self.model = copy.deepcopy(model)
+    self.model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_AUTORESET
     self._shapes = {f: getattr(data0, f).shape for f in STATE + POSES}
+    self._dtypes = {f: getattr(data0, f).dtype for f in STATE + POSES}
     # Threads per call: a call per device's share of the batch, and the devices' calls come at
     # once, so the cores are shared out between the devices.
-    self.threads = max(1, (os.cpu_count() or 1) // len(jax.local_devices()))
+    self.threads = max(1, parallel.cores() // len(jax.local_devices()))
     # Batches not in use, by size: a mujoco.batch.Batch serves one call at a time, and each
     # call may come from any of XLA's threads (one Batch per thread, in a threading.local, was
     # freed with the thread's state and crashed the process).
@@ -75,7 +85,7 @@ class CPhysics:
       field = batch.bind(name)
       field[:] = np.reshape(x, field.shape)
     run(batch)
-    out = {f: np.reshape(batch.bind(f), lead + self._shapes[f]).astype(np.float32)
+    out = {f: np.reshape(batch.bind(f), lead + self._shapes[f]).astype(self._dtypes[f])
            for f in fields}
     with self._lock:
       self._idle[n].append(batch)

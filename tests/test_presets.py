@@ -152,7 +152,7 @@ def test_cli_starts_from_the_robot_preset():
   assert (d4pg.policy_layers, d4pg.critic_layers) == ((128, 128), (128, 128))
   assert cfg.agent_config().critic_layers == (256, 256)
   # The other robots' D4PG take the Hopper's cpu settings, but HalfCheetah's seeds stood still
-  # with them, so it keeps D4PG's cpu preset as it is.
+  # with them, so it keeps D4PG's cpu defaults as they are.
   hopper = presets.get("Hopper", "cpu").agent_overrides
   for robot in ("Walker2D", "Ant", "Humanoid"):
     assert run_config("--env", robot).agent_overrides == hopper
@@ -168,7 +168,7 @@ def test_cli_starts_from_the_robot_preset():
   assert (acme.agent_defaults, acme.agent_overrides) == ("acme", {"sigma": 0.25})
   assert acme.agent_config() == dataclasses.replace(agents.config("d4pg", "acme"), sigma=0.25)
   assert run_config("--env", "Hopper", "--agent-defaults", "cpu").agent_overrides == hopper
-  # With no flags: D4PG's cpu preset and the trainer's defaults (the README's main job).
+  # With no flags: the Hopper's cpu preset (the README's main job).
   cfg = run_config()
   assert (cfg.agent, cfg.agent_defaults, cfg.train, cfg.eval_every) == (
       "d4pg", "cpu", TrainConfig(), 200_000)
@@ -189,8 +189,9 @@ def test_run_stops_once_every_member_reaches_the_target(tmp_path, capsys):
 
 
 def test_the_gpu_preset_on_a_cpu_says_so():
-  assert "bash scripts/setup.sh cuda" in opening.preset_warning("gpu", "cpu")
-  assert opening.preset_warning("gpu", "gpu") is None and opening.preset_warning("cpu", "cpu") is None
+  assert "bash scripts/setup.sh cuda" in opening.gpu_sizes_warning("gpu", "cpu")
+  assert opening.gpu_sizes_warning("gpu", "gpu") is None
+  assert opening.gpu_sizes_warning("cpu", "cpu") is None
 
 
 class Stilts(envs.LocomotionEnv):

@@ -34,12 +34,16 @@ _SETTINGS = ("jax_enable_x64", "jax_default_matmul_precision", "jax_use_shardy_p
              "jax_threefry_partitionable")
 
 
-def jit(fun, identity: str | None, name: str, **jit_kwargs) -> Kept:
+def jit(fun, identity: str | None, name: str, exported: bool = True, **jit_kwargs) -> Kept:
   """`jax.jit(fun, **jit_kwargs)` through its export, the program kept under `identity` where
   one is given: a text, the same in every process, that names all `fun` closes over besides
-  this package's code. Static arguments are refused (the key holds no argument's value)."""
+  this package's code. Static arguments are refused (the key holds no argument's value).
+  exported=False, for a function that calls the host (which `jax.export` cannot serialise):
+  `jax.jit`'s function, neither exported nor kept."""
   if {"static_argnums", "static_argnames"} & set(jit_kwargs):
     raise ValueError(f"kept.jit takes no static arguments, got {sorted(jit_kwargs)}")
+  if not exported:
+    return jax.jit(fun, **jit_kwargs)
   return Kept(jax.jit(fun, **jit_kwargs), identity, name, jit_kwargs)
 
 

@@ -9,11 +9,20 @@ On some JAX versions XLA's Shardy partitioner crashes compiling our programs ove
 `mjx_hopper.setup` then switches the process to the GSPMD partitioner.
 """
 
+import os
+
 import jax
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 BATCH = PartitionSpec("batch")
+
+
+def cores() -> int:
+  """The CPU cores this process may run on."""
+  if hasattr(os, "sched_getaffinity"):  # Linux: the cores it is allowed, not the machine's
+    return len(os.sched_getaffinity(0))
+  return os.cpu_count() or 1
 
 
 def mesh(devices, axis_names: tuple[str, ...]) -> Mesh:

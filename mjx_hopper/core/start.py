@@ -5,14 +5,13 @@ from __future__ import annotations
 
 import concurrent.futures
 import functools
-import os
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjx_hopper.core import train
+from mjx_hopper.core import parallel, train
 
 
 # The fewest cores on which the evaluation is traced while the chunk compiles: one for the
@@ -55,7 +54,7 @@ def start(trainer: train.Trainer, init, lower_evaluation) -> Started:
   refill = lines[1].submit(trainer.refill.lower(shapes.env, BEGIN).compile)
   state = lines[1].submit(lambda: _begun(init(begin=False), refill.result()))
   finite = lines[1].submit(finite_members.lower(shapes.agent).compile)
-  lowered = lower_evaluation(shapes.agent) if _cores() >= TRACE_BESIDE_FROM_CORES else None
+  lowered = lower_evaluation(shapes.agent) if parallel.cores() >= TRACE_BESIDE_FROM_CORES else None
 
   def evaluation_after_the_first_row():
     # The evaluation's compile waits for the programs of the first training row, which it
@@ -80,9 +79,3 @@ def finite_members(tree) -> jax.Array:
             if jnp.issubdtype(x.dtype, jnp.floating) and x.size]
   return jnp.stack(checks).all(0)
 
-
-def _cores() -> int:
-  """The CPU cores this process may run on."""
-  if hasattr(os, "sched_getaffinity"):  # Linux: the cores it is allowed, not the machine's
-    return len(os.sched_getaffinity(0))
-  return os.cpu_count() or 1

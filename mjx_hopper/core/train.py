@@ -147,6 +147,12 @@ def make_trainer(env: LocomotionEnv, agent: Agent, cfg: TrainConfig, eval_episod
                  cfg, env, agent, num_members, where.shardings)
 
 
+def _exported(env) -> bool:
+  """Whether `env`'s programs go through `jax.export` (`kept`): not where its step calls the
+  host."""
+  return not getattr(env, "calls_host", False)
+
+
 def make_evaluate(env: LocomotionEnv, agent: Agent, eval_episodes: int, num_members: int,
                   devices: list | Mesh | None = None, identity: str | None = None):
   """Trainer.evaluate: each member's `eval_episodes` episodes, jitted, over `devices` (a
@@ -154,7 +160,7 @@ def make_evaluate(env: LocomotionEnv, agent: Agent, eval_episodes: int, num_memb
   # One member's evaluation as plain code (vmap of one traces much slower), several under vmap.
   return kept.jit(per_member(
       lambda s, k: evaluate(env, agent, s, k, eval_episodes, devices=devices), num_members),
-      identity, "evaluate")
+      identity, "evaluate", exported=_exported(env))
 
 
 def _make_init(train_env: EpisodeStarts, agent: Agent, cfg: TrainConfig, where: Layout,
@@ -177,7 +183,7 @@ def _make_init(train_env: EpisodeStarts, agent: Agent, cfg: TrainConfig, where: 
         replay_ratio=jnp.asarray(ratio, jnp.float32))
 
   compiled_init = kept.jit(jax.vmap(init_member), identity, "init_member",
-                           out_shardings=where.shardings)
+                           exported=_exported(env), out_shardings=where.shardings)
 
   def init(seeds, hparams=None, begin=True):
     # NumPy until the one compiled call: eager JAX here would compile programs of its own.
@@ -203,7 +209,8 @@ def _make_refill(train_env: EpisodeStarts, where: Layout, identity: str | None):
   replicated = NamedSharding(where.mesh, P())
   return kept.jit(jax.shard_map(refill, mesh=where.mesh, in_specs=(where.specs.env, P()),
                                 out_specs=where.specs.env, check_vma=False),
-                  identity, "refill", in_shardings=(where.shardings.env, replicated),
+                  identity, "refill", exported=_exported(train_env),
+                  in_shardings=(where.shardings.env, replicated),
                   out_shardings=where.shardings.env, donate_argnums=0)
 
 
@@ -297,7 +304,7 @@ def _make_chunk(train_env: EpisodeStarts, agent: Agent, cfg: TrainConfig, where:
   return kept.jit(
       jax.shard_map(chunk, mesh=where.mesh, in_specs=(where.specs,),
                     out_specs=(where.specs, P(MEMBERS)), check_vma=False),
-      identity, "chunk", in_shardings=(where.shardings,),
+      identity, "chunk", exported=_exported(train_env), in_shardings=(where.shardings,),
       out_shardings=(where.shardings, per_member_out), donate_argnums=0)
 
 

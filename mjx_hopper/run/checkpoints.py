@@ -24,6 +24,23 @@ def check_which(which: str) -> None:
     raise ValueError(f"which must be 'best' or 'latest', got {which!r}")
 
 
+def built_here(cfg: RunConfig, print_fn=print) -> RunConfig:
+  """A checkpoint's `cfg` as this process builds it: on MJX, saying so, where it trained on
+  MuJoCo C (which runs on the CPU alone) and JAX runs on an accelerator. The engine is not the
+  task: a checkpoint reads, evaluates and trains on under either."""
+  platform = _platform()
+  if cfg.physics != "c" or platform == "cpu":
+    return cfg
+  print_fn(f"the checkpoint trained on MuJoCo C's physics, which runs on the CPU alone: it runs "
+           f"on MJX's here ({platform})")
+  return dataclasses.replace(cfg, physics="mjx")
+
+
+def _platform() -> str:
+  """The platform of this process's first device, where its envs are built."""
+  return jax.local_devices()[0].platform
+
+
 def restore(directory: str, print_fn=print, env: Any = None):
   """(RunConfig, TrainState, Trainer) of the newest readable checkpoint in `directory`, replay
   included: after a Colab restart, the one call that gets a run back. `env` is the run's task,
@@ -67,8 +84,9 @@ def load_member(directory: str, member: int | str | None = None, env: Any = None
     saved = Saved.read(mngr, step, env)
     position = saved.position(member)
     members = saved.member_settings()
-    trainer = trainers.build(saved.config, len(members))
-    like = jax.eval_shape(lambda k: trainers.init(saved.config, trainer, members).agent, 0)
+    cfg = built_here(saved.config, print_fn)
+    trainer = trainers.build(cfg, len(members))
+    like = jax.eval_shape(lambda k: trainers.init(cfg, trainer, members).agent, 0)
     agents_state, best = saved.agents(mngr, like, which)
     score = saved.record.get("best_return", [None] * len(members))[position] if best else None
     if score is not None:
@@ -79,8 +97,8 @@ def load_member(directory: str, member: int | str | None = None, env: Any = None
     else:
       print_fn(f"the latest policy, at {step * trainer.config.steps_per_iteration:,} env steps"
                + ("" if which == "latest" else " (no evaluation was saved yet)"))
-    return Member(saved.config, jax.tree.map(lambda x: x[position], agents_state), trainer,
-                  saved, position, best)
+    return Member(cfg, jax.tree.map(lambda x: x[position], agents_state), trainer, saved,
+                  position, best)
 
   return store.load_newest(mngr, load)[1]
 
@@ -129,10 +147,11 @@ def _restore(directory: str, print_fn, env: Any, with_best: bool = False):
   def load(step):
     saved = Saved.read(mngr, step, env)
     members = saved.member_settings()
-    trainer = trainers.build(saved.config, len(members))
-    state = store.read_state(mngr, step, trainers.init(saved.config, trainer, members))
+    cfg = built_here(saved.config, print_fn)
+    trainer = trainers.build(cfg, len(members))
+    state = store.read_state(mngr, step, trainers.init(cfg, trainer, members))
     best = store.read_best(mngr, step, state.agent) if with_best else None
-    return saved.config, state, trainer, saved, best
+    return cfg, state, trainer, saved, best
 
   step, out = store.load_newest(mngr, load, print_fn)
   print_fn(f"restored {directory}, step {step}")

@@ -89,7 +89,7 @@ def resume(directory: str, progress: bool = True, print_fn=print, env: Any = Non
   fields that may change between a run and its resumption (total_env_steps, max_minutes, ...);
   one the saved state depends on is refused, naming it. `env` is the run's task, for one that
   cannot be imported (defined in a notebook)."""
-  cfg = checkpoints.saved_config(directory, print_fn, env)
+  cfg = checkpoints.built_here(checkpoints.saved_config(directory, print_fn, env), print_fn)
   return run(dataclasses.replace(cfg, **changes), checkpoint_dir=directory, progress=progress,
              print_fn=print_fn, progress_fn=progress_fn)
 

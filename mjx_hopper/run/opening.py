@@ -139,7 +139,7 @@ def assemble(plan: Plan, resumed, started, saver, say, progress_fn, t_start: flo
                   id_fields=display.id_fields, wandb_project=cfg.wandb if primary else None,
                   wandb_config=plan.saved_config)
   say(header(cfg, trainer, len(mine), members.single))
-  if warning := preset_warning(cfg.agent_defaults, jax.devices()[0].platform):
+  if warning := gpu_sizes_warning(cfg.agent_defaults, jax.devices()[0].platform):
     say(warning)
   pbt_step = cfg.pbt and pbt.make_step(cfg.pbt, cfg.grid, trainer, cfg.seed, say)
   return Parts(cfg, plan.folder, trainer, members, evaluator,
@@ -213,21 +213,24 @@ class Until:
     return self.total_reached(env_steps) or time.perf_counter() >= self.deadline
 
 
-def preset_warning(agent_defaults: str, platform: str) -> str | None:
-  """A line for a run of the gpu preset where JAX has no GPU (a CPU install, as on Colab's CPU
-  runtime): its sizes would train slowly."""
+def gpu_sizes_warning(agent_defaults: str, platform: str) -> str | None:
+  """A line for a run of the gpu settings (the gpu preset's, or the agent's gpu defaults) where
+  JAX has no GPU (a CPU install, as on Colab's CPU runtime): its sizes would train slowly."""
   if agent_defaults == "gpu" and platform == "cpu":
-    return ("the gpu preset's sizes are a GPU's, and JAX runs on the CPU here: install JAX's GPU "
-            "build (bash scripts/setup.sh cuda), or train the cpu preset (--preset cpu)")
+    return ("the gpu settings' sizes are a GPU's, and JAX runs on the CPU here: install JAX's GPU "
+            "build (bash scripts/setup.sh cuda), or train the cpu preset (--preset cpu, and "
+            "--agent-defaults cpu where it is given)")
   return None
 
 
 def header(cfg: RunConfig, trainer: train.Trainer, count: int, single: bool) -> str:
-  """The run's first line: its task, agent, members, envs, devices and chunk."""
+  """The run's first line: its task, agent, members, envs, physics (where not MJX), devices and
+  chunk."""
   config, each = trainer.config, "" if single else " each"
   per_chunk = config.steps_per_iteration * config.iterations_per_chunk
   return (f"{cfg.task_id} with {cfg.agent} ({cfg.agent_defaults}): "
-          f"{'' if single else f'{count} members, '}{config.num_envs} envs{each} on "
+          f"{'' if single else f'{count} members, '}{config.num_envs} envs{each}"
+          f"{' in MuJoCo C' if cfg.physics == 'c' else ''} on "
           f"{len(jax.devices())} {jax.devices()[0].platform} device(s)"
           f"{f' of {distributed.count()} processes' if distributed.count() > 1 else ''}, "
           f"{per_chunk:,} env steps and "

@@ -12,7 +12,7 @@ from mjx_hopper.settings.fields import check_types, setting
 class TrainConfig:
   """How to train; sizes count transitions (one env step of one env).
 
-  The defaults suit D4PG's cpu preset on a CPU. `replay_ratio` may differ per member, up to the
+  The defaults suit D4PG's cpu defaults on a CPU. `replay_ratio` may differ per member, up to the
   trainer's; the others shape the program.
   """
 
