@@ -90,7 +90,7 @@ PRESETS: dict[tuple[str, str], Preset] = {
                            why=_CPU_TUNED_WHY.format("9ac1947")),
     ("Ant", "gpu"): Preset(**_GPU, target=3000.0, env_steps=12_500_000, minutes=3.0,
                            why=_GPU_WHY),
-    ("Humanoid", "cpu"): Preset(**_CPU_TUNED, target=2500.0, env_steps=9_500_000, minutes=25.0,
+    ("Humanoid", "cpu"): Preset(**_CPU_TUNED, target=2500.0, env_steps=12_500_000, minutes=38.0,
                                 why=_CPU_TUNED_WHY.format("6ae7853")),
     ("Humanoid", "gpu"): Preset(**{**_GPU, "agent_overrides": {
         **_GPU["agent_overrides"], "critic_layers": (1024, 512, 256),
