@@ -34,7 +34,7 @@ _SETTINGS = ("jax_enable_x64", "jax_default_matmul_precision", "jax_use_shardy_p
              "jax_threefry_partitionable")
 
 
-def jit(fun, identity: str | None, name: str, exported: bool = True, **jit_kwargs) -> Kept:
+def jit(fun, identity: str | None, name: str, exported: bool = True, **jit_kwargs):
   """`jax.jit(fun, **jit_kwargs)` through its export, the program kept under `identity` where
   one is given: a text, the same in every process, that names all `fun` closes over besides
   this package's code. Static arguments are refused (the key holds no argument's value).
