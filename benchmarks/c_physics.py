@@ -40,6 +40,7 @@ def program_row(args) -> dict:
     import jax
 
     from mjx_hopper.core import rollout
+    from mjx_hopper.envs import mujoco_c
 
     devices = len(jax.devices())
     env = make_env(args.engine)
@@ -62,7 +63,7 @@ def program_row(args) -> dict:
       seconds.append(time.perf_counter() - start)
     rate = args.batch * steps / statistics.median(seconds)
   row = {"engine": args.engine, "devices": devices, "c_threads_per_device": (
-             env._c.threads if args.engine != "MJX" else None), "batch": args.batch,
+             mujoco_c.threads_per_call() if args.engine != "MJX" else None), "batch": args.batch,
          "steps": steps,
          "trace_s": t1 - t0, "lower_s": t2 - t1, "compile_s": t3 - t2,
          "env_steps_per_s": rate}

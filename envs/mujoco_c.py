@@ -30,6 +30,12 @@ POSES = ("xpos", "xipos", "xquat", "xanchor", "geom_xpos", "geom_xmat")
 INPUTS = STATE + ("ctrl",)
 
 
+def threads_per_call() -> int:
+  """MuJoCo C's threads for one call: a call steps one device's share of the batch, and the
+  devices' calls come at once, so the cores this process may use are shared out among them."""
+  return max(1, parallel.cores() // len(jax.local_devices()))
+
+
 class CPhysics:
   """An env's physics in MuJoCo C: `step` and `kinematics` take and return an mjx.Data, one
   env's or a batch's (under vmap the callback takes the whole batch at once)."""
@@ -45,9 +51,7 @@ class CPhysics:
     self.model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_AUTORESET
     self._shapes = {f: getattr(data0, f).shape for f in STATE + POSES}
     self._dtypes = {f: getattr(data0, f).dtype for f in STATE + POSES}
-    # Threads per call: a call per device's share of the batch, and the devices' calls come at
-    # once, so the cores are shared out between the devices.
-    self.threads = max(1, parallel.cores() // len(jax.local_devices()))
+    self.threads = threads_per_call()
     # Batches not in use, by size: a mujoco.batch.Batch serves one call at a time, and each
     # call may come from any of XLA's threads (one Batch per thread, in a threading.local, was
     # freed with the thread's state and crashed the process).
