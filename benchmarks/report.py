@@ -216,10 +216,9 @@ def summary() -> str:
     rows.append([robot, num(e["mjx1"] / e["pybullet"], 1), num(published.get("sac")),
                  num(published.get("tqc"))])
   return "\n\n".join([
-      "Each robot's times to score are in the sections below (and the README's table). "
-      "× PyBullet: MJX's env steps/s over PyBullet's, on one core each. rl-zoo: "
-      f"rl-baselines3-zoo's published SAC and TQC returns on PyBullet after 1M env steps "
-      f"(`{RL_ZOO}`).",
+      "Times to score: the sections below. × PyBullet: MJX's env steps/s over PyBullet's, "
+      "one core each. rl-zoo: rl-baselines3-zoo's SAC and TQC returns on PyBullet after 1M "
+      f"env steps (`{RL_ZOO}`).",
       table(["robot", "× PyBullet", "rl-zoo SAC", "rl-zoo TQC"], rows)])
 
 
@@ -251,9 +250,8 @@ def time_section(title: str, method: str, runs: dict, unit: str, scale: float, d
 def sections() -> list[tuple[str, str, str, list[str]]]:
   """(title, method, table, results files) of each question after the summary."""
   explained = set()
-  out = [time_section("Time to score on one GPU", "Each robot's gpu preset, timed until an "
-                      "evaluation reaches the score; budget: the preset's, "
-                      f"{MARGIN:g} × the slowest seed's need.", GPU, "s", 1, 0,
+  out = [time_section("Time to score on one GPU", "Each robot's gpu preset, timed to the score; "
+                      f"budget: {MARGIN:g} × the slowest seed's need.", GPU, "s", 1, 0,
                       explained),
          time_section("Time to score on 2 CPU cores", "Each robot's cpu preset (another agent: "
                       "its own with the robot's settings), timed as above.", CPU, "min", 60, 1,
@@ -266,8 +264,8 @@ def sections() -> list[tuple[str, str, str, list[str]]]:
   env_files = sorted({ENV.get(robot, ENV_OTHERS) for robot in ROBOTS})
   cpus = sorted({load(name)["machine"] for name in env_files})
   out.append(("Env throughput on 2 CPU cores", "Auto-resetting envs, random actions: MJX's "
-              "best of 64, 256 and 4,096 envs on 1 and 2 XLA devices; MuJoCo C, the same model "
-              f"on 2 threads (physics only); PyBullet's env on one core. On {' and '.join(cpus)}.",
+              "best of 64, 256 and 4,096 envs on 1 and 2 XLA devices; MuJoCo C's physics on 2 "
+              f"threads; PyBullet on one core. On {' and '.join(cpus)}.",
               table(["robot", "PyBullet", "MJX, 1 core", "MJX, 2 cores", "MuJoCo C, 2 cores",
                      "MJX ÷ MuJoCo C"],
                     [[robot, num(e["pybullet"]), num(e["mjx1"]), num(e["mjx"]),
@@ -501,23 +499,20 @@ def c_physics_section() -> tuple[str, str, str, list[str]]:
     for engine, t in runs.items():
       start = [num(x, 1) for x in first[engine]] if robot == "Hopper" else ["-", "-"]
       trained.append([robot, engine, f"{t['reached']}/{t['seeds']}", num(t["median"], 1),
-                      num(t["fastest"], 1), num(t["slowest"], 1), num(t["env_steps"], 2),
-                      *start])
+                      num(t["env_steps"], 2), *start])
     ratios = ([num(c / m, 2) for c, m in zip(first["MuJoCo C"], first["MJX"])]
               if robot == "Hopper" else ["", ""])
     trained.append([robot, "C ÷ MJX", "", num(runs["MuJoCo C"]["median"]
-                                              / runs["MJX"]["median"], 2), "", "", "", *ratios])
+                                              / runs["MJX"]["median"], 2), "", *ratios])
   return ("MuJoCo C physics on 2 CPU cores",
-          "The Hopper's env step, its physics in MJX or in MuJoCo C (`--physics c`), random "
-          "actions, 2 XLA devices. Both " + ("pass" if passed else "do not all pass")
-          + " the PyBullet checks.",
+          "The Hopper's env step in MJX or MuJoCo C (`--physics c`), random actions, 2 XLA "
+          "devices. Both " + ("pass" if passed else "do not all pass") + " the PyBullet checks.",
           table(["envs", "MJX compile (s)", "C compile (s)", "C ÷ MJX", "MJX env steps/s",
                  "C env steps/s", "C ÷ MJX"], rows)
-          + "\n\nTrained to the cpu preset's score, seeds run fresh, cold, one engine after the "
-          "other; the Hopper's first training row (s from process start), in turns:\n\n"
-          + table(["robot", "physics", "reached", "median (min)", "fastest (min)",
-                   "slowest (min)", "M env steps to it", "first row, cold (s)", "warm (s)"],
-                  trained),
+          + "\n\nTo the cpu score, seeds fresh, cold; first training row from process start, "
+          "in turns:\n\n"
+          + table(["robot", "physics", "reached", "median (min)", "M env steps",
+                   "first row, cold (s)", "warm (s)"], trained),
           [C_PHYSICS, *(n for e in PHYSICS_TTS.values() for n in e.values()), start_file])
 
 
