@@ -28,7 +28,8 @@ import time
 import common
 
 THRESHOLDS = (1000, 2000, 2500)  # 1,000: standing through the episode (alive 1 a step)
-EPISODE_STEPS, EVAL_EPISODES, SEED = 1000, 16, 0
+# SEED is held out for our run (the presets were tuned on seeds 0-9); SB3's run takes it too.
+EPISODE_STEPS, EVAL_EPISODES, SEED = 1000, 16, 100
 # Brax's training notebook, `hopper` (SAC), and its locomotion PPO (`ant`); eval_every (env
 # steps between evaluations) and num_timesteps (an upper bound: runs stop at --minutes) are ours.
 BRAX = {
