@@ -45,6 +45,16 @@ def test_each_preset_is_the_one_its_results_measured_with_the_budget_they_need(k
       assert [ran["agent"], ran["agent_overrides"], ran["train"]] == json.loads(json.dumps(
           (preset.agent, preset.agent_overrides, dataclasses.asdict(preset.train)))), name
     assert (preset.env_steps, preset.minutes) == report.budget(names), (robot, kind)
+  # An event measured on its own task: its row in the table and its own preset agree too.
+  for (task, task_kind), preset in presets.TASK_PRESETS.items():
+    if task_kind == kind:
+      names = table[f"{task.split(':')[-1]} (an event)"]
+      ran = report.load(names[0])["figures"]
+      assert (ran["robot"], ran["target"]) == (task, preset.target)
+      assert [ran["agent"], ran["agent_overrides"], ran["train"]] == json.loads(json.dumps(
+          (preset.agent, preset.agent_overrides, dataclasses.asdict(preset.train)))), names
+      assert presets.get(task, kind) is preset
+      assert (preset.env_steps, preset.minutes) == report.budget(names), (task, kind)
 
 
 def test_the_budget_is_the_presets_unless_a_run_says_otherwise():
@@ -86,7 +96,9 @@ def test_other_agents_train_for_their_measured_budget_or_say_that_none_is_measur
   lines = {tuple(argv): flags.unmeasured_budget(cli.build_parser().parse_args(["train", *argv]))
            for argv in (["--agent", "ddpg"], ["--env", "Walker2D", "--agent", "ddpg"],
                         ["--env", "Walker2D", "--agent", "ddpg", "--max-minutes", "3"],
-                        ["--env", "mjx_hopper.envs.events:HighJump"], ["--agent-defaults", "acme"],
+                        ["--env", "mjx_hopper.envs.events:HighJump"],
+                        ["--env", "mjx_hopper.envs.events:HighJump", "--preset", "gpu"],
+                        ["--agent-defaults", "acme"],
                         ["--preset", "gpu"])}
   assert lines == {
       ("--agent", "ddpg"): None, ("--env", "Walker2D", "--agent", "ddpg", "--max-minutes", "3"):
@@ -94,8 +106,9 @@ def test_other_agents_train_for_their_measured_budget_or_say_that_none_is_measur
       ("--env", "Walker2D", "--agent", "ddpg"):
       "no budget is measured for ddpg on Walker2D (cpu): it trains 1,000,000 env steps, "
       "RunConfig's default, which may not reach a score; set --total-env-steps or --max-minutes",
-      ("--env", "mjx_hopper.envs.events:HighJump"):
-      "mjx_hopper.envs.events:HighJump trains for its robot's budget (Hopper's cpu preset), "
+      ("--env", "mjx_hopper.envs.events:HighJump"): None,  # measured on its own (TASK_PRESETS)
+      ("--env", "mjx_hopper.envs.events:HighJump", "--preset", "gpu"):
+      "mjx_hopper.envs.events:HighJump trains for its robot's budget (Hopper's gpu preset), "
       "measured on Hopper's own task; set --total-env-steps or --max-minutes to choose another",
       ("--agent-defaults", "acme"):
       "no budget is measured for the agent's acme defaults: it trains for the cpu preset's "

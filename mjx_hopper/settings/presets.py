@@ -99,6 +99,17 @@ PRESETS: dict[tuple[str, str], Preset] = {
 }
 
 
+# The events (envs/events.py) measured on their own task, by task id: their robot's preset with
+# their own agent settings, score and budget. Another task takes its robot's preset.
+TASK_PRESETS: dict[tuple[str, str], Preset] = {
+    ("mjx_hopper.envs.events:HighJump", "cpu"): Preset(**{
+        **_CPU_TUNED, "agent_overrides": {**_CPU_TUNED["agent_overrides"], "vmax": 900.0}},
+        target=1500.0, env_steps=4_000_000, minutes=8.0,
+        why="Hopper's cpu settings, a critic's support to 900 for the jump's larger returns "
+            "(evidence: a552af9)"),
+}
+
+
 # A robot of one's own, with no measured preset: D4PG's defaults of the kind with its trainer
 # layout, RunConfig's budget, no score.
 UNMEASURED = {kind: Preset(**settings, target=None, env_steps=RunConfig.total_env_steps,
@@ -107,13 +118,15 @@ UNMEASURED = {kind: Preset(**settings, target=None, env_steps=RunConfig.total_en
 
 
 def get(env, kind: str) -> Preset:
-  """The preset for `kind` ("gpu" or "cpu") of robot `env`, or of the robot that the task `env`
-  (a class, an instance or a `module:Class` path) subclasses; `UNMEASURED`'s for a robot of
-  one's own."""
-  robot = envs.robot_of(envs.task_class(env))
+  """The preset for `kind` ("gpu" or "cpu") of robot `env`, of the event `env` where measured
+  (`TASK_PRESETS`), else of the robot that the task `env` (a class, an instance or a
+  `module:Class` path) subclasses; `UNMEASURED`'s for a robot of one's own."""
+  cls = envs.task_class(env)
   if kind not in KINDS:
     raise ValueError(f"unknown robot preset {kind!r}; valid presets are {list(KINDS)}")
-  return PRESETS.get((robot, kind), UNMEASURED[kind])
+  if (envs.task_id(cls), kind) in TASK_PRESETS:
+    return TASK_PRESETS[envs.task_id(cls), kind]
+  return PRESETS.get((envs.robot_of(cls), kind), UNMEASURED[kind])
 
 
 # Other agents' settings on a robot where they were measured, over the agent's own defaults.
@@ -160,7 +173,7 @@ def unmeasured_budget(env, kind: str, agent: str) -> str | None:
     return (f"no budget is measured for {agent} on {robot} ({kind}): it trains "
             f"{RunConfig.total_env_steps:,} env steps, RunConfig's default, which may not reach "
             "a score; set --total-env-steps or --max-minutes")
-  if name != robot:
+  if name != robot and (name, kind) not in TASK_PRESETS:
     return (f"{name} trains for its robot's budget ({robot}'s {kind} preset), measured on "
             f"{robot}'s own task; set --total-env-steps or --max-minutes to choose another")
   return None
@@ -170,7 +183,7 @@ def run_config(env, kind: str, **changes):
   """The RunConfig of robot `env`'s `kind` preset, budget included, with fields replaced by
   `changes` (agent_overrides are merged into the preset's; `train` replaces its TrainConfig).
   A `total_env_steps` given without `max_minutes` replaces the whole budget. For a task of your
-  own (a subclass of a robot), the preset is its robot's."""
+  own (a subclass of a robot), the preset is its robot's; for an event, its own where measured."""
   preset = get(env, kind)
   if "total_env_steps" in changes:
     changes.setdefault("max_minutes", None)
