@@ -4,6 +4,7 @@ import dataclasses
 import json
 import pathlib
 import sys
+import warnings
 
 import pytest
 
@@ -86,13 +87,23 @@ def test_other_agents_train_for_their_measured_budget_or_say_that_none_is_measur
     assert [ran["agent"], ran["agent_overrides"]] == json.loads(json.dumps(
         [agent, presets.AGENT_OVERRIDES[robot, kind, agent]]))
     assert budget == report.budget(names), (robot, kind, agent)
-    cfg = presets.agent_run_config(robot, kind, agent)
+    with warnings.catch_warnings():
+      warnings.simplefilter("error")  # measured: nothing to say
+      cfg = presets.agent_run_config(robot, kind, agent)
     assert (cfg.total_env_steps, cfg.max_minutes) == budget
     cfg = presets.agent_run_config(robot, kind, agent, max_minutes=1.0)
     assert (cfg.total_env_steps, cfg.max_minutes) == (budget[0], 1.0)
     assert presets.unmeasured_budget(robot, kind, agent) is None
-  cfg = presets.agent_run_config("Walker2D", "cpu", "ddpg")
+  # From Python as from the CLI, a budget nobody measured is said, unless the run sets its own.
+  with pytest.warns(UserWarning, match=r"no budget is measured for ddpg on Walker2D \(cpu\)"):
+    cfg = presets.agent_run_config("Walker2D", "cpu", "ddpg")
   assert (cfg.total_env_steps, cfg.max_minutes) == (1_000_000, None)
+  with pytest.warns(UserWarning, match="HighJump trains for its robot's budget"):
+    presets.run_config(envs.events.HighJump, "gpu")
+  with warnings.catch_warnings():
+    warnings.simplefilter("error")
+    presets.agent_run_config("Walker2D", "cpu", "ddpg", max_minutes=3.0)
+    presets.run_config(envs.events.HighJump, "cpu")
   lines = {tuple(argv): flags.unmeasured_budget(cli.build_parser().parse_args(["train", *argv]))
            for argv in (["--agent", "ddpg"], ["--env", "Walker2D", "--agent", "ddpg"],
                         ["--env", "Walker2D", "--agent", "ddpg", "--max-minutes", "3"],

@@ -13,6 +13,7 @@ holding its evidence.
 from __future__ import annotations
 
 import dataclasses
+import warnings
 
 from mjx_hopper import envs
 from mjx_hopper.settings.config import RunConfig
@@ -150,6 +151,7 @@ def agent_run_config(env, kind: str, agent: str, **changes):
   robot = envs.robot_of(envs.task_class(env))
   if get(env, kind).agent == agent:
     return run_config(env, kind, **changes)
+  _warn_if_unmeasured(env, kind, agent, changes)
   overrides = {**AGENT_OVERRIDES.get((robot, kind, agent), {}),
                **changes.pop("agent_overrides", {})}
   if (robot, kind, agent) in AGENT_BUDGETS and "total_env_steps" not in changes:
@@ -179,12 +181,20 @@ def unmeasured_budget(env, kind: str, agent: str) -> str | None:
   return None
 
 
+def _warn_if_unmeasured(env, kind: str, agent: str, changes: dict) -> None:
+  """Warns with `unmeasured_budget`'s line where `changes` give no budget of their own."""
+  if not {"total_env_steps", "max_minutes"} & changes.keys():
+    if line := unmeasured_budget(env, kind, agent):
+      warnings.warn(line, stacklevel=3)
+
+
 def run_config(env, kind: str, **changes):
   """The RunConfig of robot `env`'s `kind` preset, budget included, with fields replaced by
   `changes` (agent_overrides are merged into the preset's; `train` replaces its TrainConfig).
   A `total_env_steps` given without `max_minutes` replaces the whole budget. For a task of your
   own (a subclass of a robot), the preset is its robot's; for an event, its own where measured."""
   preset = get(env, kind)
+  _warn_if_unmeasured(env, kind, preset.agent, changes)
   if "total_env_steps" in changes:
     changes.setdefault("max_minutes", None)
   overrides = {**preset.agent_overrides, **changes.pop("agent_overrides", {})}
