@@ -425,8 +425,7 @@ def iteration_section() -> tuple[str, str, str, list[str]]:
                             ("learner (replay samples in it)", "learner_s"),
                             ("whole chunk", "chunk_s"))]
   rows += [[name, *(num(d["run"][key], digits) for d in data.values())]
-           for name, key, digits in (("run: first row, from loop.run (s)", "first_row_run_s", 1),
-                                     ("run: chunks' env steps/s", "chunk_env_steps_per_s", 0),
+           for name, key, digits in (("run: chunks' env steps/s", "chunk_env_steps_per_s", 0),
                                      ("run: wall clock's env steps/s", "wall_env_steps_per_s", 0))]
   rows.append(["run: pauses after the first row (evaluations, logs, saves)",
                *(f"{d['run']['pause_share']:.1%}" for d in data.values())])
