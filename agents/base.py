@@ -91,6 +91,21 @@ class CommonConfig:
                          f"{layers!r}")
 
 
+# What an agent's "gpu" and "cpu" defaults change in acme's values (its config class's own): they
+# learn at 3e-4, and "cpu" has shallower networks, for a small CPU.
+GPU_CHANGES = {"learning_rate": 3e-4}
+CPU_CHANGES = {**GPU_CHANGES, "policy_layers": (256, 256), "critic_layers": (256, 256)}
+
+
+def named_defaults(config: type[CommonConfig], every: dict | None = None,
+                   tuned: dict | None = None) -> dict[str, CommonConfig]:
+  """An agent's named defaults: "acme" (`config`'s own values), "gpu" and "cpu" (with
+  GPU_CHANGES and CPU_CHANGES), each with `every` over it and the last two with `tuned`."""
+  every, tuned = every or {}, tuned or {}
+  return {"acme": config(**every), "gpu": config(**every, **GPU_CHANGES, **tuned),
+          "cpu": config(**every, **CPU_CHANGES, **tuned)}
+
+
 def hparams(cfg: CommonConfig) -> dict[str, np.ndarray]:
   """`cfg.DYNAMIC`'s settings as int32 or float32 arrays (NumPy's: made with JAX, each would be
   a program compiled at start)."""

@@ -5,20 +5,15 @@
 
 from __future__ import annotations
 
-from mjx_hopper.agents import critics, dpg
+from mjx_hopper.agents import base, critics, dpg
 from mjx_hopper.agents.base import Agent
 
 
 # The defaults are the NMA notebook's networks and acme's DDPG hyperparameters.
 Config = dpg.Config
 
-# "acme": the NMA notebook's acme settings; "gpu" and "cpu" learn at 3e-4 as D4PG's defaults do,
-# and "cpu" has D4PG's cpu networks.
-DEFAULTS = {
-    "acme": Config(),
-    "gpu": Config(learning_rate=3e-4),
-    "cpu": Config(policy_layers=(256, 256), critic_layers=(256, 256), learning_rate=3e-4),
-}
+# "acme": the NMA notebook's acme settings; "gpu" and "cpu" as every agent's (base.named_defaults).
+DEFAULTS = base.named_defaults(Config)
 
 State = dpg.State
 

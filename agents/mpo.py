@@ -71,22 +71,13 @@ class Config(CommonConfig):
       distributional.check_support(self.vmin, self.vmax, self.num_atoms)
 
 
-# As D4PG's: "gpu" and "cpu" learn at 3e-4 with the critic's support widened to [-150, 450]
-# (DMPO), and "cpu" has (256, 256) networks. Both also loosen acme's std constraint, which keeps
-# the std near its start for too long on the Hopper; a much looser one lets it collapse.
+# "gpu" and "cpu" as every agent's (base.named_defaults), and as D4PG's the critic's support
+# widened to [-150, 450] (DMPO). Both also loosen acme's std constraint, which keeps the std near
+# its start for too long on the Hopper; a much looser one lets it collapse.
 LOOSER_STD = dict(epsilon_stddev=1e-5, init_log_alpha_stddev=10.0)
-DEFAULTS = {
-    "acme": Config(),
-    "gpu": Config(learning_rate=3e-4, **LOOSER_STD),
-    "cpu": Config(policy_layers=(256, 256), critic_layers=(256, 256), learning_rate=3e-4,
-                  **LOOSER_STD),
-}
-DMPO_DEFAULTS = {
-    "acme": Config(distributional=True),
-    "gpu": Config(distributional=True, vmax=450.0, learning_rate=3e-4, **LOOSER_STD),
-    "cpu": Config(distributional=True, vmax=450.0, learning_rate=3e-4,
-                  policy_layers=(256, 256), critic_layers=(256, 256), **LOOSER_STD),
-}
+DEFAULTS = base.named_defaults(Config, tuned=LOOSER_STD)
+DMPO_DEFAULTS = base.named_defaults(Config, every={"distributional": True},
+                                    tuned={"vmax": 450.0, **LOOSER_STD})
 
 
 class Duals(NamedTuple):

@@ -62,7 +62,8 @@ def learner_row(case: dict, updates: int) -> dict:
   from jax.sharding import NamedSharding, PartitionSpec as P
 
   from mjx_hopper import agents
-  from mjx_hopper.core import parallel, replay
+  from mjx_hopper.core import replay
+  from mjx_hopper.process import parallel
   devices = jax.local_devices()
   mesh = parallel.mesh(devices, ("devices",))
   rng = np.random.default_rng(0)

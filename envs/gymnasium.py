@@ -33,7 +33,7 @@ except ImportError:
 import jax
 import numpy as np
 
-from mjx_hopper.core import parallel
+from mjx_hopper.process import parallel
 from mjx_hopper.envs.base import LocomotionEnv
 from mjx_hopper.envs.tasks import BUILT_IN, make
 

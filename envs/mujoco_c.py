@@ -20,7 +20,7 @@ import mujoco
 import mujoco.batch
 import numpy as np
 
-from mjx_hopper.core import parallel
+from mjx_hopper.process import parallel
 
 # What a C step reads of an env's mjx.Data and writes back: the state it continues from
 # (MuJoCo's mjSTATE_INTEGRATION but for inputs the env never sets), and the poses that

@@ -7,7 +7,8 @@ import pytest
 
 from conftest import make_env
 from mjx_hopper import envs
-from mjx_hopper.core import parallel, rollout
+from mjx_hopper.core import rollout
+from mjx_hopper.process import parallel
 
 
 def test_list_and_make():

@@ -15,7 +15,7 @@ from gymnasium.utils.env_checker import check_env  # noqa: E402
 from gymnasium.vector import AutoresetMode  # noqa: E402
 
 from mjx_hopper import envs  # noqa: E402
-from mjx_hopper.core import parallel  # noqa: E402
+from mjx_hopper.process import parallel  # noqa: E402
 
 EPISODE_STEPS = 12
 

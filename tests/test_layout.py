@@ -16,7 +16,7 @@ LEAVES = ("agents", "envs")  # installed as mjx_hopper.agents, mjx_hopper.envs
 # __init__ imports nothing); everything else there is the host layer (run.loop, settings.config,
 # core.evaluator, core.members, core.pbt, run.trainers, run.sweep, store, run.logger, faces.cli,
 # faces.notebook, settings.presets, faces.export, ...), which uses the leaves and never the reverse.
-SHARED = {"agents", "envs", "settings.fields", "core.parallel"}
+SHARED = {"agents", "envs", "settings.fields", "process.parallel"}
 
 
 def _floor(name: str) -> tuple[str, ...]:
@@ -108,7 +108,7 @@ def test_a_host_import_is_found_in_every_form(source):
 
 @pytest.mark.parametrize("source", [
     "import mjx_hopper",
-    "from mjx_hopper.core import parallel",
+    "from mjx_hopper.process import parallel",
     "from mjx_hopper.settings.fields import check_types",
     "from mjx_hopper.agents import distributional, networks",
     "from mjx_hopper.envs.base import LocomotionEnv",

@@ -7,7 +7,7 @@ from typing import Callable
 import jax
 import jax.numpy as jnp
 
-from mjx_hopper.core import parallel
+from mjx_hopper.process import parallel
 from mjx_hopper.envs import EpisodeStarts, LocomotionEnv
 
 Policy = Callable[[jax.Array, jax.Array], jax.Array]  # (obs (O,), key) -> action (A,)

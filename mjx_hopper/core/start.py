@@ -11,7 +11,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjx_hopper.core import parallel, train
+from mjx_hopper.core import train
+from mjx_hopper.process import parallel
 
 
 # The fewest cores on which the evaluation is traced while the chunk compiles: one for the

@@ -17,7 +17,8 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
 
 from mjx_hopper.agents.base import Agent
-from mjx_hopper.core import kept, parallel, replay, rollout
+from mjx_hopper.core import kept, replay, rollout
+from mjx_hopper.process import parallel
 from mjx_hopper.envs import EpisodeStarts, LocomotionEnv
 from mjx_hopper.settings.training import TrainConfig
 

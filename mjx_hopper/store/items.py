@@ -18,7 +18,8 @@ import jax
 import numpy as np
 
 import mjx_hopper
-from mjx_hopper.core import parallel, train
+from mjx_hopper.core import train
+from mjx_hopper.process import parallel
 from mjx_hopper.store.failures import check_space, failed
 from mjx_hopper.store.manifests import wait_and_record
 
