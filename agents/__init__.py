@@ -9,6 +9,7 @@ categorical critic), and `register` for an agent of your own.
 from __future__ import annotations
 
 import dataclasses
+import importlib
 from typing import Any, Callable, NamedTuple
 
 from mjx_hopper.agents import d4pg, ddpg, dpg, mpo
@@ -66,9 +67,23 @@ def list_agents() -> list[str]:
 
 
 def spec(name: str) -> Spec:
-  """What agent `name` declared; an unknown name is a ValueError listing the known ones."""
+  """What agent `name` declared: a registered name, or `module:name`, whose module's import
+  registers it (`register`), as the CLI's `--agent my_agents:linear`; an unknown name is a
+  ValueError listing the known ones."""
+  if name not in _AGENTS and ":" in name:
+    module, _, registered = name.partition(":")
+    try:
+      importlib.import_module(module)
+    except ImportError as error:
+      raise ValueError(f"cannot import the agent {name!r}: {error} (the module must be "
+                       "importable from the current directory or sys.path)") from None
+    if registered not in _AGENTS:
+      raise ValueError(f"module {module!r} registers no agent {registered!r} "
+                       f"(agents.register); registered agents are {list_agents()}")
+    return _AGENTS[registered]
   if name not in _AGENTS:
-    raise ValueError(f"unknown agent {name!r}; valid agents are {list_agents()}")
+    raise ValueError(f"unknown agent {name!r}; valid agents are {list_agents()}, or an agent of "
+                     "your own as 'module:name'")
   return _AGENTS[name]
 
 

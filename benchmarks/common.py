@@ -112,6 +112,57 @@ def worker(script: str, args: dict, devices: int, gpus: bool = True):
   return json.loads(done.stdout.strip().splitlines()[-1])
 
 
+def sweep(out_dir: str, flags: list[str], processes: int = 1, devices: int = 1,
+          gpus: bool = False) -> dict:
+  """`mjx-hopper sweep FLAGS` as users run it, from an empty compile cache in `out_dir`, over
+  `processes` processes of `devices // processes` devices each (`--distributed` with a local
+  coordinator where more than one). Returns its seconds from launch to the first train row and
+  to its end ("first_row_s", "wall_s"), and the env steps/s of all members: over the train rows
+  after the first, as log.csv gives them ("env_steps_per_s"), and over the whole run from
+  launch ("run_env_steps_per_s")."""
+  import socket
+
+  import mjx_hopper
+  with socket.socket() as free:
+    free.bind(("localhost", 0))
+    port = free.getsockname()[1]
+  per_process, procs, start = devices // processes, [], time.perf_counter()
+  for i in range(processes):
+    env = dict(os.environ, XLA_FLAGS=mjx_hopper.xla_flags_with_cpu_devices(per_process),
+               MJX_HOPPER_JAX_CACHE=os.path.join(out_dir, "jax_cache"), PYTHONUNBUFFERED="1")
+    if gpus:
+      env["CUDA_VISIBLE_DEVICES"] = ",".join(
+          str(i * per_process + d) for d in range(per_process))
+    distributed = ([] if processes == 1 else
+                   ["--distributed", "--coordinator", f"localhost:{port}", "--num-processes",
+                    str(processes), "--process-id", str(i)])
+    # The first process's lines are read as they come; the others' go to files, never to a
+    # pipe left unread.
+    output = subprocess.PIPE if i == 0 else open(f"{out_dir}_process_{i}.txt", "w")
+    procs.append(subprocess.Popen(
+        [sys.executable, "-m", "mjx_hopper.faces.cli", "--cpu-devices", str(per_process),
+         "sweep", *flags, "--out-dir", out_dir, *distributed], env=env, stdout=output,
+        stderr=subprocess.STDOUT, text=True))
+  first, lines = None, []
+  for line in procs[0].stdout:
+    lines.append(line)
+    if first is None and line.startswith("[train]"):
+      first = time.perf_counter() - start
+  for proc in procs:
+    proc.wait()
+    if proc.returncode:
+      raise SystemExit(f"the sweep over {processes} process(es) failed (exit "
+                       f"{proc.returncode}):\n" + "".join(lines)[-3000:])
+  wall = time.perf_counter() - start
+  with open(os.path.join(out_dir, "log.csv")) as f:
+    rows = [r for r in csv.DictReader(f) if r["kind"] == "train"]
+  rates = sorted({(int(r["env_steps"]), float(r["steps_per_s"])) for r in rows})
+  later = [rate for _, rate in rates[1:]] or [rate for _, rate in rates]
+  members = len({r.get("member") for r in rows})
+  return {"first_row_s": first, "wall_s": wall, "env_steps_per_s": sum(later) / len(later),
+          "run_env_steps_per_s": members * rates[-1][0] / wall}
+
+
 def evaluations(log_csv: str) -> dict[int, list[dict]]:
   """Each member's evaluations in a run's log.csv, in order, as {EVAL_FIELDS: value}."""
   out: dict[int, list[dict]] = {}

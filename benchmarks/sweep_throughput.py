@@ -1,94 +1,56 @@
-"""Sweep throughput: S members in one compiled program against S single runs one after another.
+"""Sweeps as users run them: `mjx-hopper sweep --seeds S` of D4PG on Hopper for each S, each in a
+fresh process from an empty compile cache, timed from its launch.
 
     python benchmarks/sweep_throughput.py                                  # 2-core CPU
+    python benchmarks/sweep_throughput.py --members 1,16,32 --gpus 1,2 --preset gpu
 
-Each S in a fresh process: S seeds of D4PG on Hopper learning from the first iteration, timed
-over --chunks chunks after a warm-up chunk (report.py sets their env steps/s against S = 1 on
-the fewest devices). With --gpus 1,2 each S runs on the first GPU, then on the first two.
-Compile is the chunk's, trace excluded; memory the busiest GPU's peak in use, or the process's
-peak RSS where the devices do not report it.
+Each S trains --env-steps env steps per member with the preset's settings; more sweep flags
+follow `--`. Records the seconds to the first train row, the env
+steps/s of all members over the train rows after the first (as log.csv gives them), and over the
+whole run from launch (compile included). report.py sets them against S = 1 on the fewest
+devices. With --gpus 1,2 each S runs on the first GPU, then on the first two.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import os
-import resource
 import sys
+import tempfile
 
 import common
 
 
-def measure(args) -> dict:
-  """One sweep of args.members members: compile time, rates and memory."""
-  import mjx_hopper
-  mjx_hopper.setup()  # before the package loads (and anything compiles)
-  import jax
-
-  from mjx_hopper.run import trainers
-  from mjx_hopper.settings import config, flags
-  from mjx_hopper.settings.training import TrainConfig
-
-  cfg = config.RunConfig(
-      env=args.env, agent=args.agent, agent_defaults=args.preset,
-      agent_overrides=flags.overrides(args.set),
-      train=TrainConfig(num_envs=args.num_envs, unroll_length=args.unroll_length,
-                        batch_size=args.batch_size, replay_ratio=args.replay_ratio,
-                        replay_size=args.replay_size, min_replay=0,
-                        iterations_per_chunk=args.chunk),
-      seeds=tuple(range(args.members)) if args.members > 1 else ())
-  # Learning from the first iteration.
-  cfg = dataclasses.replace(cfg, train=dataclasses.replace(
-      cfg.train, min_replay=cfg.train.steps_per_iteration))
-  trainer = trainers.build(cfg)
-  timed = common.Timed(trainer.chunk, trainers.init(cfg, trainer, cfg.member_settings()),
-                       trainer=trainer)
-  seconds = timed(args.chunks)
-  per_chunk = args.members * cfg.train.steps_per_iteration * args.chunk * args.chunks
-  updates = args.members * cfg.train.updates_per_iteration * args.chunk * args.chunks
-  device = jax.local_devices()[0]
-  stats = [d.memory_stats() for d in jax.local_devices()] if device.platform == "gpu" else []
-  memory = (max(s["peak_bytes_in_use"] for s in stats) if stats and all(stats)
-            else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024)
-  return {"members": args.members, "compile_s": timed.compile_s, "memory_gb": memory / 1e9,
-          "env_steps_per_s": per_chunk / seconds, "updates_per_s": updates / seconds,
-          "platform": device.platform, "devices": len(jax.local_devices())}
-
-
 def main() -> None:
   p = common.parser(__doc__)
-  p.add_argument("--members", default="1,4,16,64", help="comma-separated sweep sizes")
-  p.add_argument("--env", default="Hopper")
-  p.add_argument("--agent", default="d4pg")
+  p.add_argument("--members", default="1,4,8", help="comma-separated sweep sizes")
   p.add_argument("--preset", default="cpu")
-  p.add_argument("--num-envs", type=int, default=128, help="envs per member")
-  p.add_argument("--unroll-length", type=int, default=4)
-  p.add_argument("--batch-size", type=int, default=256, help="per member")
-  p.add_argument("--replay-ratio", type=float, default=4.0)
-  p.add_argument("--replay-size", type=int, default=100_000, help="transitions per member")
-  p.add_argument("--chunk", type=int, default=5, help="iterations per chunk")
-  p.add_argument("--chunks", type=int, default=3, help="timed chunks")
-  p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
-                 help="an agent setting, such as compute_dtype=bfloat16 (repeatable)")
+  p.add_argument("--env-steps", type=int, default=100_000, help="env steps per member")
   p.add_argument("--cpu-devices", type=int, default=os.cpu_count() or 1)
   p.add_argument("--gpus", help="comma-separated GPU counts: every sweep size on the first N "
-                 "GPUs, for each N (default: on every visible GPU)")
+                 "GPUs, for each N (default: the CPU's devices)")
   p.add_argument("--label", default="cpu",
                  help="results: benchmarks/results/sweep_throughput_LABEL.json")
-  args = common.parse(p, measure)  # a worker: one sweep size in a process of its own
+  p.add_argument("extra", nargs="*", help="more sweep flags, after --")
+  args = p.parse_args()
+  flags = ["--env", "Hopper", "--agent", "d4pg", "--preset", args.preset, "--total-env-steps",
+           str(args.env_steps), "--eval-every", str(args.env_steps), "--no-progress",
+           "--log-every", "0", *args.extra]
   rows = []
   gpu_counts = [int(n) for n in args.gpus.split(",")] if args.gpus else [None]
-  for gpus in gpu_counts:
-    for members in [int(m) for m in args.members.split(",")]:
-      row = common.worker(__file__, dict(vars(args), members=members),
-                          gpus or args.cpu_devices, gpus is not None)
-      if row is None:  # the sizes before it are still written
-        break
-      rows.append(row)
-      print(f"  S = {members} on {row['devices']} device(s): {row['env_steps_per_s']:,.0f} env "
-            "steps/s", file=sys.stderr, flush=True)
+  with tempfile.TemporaryDirectory() as tmp:
+    for gpus in gpu_counts:
+      devices = gpus or args.cpu_devices
+      for members in [int(m) for m in args.members.split(",")]:
+        run = common.sweep(os.path.join(tmp, f"g{gpus}_s{members}"),
+                           [*flags, "--seeds", str(members)], devices=devices,
+                           gpus=gpus is not None)
+        rows.append({"members": members, "devices": devices,
+                     "platform": "cpu" if gpus is None else "gpu", **run})
+        print(f"  S = {members} on {devices} device(s): first row at {run['first_row_s']:.1f} "
+              f"s, {run['env_steps_per_s']:,.0f} env steps/s", file=sys.stderr, flush=True)
   common.write_results(f"sweep_throughput_{args.label}", {
-      "settings": {k: v for k, v in vars(args).items() if k != "worker"}, "rows": rows})
+      "method": "mjx-hopper sweep from launch, cold",
+      "settings": {k: v for k, v in vars(args).items()}, "rows": rows})
 
 
 if __name__ == "__main__":

@@ -5,6 +5,7 @@ names it."""
 
 import csv
 import dataclasses
+import sys
 from typing import NamedTuple
 
 import jax
@@ -16,7 +17,8 @@ import pytest
 from mjx_hopper import agents
 from mjx_hopper.agents import networks
 from mjx_hopper.agents.base import Agent, CommonConfig, hparams
-from mjx_hopper.faces import export, notebook
+import configs
+from mjx_hopper.faces import cli, export, notebook
 from mjx_hopper.run import loop
 from mjx_hopper.run.logger import Logger
 
@@ -121,6 +123,38 @@ def test_a_registered_agent_trains_sweeps_checkpoints_and_resumes(linear, tmp_pa
   obs = np.random.default_rng(0).normal(size=(4, policy.observation_size)).astype(np.float32)
   assert policy.meta["agent"] == linear
   np.testing.assert_allclose(policy(obs), np.tanh(obs @ np.asarray(state.policy)), rtol=1e-6)
+
+
+def test_an_agent_in_a_module_of_ones_own_trains_evaluates_and_exports_from_the_cli(
+    tmp_path, monkeypatch, capsys):
+  # The user's module registers it when imported: `--agent my_agents:linear` finds it there, in
+  # this process and in any other (a resume, eval or export reads the same name). Its programs
+  # are its own: no other quick test takes an agent of one's own through the CLI.
+  (tmp_path / "my_agents.py").write_text(
+      "from mjx_hopper import agents\n"
+      "import test_new_agent as mine  # this file's agent\n"
+      "agents.register('linear', mine.make_linear, mine.DEFAULTS, tiny={'n_step': 2},\n"
+      "                exported_policy=mine.linear_policy_layers)\n")
+  monkeypatch.syspath_prepend(str(tmp_path))
+  try:
+    run = str(tmp_path / "run")
+    cli.main([*configs.args_of(configs.tiny("my_agents:linear")), "--total-env-steps", "80",
+              "--out-dir", run])
+    assert agents.config("my_agents:linear") == agents.config("linear") == DEFAULTS["cpu"]
+    cli.main(["--cpu-devices", "2", "eval", "--checkpoint", f"{run}/checkpoints",
+              "--episodes", "2", "--video", f"{tmp_path}/v.mp4"])
+    cli.main(["export", "--checkpoint", f"{run}/checkpoints", "--out", f"{tmp_path}/p.npz"])
+    out = capsys.readouterr().out
+    assert "[eval]" in out and "over 2 episodes" in out, out
+    assert export.load(f"{tmp_path}/p.npz").meta["agent"] == "my_agents:linear"
+    assert (tmp_path / "v.mp4").stat().st_size > 0
+  finally:
+    agents._AGENTS.pop("linear", None)
+    sys.modules.pop("my_agents", None)
+  with pytest.raises(ValueError, match="module 'test_new_agent' registers no agent 'circle'"):
+    agents.config("test_new_agent:circle")
+  with pytest.raises(ValueError, match="cannot import the agent 'no_such_module:linear'"):
+    agents.config("no_such_module:linear")
 
 
 def test_the_terminal_line_shows_its_learner_metrics(linear):
