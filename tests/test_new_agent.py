@@ -125,32 +125,34 @@ def test_a_registered_agent_trains_sweeps_checkpoints_and_resumes(linear, tmp_pa
   np.testing.assert_allclose(policy(obs), np.tanh(obs @ np.asarray(state.policy)), rtol=1e-6)
 
 
-def test_an_agent_in_a_module_of_ones_own_trains_evaluates_and_exports_from_the_cli(
+def test_an_agent_in_a_module_of_ones_own_sweeps_evaluates_and_exports_from_the_cli(
     tmp_path, monkeypatch, capsys):
-  # The user's module registers it when imported: `--agent my_agents:linear` finds it there, in
-  # this process and in any other (a resume, eval or export reads the same name). Its programs
-  # are its own: no other quick test takes an agent of one's own through the CLI.
+  # The user's module registers it when imported: `--agent my_agents:mine` finds it there, in
+  # this process and in any other (a resume, eval or export reads the same name). The sweep is
+  # the one above, on the command line: its programs load from the compile cache.
   (tmp_path / "my_agents.py").write_text(
       "from mjx_hopper import agents\n"
-      "import test_new_agent as mine  # this file's agent\n"
-      "agents.register('linear', mine.make_linear, mine.DEFAULTS, tiny={'n_step': 2},\n"
-      "                exported_policy=mine.linear_policy_layers)\n")
+      "import test_new_agent as here  # this file's agent\n"
+      "agents.register('mine', here.make_linear, here.DEFAULTS, tiny={'n_step': 2},\n"
+      "                exported_policy=here.linear_policy_layers)\n")
   monkeypatch.syspath_prepend(str(tmp_path))
+  run = str(tmp_path / "run")
   try:
-    run = str(tmp_path / "run")
-    cli.main([*configs.args_of(configs.tiny("my_agents:linear")), "--total-env-steps", "80",
+    cli.main([*configs.args_of(configs.tiny("my_agents:mine"), "sweep"), "--set",
+              "replay_ratio=1.0,2.0", "--set", "n_step=1,3", "--total-env-steps", "80",
               "--out-dir", run])
-    assert agents.config("my_agents:linear") == agents.config("linear") == DEFAULTS["cpu"]
-    cli.main(["--cpu-devices", "2", "eval", "--checkpoint", f"{run}/checkpoints",
-              "--episodes", "2", "--video", f"{tmp_path}/v.mp4"])
-    cli.main(["export", "--checkpoint", f"{run}/checkpoints", "--out", f"{tmp_path}/p.npz"])
-    out = capsys.readouterr().out
-    assert "[eval]" in out and "over 2 episodes" in out, out
-    assert export.load(f"{tmp_path}/p.npz").meta["agent"] == "my_agents:linear"
-    assert (tmp_path / "v.mp4").stat().st_size > 0
+    assert agents.config("my_agents:mine") == agents.config("mine") == DEFAULTS["cpu"]
+    cli.main(["--cpu-devices", "2", "eval", "--checkpoint", f"{run}/checkpoints", "--member",
+              "2", "--episodes", "2", "--video", f"{tmp_path}/v.mp4"])
+    cli.main(["export", "--checkpoint", f"{run}/checkpoints", "--member", "2", "--out",
+              f"{tmp_path}/p.npz"])
   finally:
-    agents._AGENTS.pop("linear", None)
+    agents._AGENTS.pop("mine", None)
     sys.modules.pop("my_agents", None)
+  out = capsys.readouterr().out
+  assert "4 members" in out and "over 2 episodes" in out, out
+  assert export.load(f"{tmp_path}/p.npz").meta["agent"] == "my_agents:mine"
+  assert (tmp_path / "v.mp4").stat().st_size > 0
   with pytest.raises(ValueError, match="module 'test_new_agent' registers no agent 'circle'"):
     agents.config("test_new_agent:circle")
   with pytest.raises(ValueError, match="cannot import the agent 'no_such_module:linear'"):
