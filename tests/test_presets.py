@@ -9,10 +9,11 @@ import warnings
 import pytest
 
 from mjx_hopper import agents, envs
-from mjx_hopper.faces import cli
+from mjx_hopper.faces import cli, export
 from mjx_hopper.run import loop, opening
 from mjx_hopper.settings import flags, presets
 from mjx_hopper.settings.training import TrainConfig
+import configs
 from configs import POPULATION  # four members of a tiny run: 4 envs, eval every 40 env steps
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent.parent / "benchmarks"))
@@ -245,3 +246,29 @@ def test_a_robot_of_ones_own_is_registered_in_one_place(monkeypatch):
       "no preset is measured for Stilts (cpu): it trains d4pg with its cpu settings for "
       "1,000,000 env steps, RunConfig's default, which may not reach a score; set "
       "--total-env-steps or --max-minutes")
+
+
+class Twin(envs.LocomotionEnv):
+  """A robot of one's own with the Hopper's model and constants, so that its programs are the
+  Hopper's, which the suite has compiled (configs.TINY)."""
+
+  xml_file, joints, feet = envs.Hopper.xml_file, envs.Hopper.joints, envs.Hopper.feet
+  power, power_coefs, initial_z = envs.Hopper.power, envs.Hopper.power_coefs, envs.Hopper.initial_z
+  alive_bonus = envs.Hopper.alive_bonus
+
+
+def test_a_robot_of_ones_own_trains_evaluates_and_exports_from_the_cli(tmp_path, capsys):
+  # Defined in this file and named as module:Class, with no preset of its own (D4PG's cpu
+  # defaults); eval and export find it by the name its checkpoint saved.
+  run = str(tmp_path / "run")
+  args = configs.args_of(dataclasses.replace(configs.TINY, env=Twin))
+  assert args[args.index("--env") + 1] == "test_presets:Twin"
+  cli.main([*args, "--total-env-steps", "80", "--out-dir", run])
+  cli.main(["--cpu-devices", "2", "eval", "--checkpoint", f"{run}/checkpoints", "--episodes", "2",
+            "--video", f"{tmp_path}/v.mp4"])
+  cli.main(["export", "--checkpoint", f"{run}/checkpoints", "--out", f"{tmp_path}/p.npz"])
+  out = capsys.readouterr().out
+  assert "test_presets:Twin / d4pg: return" in out and "over 2 episodes" in out, out
+  policy = export.load(f"{tmp_path}/p.npz")
+  assert (policy.observation_size, policy.action_size) == (15, 3)
+  assert (tmp_path / "v.mp4").stat().st_size > 0
