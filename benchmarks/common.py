@@ -137,10 +137,10 @@ def sweep(out_dir: str, flags: list[str], processes: int = 1, devices: int = 1,
                    ["--distributed", "--coordinator", f"localhost:{port}", "--num-processes",
                     str(processes), "--process-id", str(i)])
     # The first process's lines are read as they come; the others' go to files, never to a
-    # pipe left unread.
+    # pipe left unread. -P: the installed package, not a checkout's folder of the same name.
     output = subprocess.PIPE if i == 0 else open(f"{out_dir}_process_{i}.txt", "w")
     procs.append(subprocess.Popen(
-        [sys.executable, "-m", "mjx_hopper.faces.cli", "--cpu-devices", str(per_process),
+        [sys.executable, "-P", "-m", "mjx_hopper.faces.cli", "--cpu-devices", str(per_process),
          "sweep", *flags, "--out-dir", out_dir, *distributed], env=env, stdout=output,
         stderr=subprocess.STDOUT, text=True))
   first, lines = None, []

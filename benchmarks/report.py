@@ -27,7 +27,8 @@ TTS = "time_to_score_{}.json"
 GPU = {"Hopper": [TTS.format("Hopper_gpu_heldout")],
        **{robot: [TTS.format(f"{robot}_gpu_heldout"), TTS.format(f"{robot}_gpu_heldout2")]
           for robot in ROBOTS[1:]},
-       "AntLongJump (an event)": [TTS.format("AntLongJump_h100")]}
+       "AntLongJump (an event)": [TTS.format(f"AntLongJump_gpu_heldout{n}")
+                                  for n in ("", "2", "3")]}
 CPU = {"Hopper": [TTS.format("Hopper_cpu_heldout")],
        "Walker2D": [TTS.format("Walker2D_cpu_heldout")],
        "HalfCheetah": [TTS.format("HalfCheetah_cpu_seeds1-3")],
@@ -38,10 +39,10 @@ CPU = {"Hopper": [TTS.format("Hopper_cpu_heldout")],
        "HighJump (an event)": [TTS.format("HighJump_cpu_heldout")]}
 ENV = {"Hopper": "env_throughput_hopper_cpu.json", "Humanoid": "env_throughput_humanoid_cpu.json"}
 ENV_OTHERS = "env_throughput_cpu_4robots.json"
-PEERS = ("peers_h200.json", "peers_cpu.json")
+PEERS = ("peers_h100.json", "peers_cpu.json")
 RL_ZOO = "rl_zoo.json"
 LEARNER = ("learner_robots_h100.json", "learner_robots_bf16_h100.json")
-SWEEPS = ("sweep_throughput_2gpu_h200.json", "sweep_throughput_cpu.json")
+SWEEPS = ("sweep_throughput_h100.json", "sweep_throughput_cpu.json")
 PBT = "pbt_quality_halfcheetah_h100x2.json"
 START = {"one H200": "start_time_h200.json", "2 CPU cores": "start_time_cpu.json"}
 DISTRIBUTED = ("distributed_gpu2.json", "distributed_cpu2.json")
@@ -421,10 +422,9 @@ def sweep_section() -> tuple[str, str, str, list[str]]:
           "from launch: env steps/s", "timed"]
   if len(methods) == 1:
     head, rows = head[:-1], [row[:-1] for row in rows]
-  return ("Sweeps", "S seeds of D4PG on Hopper in one program, each S by `mjx-hopper sweep` in "
-          "a fresh process, empty cache, from launch: env steps/s over the rows after the "
-          "first, and over the whole run; × one run: over S = 1 on the fewest devices. The "
-          "chunk alone: the compiled chunk after a warm-up one (an earlier method).",
+  return ("Sweeps", "S seeds of D4PG on Hopper in one program: `mjx-hopper sweep`, a fresh "
+          "process per S, empty cache, from launch; env steps/s after the first row and over "
+          "the whole run; × one run: over S = 1. The chunk alone: an earlier method.",
           table(head, rows), list(SWEEPS))
 
 

@@ -108,6 +108,9 @@ TASK_PRESETS: dict[tuple[str, str], Preset] = {
         target=1500.0, env_steps=4_000_000, minutes=8.0,
         why="Hopper's cpu settings, a critic's support to 900 for the jump's larger returns "
             "(evidence: a552af9)"),
+    ("mjx_hopper.envs.events:AntLongJump", "gpu"): Preset(
+        **_GPU, target=3000.0, env_steps=8_000_000, minutes=3.0,
+        why="the Ant's gpu preset, its budget measured on the jump (evidence: c06d75e)"),
 }
 
 
