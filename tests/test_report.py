@@ -63,7 +63,8 @@ def test_a_time_to_score_file_of_fresh_processes_holds_held_out_seeds(tmp_path, 
     report.time_to_score(["c.json"])
 
 
-@pytest.mark.parametrize("method", [None, "seeds in turn"])
+# "in turn": seeds one after another in one process, only the first from process start.
+@pytest.mark.parametrize("method", [None, "seeds in turn", "in turn"])
 def test_a_time_to_score_file_that_does_not_say_how_its_seeds_ran_is_refused(
     tmp_path, monkeypatch, method):
   figures = {"target": 2500.0, "agent": "d4pg", "seeds": {}, "method": method}
@@ -77,7 +78,7 @@ def test_a_time_to_score_file_that_does_not_say_how_its_seeds_ran_is_refused(
 
 def test_a_time_section_names_each_rows_method_where_they_differ(tmp_path, monkeypatch):
   seeds = {"100": {"target_wall_s": 30.0, "target_env_steps": 10**6}}
-  for name, method in (("a.json", "fresh, cold"), ("b.json", "in turn")):
+  for name, method in (("a.json", "fresh, cold"), ("b.json", "fresh, warm")):
     (tmp_path / name).write_text(json.dumps({"figures": {
         "method": method, "target": 2500.0, "agent": "d4pg", "seeds": seeds}}))
   monkeypatch.setattr(report, "RESULTS", tmp_path)
@@ -85,10 +86,11 @@ def test_a_time_section_names_each_rows_method_where_they_differ(tmp_path, monke
                                          "s", 1, 0)
   assert rows.splitlines()[0].endswith("| seeds run |")
   assert rows.splitlines()[2].endswith("| fresh, cold |")
-  assert rows.splitlines()[3].endswith("| in turn |")
+  assert rows.splitlines()[3].endswith("| fresh, warm |")
   assert text.startswith("Timed. Seeds run fresh, cold: held-out seeds (100 up), each by "
                          "`mjx-hopper train` in a fresh process")
-  assert "; in turn: seeds one after another in one process" in text
+  assert "; fresh, warm: held-out seeds (100 up), each by `mjx-hopper train` in a fresh " \
+         "process from a cache the same settings filled" in text
   _, _, rows, _ = report.time_section("t", "Timed.", {"A": ["a.json", "b.json"]}, "s", 1, 0)
   assert "| 2 | 2 |" in rows  # a row of two files' seeds, one each way, explained
   _, text, rows, _ = report.time_section("t", "Timed.", {"A": ["a.json"]}, "s", 1, 0)
