@@ -43,6 +43,7 @@ PEERS = ("peers_h100.json", "peers_cpu.json")
 RL_ZOO = "rl_zoo.json"
 LEARNER = ("learner_robots_h100.json", "learner_robots_bf16_h100.json")
 SWEEPS = ("sweep_throughput_h100.json", "sweep_throughput_cpu.json")
+SWEPT = "mjx-hopper sweep from launch, cold"  # sweep_throughput.py's method
 PBT = "pbt_quality_halfcheetah_h100x2.json"
 START = {"one H200": "start_time_h200.json", "2 CPU cores": "start_time_cpu.json"}
 DISTRIBUTED = ("distributed_gpu2.json", "distributed_cpu2.json")
@@ -406,27 +407,22 @@ def fidelity_table() -> str:
 
 
 def sweep_section() -> tuple[str, str, str, list[str]]:
-  """Sweeps of S seeds, each S in a fresh process: `mjx-hopper sweep` from launch, or (an
-  earlier method, said in its rows) the compiled chunk alone."""
-  rows, methods = [], set()
+  """Sweeps of S seeds, each S by `mjx-hopper sweep` in a fresh process, timed from launch."""
+  rows = []
   for name in SWEEPS:
     found = load(name)["figures"]
+    if found.get("method") != SWEPT:
+      raise SystemExit(f"report.py: {name} was not timed from the launch of mjx-hopper sweep; "
+                       "run benchmarks/sweep_throughput.py again")
     base = min((r for r in found["rows"] if r["members"] == 1), key=lambda r: r["devices"])
-    from_launch = found.get("method") == "mjx-hopper sweep from launch, cold"
-    methods.add(from_launch)
-    rows += [[machine(name), r["devices"], r["members"],
-              num(r.get("first_row_s"), 1), num(r["env_steps_per_s"]),
-              num(r["env_steps_per_s"] / base["env_steps_per_s"], 2),
-              num(r.get("run_env_steps_per_s")),
-              "from launch" if from_launch else "the chunk alone"] for r in found["rows"]]
-  head = ["machine", "devices", "members", "first row (s)", "env steps/s", "× one run",
-          "from launch: env steps/s", "timed"]
-  if len(methods) == 1:
-    head, rows = head[:-1], [row[:-1] for row in rows]
-  return ("Sweeps", "S seeds of D4PG on Hopper in one program: `mjx-hopper sweep`, a fresh "
-          "process per S, empty cache, from launch; env steps/s after the first row and over "
-          "the whole run; × one run: over S = 1. The chunk alone: an earlier method.",
-          table(head, rows), list(SWEEPS))
+    rows += [[machine(name), r["devices"], r["members"], num(r["first_row_s"], 1),
+              num(r["env_steps_per_s"]), num(r["env_steps_per_s"] / base["env_steps_per_s"], 2),
+              num(r["run_env_steps_per_s"])] for r in found["rows"]]
+  return ("Sweeps", "S seeds of D4PG on Hopper in one program by `mjx-hopper sweep`, a fresh "
+          "process per S, empty cache, from launch: env steps/s after the first row and over the "
+          "whole run; × one run: over S = 1.",
+          table(["machine", "devices", "members", "first row (s)", "env steps/s", "× one run",
+                 "whole run: env steps/s"], rows), list(SWEEPS))
 
 
 def iteration_section() -> tuple[str, str, str, list[str]]:
