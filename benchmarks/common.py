@@ -126,7 +126,7 @@ def sweep(out_dir: str, flags: list[str], processes: int = 1, devices: int = 1,
   with socket.socket() as free:
     free.bind(("localhost", 0))
     port = free.getsockname()[1]
-  per_process, procs, start = devices // processes, [], time.perf_counter()
+  per_process, procs, files, start = devices // processes, [], [], time.perf_counter()
   for i in range(processes):
     env = dict(os.environ, XLA_FLAGS=mjx_hopper.xla_flags_with_cpu_devices(per_process),
                MJX_HOPPER_JAX_CACHE=os.path.join(out_dir, "jax_cache"), PYTHONUNBUFFERED="1")
@@ -138,7 +138,9 @@ def sweep(out_dir: str, flags: list[str], processes: int = 1, devices: int = 1,
                     str(processes), "--process-id", str(i)])
     # The first process's lines are read as they come; the others' go to files, never to a
     # pipe left unread. -P: the installed package, not a checkout's folder of the same name.
-    output = subprocess.PIPE if i == 0 else open(f"{out_dir}_process_{i}.txt", "w")
+    if i:
+      files.append(open(f"{out_dir}_process_{i}.txt", "w"))
+    output = files[-1] if i else subprocess.PIPE
     procs.append(subprocess.Popen(
         [sys.executable, "-P", "-m", "mjx_hopper.faces.cli", "--cpu-devices", str(per_process),
          "sweep", *flags, "--out-dir", out_dir, *distributed], env=env, stdout=output,
@@ -150,10 +152,12 @@ def sweep(out_dir: str, flags: list[str], processes: int = 1, devices: int = 1,
       first = time.perf_counter() - start
   for proc in procs:
     proc.wait()
-    if proc.returncode:
-      raise SystemExit(f"the sweep over {processes} process(es) failed (exit "
-                       f"{proc.returncode}):\n" + "".join(lines)[-3000:])
   wall = time.perf_counter() - start
+  for f in files:
+    f.close()
+  if any(proc.returncode for proc in procs):
+    raise SystemExit(f"the sweep over {processes} process(es) failed (exits "
+                     f"{[proc.returncode for proc in procs]}):\n" + "".join(lines)[-3000:])
   with open(os.path.join(out_dir, "log.csv")) as f:
     rows = [r for r in csv.DictReader(f) if r["kind"] == "train"]
   rates = sorted({(int(r["env_steps"]), float(r["steps_per_s"])) for r in rows})

@@ -5,10 +5,10 @@ fresh process from an empty compile cache, timed from its launch.
     python benchmarks/sweep_throughput.py --members 1,16,32 --gpus 1,2 --preset gpu
 
 Each S trains --env-steps env steps per member with the preset's settings; more sweep flags
-follow `--`. Records the seconds to the first train row, the env
-steps/s of all members over the train rows after the first (as log.csv gives them), and over the
-whole run from launch (compile included). report.py sets them against S = 1 on the fewest
-devices. With --gpus 1,2 each S runs on the first GPU, then on the first two.
+follow `--`. Records the seconds to the first train row, and the env steps/s of all members over
+the train rows after the first (as log.csv gives them) and over the whole run from launch
+(compile included). report.py sets them against S = 1 on the fewest devices. With --gpus 1,2
+each S runs on the first GPU, then on the first two.
 """
 
 from __future__ import annotations
