@@ -110,7 +110,7 @@ TASK_PRESETS: dict[tuple[str, str], Preset] = {
             "(evidence: a552af9)"),
     ("mjx_hopper.envs.events:AntLongJump", "gpu"): Preset(
         **_GPU, target=3000.0, env_steps=8_000_000, minutes=3.0,
-        why="the Ant's gpu preset, its budget measured on the jump (evidence: c06d75e)"),
+        why="the Ant's gpu preset, its budget measured on the jump (evidence: 6c6fa7b)"),
 }
 
 
