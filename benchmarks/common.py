@@ -179,14 +179,19 @@ def evaluations(log_csv: str) -> dict[int, list[dict]]:
 
 
 def machine() -> str:
-  """The GPUs (as nvidia-smi names them) and the CPU's model and cores this process runs on."""
+  """The GPUs (as nvidia-smi names them) and the CPU's model, widest vector unit and cores this
+  process runs on."""
   try:
     gpus = subprocess.run(["nvidia-smi", "--query-gpu=name", "--format=csv,noheader"],
                           capture_output=True, text=True).stdout.split("\n")
   except OSError:
     gpus = []
   with open("/proc/cpuinfo") as f:
-    cpu = next((l.split(":")[1].strip() for l in f if l.startswith("model name")), "a CPU")
+    info = f.read().splitlines()
+  cpu = next((l.split(":")[1].strip() for l in info if l.startswith("model name")), "a CPU")
+  # One maker's CPUs of a name differ in their vector units, which set XLA:CPU's speed.
+  flags = next((l.split(":")[1].split() for l in info if l.startswith("flags")), [])
+  cpu += " (AVX-512)" if "avx512f" in flags else " (AVX2)" if "avx2" in flags else ""
   gpus = [g.strip() for g in gpus if g.strip()]
   return (f"{len(gpus)} x {gpus[0]}; " if gpus else "") + f"{cpu}, {os.cpu_count()} cores"
 
