@@ -50,7 +50,7 @@ def main() -> None:
               f"s, {run['env_steps_per_s']:,.0f} env steps/s", file=sys.stderr, flush=True)
   common.write_results(f"sweep_throughput_{args.label}", {
       "method": "mjx-hopper sweep from launch, cold",
-      "settings": {k: v for k, v in vars(args).items()}, "rows": rows})
+      "settings": vars(args), "rows": rows})
 
 
 if __name__ == "__main__":

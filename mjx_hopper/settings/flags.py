@@ -7,7 +7,6 @@ from __future__ import annotations
 import argparse
 import ast
 import dataclasses
-import warnings
 
 from mjx_hopper.settings import config, presets
 from mjx_hopper.settings.config import RunConfig
@@ -93,10 +92,9 @@ def base_config(args: argparse.Namespace, command: str) -> RunConfig:
       raise ValueError(f"{args.config} is a sweep's config: run it with mjx-hopper sweep "
                        "--config")
     return cfg
-  with warnings.catch_warnings():  # an unmeasured budget: the CLI's line (unmeasured_budget)
-    warnings.simplefilter("ignore")
-    base = presets.agent_run_config(getattr(args, "env", "Hopper"), args.preset or "cpu",
-                                    getattr(args, "agent", "d4pg"))
+  # An unmeasured budget is said by the CLI, after its flags (`unmeasured_budget` below).
+  base = presets.agent_run_config(getattr(args, "env", "Hopper"), args.preset or "cpu",
+                                  getattr(args, "agent", "d4pg"), warn=False)
   return dataclasses.replace(base, out_dir="runs/sweep") if command == "sweep" else base
 
 

@@ -128,9 +128,8 @@ def get(env, kind: str) -> Preset:
   cls = envs.task_class(env)
   if kind not in KINDS:
     raise ValueError(f"unknown robot preset {kind!r}; valid presets are {list(KINDS)}")
-  if (envs.task_id(cls), kind) in TASK_PRESETS:
-    return TASK_PRESETS[envs.task_id(cls), kind]
-  return PRESETS.get((envs.robot_of(cls), kind), UNMEASURED[kind])
+  measured = TASK_PRESETS.get((envs.task_id(cls), kind))
+  return measured or PRESETS.get((envs.robot_of(cls), kind), UNMEASURED[kind])
 
 
 # Other agents' settings on a robot where they were measured, over the agent's own defaults.
@@ -146,15 +145,16 @@ AGENT_BUDGETS: dict[tuple[str, str, str], tuple[int, float]] = {
 }
 
 
-def agent_run_config(env, kind: str, agent: str, **changes):
+def agent_run_config(env, kind: str, agent: str, *, warn: bool = True, **changes):
   """The RunConfig of `agent` on robot or task `env` with its `kind` settings: the
   robot's preset when it is one of this agent, else the agent's own defaults of that name with
   the trainer's and the robot's settings for this agent (`AGENT_OVERRIDES`); fields
-  replaced by `changes` as in `run_config`."""
+  replaced by `changes` as in `run_config`, which says how `warn` works."""
   robot = envs.robot_of(envs.task_class(env))
   if get(env, kind).agent == agent:
-    return run_config(env, kind, **changes)
-  _warn_if_unmeasured(env, kind, agent, changes)
+    return run_config(env, kind, warn=warn, **changes)
+  if warn:
+    _warn_if_unmeasured(env, kind, agent, changes)
   overrides = {**AGENT_OVERRIDES.get((robot, kind, agent), {}),
                **changes.pop("agent_overrides", {})}
   if (robot, kind, agent) in AGENT_BUDGETS and "total_env_steps" not in changes:
@@ -191,13 +191,16 @@ def _warn_if_unmeasured(env, kind: str, agent: str, changes: dict) -> None:
       warnings.warn(line, stacklevel=3)
 
 
-def run_config(env, kind: str, **changes):
+def run_config(env, kind: str, *, warn: bool = True, **changes):
   """The RunConfig of robot `env`'s `kind` preset, budget included, with fields replaced by
   `changes` (agent_overrides are merged into the preset's; `train` replaces its TrainConfig).
   A `total_env_steps` given without `max_minutes` replaces the whole budget. For a task of your
-  own (a subclass of a robot), the preset is its robot's; for an event, its own where measured."""
+  own (a subclass of a robot), the preset is its robot's; for an event, its own where measured.
+  Where no run measured the budget it gives, it warns with `unmeasured_budget`'s line, unless
+  `warn` is False (the CLI, which says it itself once its flags are read)."""
   preset = get(env, kind)
-  _warn_if_unmeasured(env, kind, preset.agent, changes)
+  if warn:
+    _warn_if_unmeasured(env, kind, preset.agent, changes)
   if "total_env_steps" in changes:
     changes.setdefault("max_minutes", None)
   overrides = {**preset.agent_overrides, **changes.pop("agent_overrides", {})}
