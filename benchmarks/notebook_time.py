@@ -6,8 +6,12 @@ and each run's score: its best evaluation against the return it stops at.
 
 Runs in OUT with an empty compile cache (OUT/jax_cache, refused where it or OUT/runs holds
 anything), in this interpreter's kernel, which has the project: the install cell finds it
-installed, so its time leaves out an install. Keeps OUT/robolympics.ipynb; the times go to
-benchmarks/results/notebook_time_LABEL.json. With --first-video it stops after the first cell
+installed, so its time leaves out an install. With --fresh-venv PYTHON it runs as on a new
+runtime instead: from a clone of this checkout's HEAD (OUT/mjx_hopper/notebooks, so that the
+install cell finds the repository at ".."), in the kernel of a new venv of PYTHON that holds
+Jupyter's kernel alone (as a runtime does before the notebook; not timed), with pip's cache off:
+the install cell downloads and installs the project and its dependencies, and is timed. Keeps
+OUT/robolympics.ipynb; the times go to benchmarks/results/notebook_time_LABEL.json. With --first-video it stops after the first cell
 that films (a newcomer's first wait), and writes notebook_first_video_LABEL.json.
 """
 
@@ -17,6 +21,7 @@ import datetime
 import json
 import os
 import pathlib
+import subprocess
 import time
 
 import common
@@ -55,6 +60,24 @@ def scores(runs: str) -> dict[str, dict]:
   return out
 
 
+def fresh_kernel(out: str, python: str) -> tuple[str, str]:
+  """A clone of this checkout's HEAD in OUT/mjx_hopper, and a new venv of PYTHON in OUT/venv with
+  ipykernel alone, registered as the kernel "fresh" under OUT/jupyter: the notebook's folder
+  in the clone, and the kernel's name."""
+  clone, venv = os.path.join(out, "mjx_hopper"), os.path.join(out, "venv")
+  if os.path.exists(clone) or os.path.exists(venv):
+    raise SystemExit(f"notebook_time: {out} holds an earlier fresh run: choose another --out")
+  run = lambda *command: subprocess.run(command, check=True)
+  run("git", "clone", "--quiet", str(NOTEBOOK.parent.parent), clone)
+  run(python, "-m", "venv", venv)
+  run(os.path.join(venv, "bin", "python"), "-m", "pip", "install", "--quiet", "ipykernel")
+  run(os.path.join(venv, "bin", "python"), "-m", "ipykernel", "install", "--prefix",
+      os.path.join(out, "jupyter"), "--name", "fresh")
+  os.environ["JUPYTER_PATH"] = os.path.join(out, "jupyter", "share", "jupyter")
+  os.environ["PIP_NO_CACHE_DIR"] = "1"  # the install cell downloads, as on a new runtime
+  return os.path.join(clone, "notebooks"), "fresh"
+
+
 def main() -> None:
   p = common.parser(__doc__)
   p.add_argument("--out", default="runs/notebook_full")
@@ -62,26 +85,31 @@ def main() -> None:
   p.add_argument("--label", default="cpu")
   p.add_argument("--first-video", action="store_true",
                  help="run up to the first cell that writes a video, and time it")
+  p.add_argument("--fresh-venv", metavar="PYTHON",
+                 help="run from a clone, in a new venv of PYTHON, timing the notebook's install")
   args = p.parse_args()
   import nbformat
   from nbclient import NotebookClient
 
   for left in ("jax_cache", "runs"):  # an earlier run's programs or checkpoints
-    folder = os.path.join(args.out, left)
-    if os.path.isdir(folder) and os.listdir(folder):
+    path = os.path.join(args.out, left)
+    if os.path.isdir(path) and os.listdir(path):
       raise SystemExit(f"notebook_time: {args.out}/{left} is not empty: choose another --out, "
                        "as the notebook would load or resume what it holds")
   os.makedirs(args.out, exist_ok=True)
+  folder, kernel = (fresh_kernel(args.out, args.fresh_venv) if args.fresh_venv
+                    else (args.out, "python3"))
   os.environ.pop("MJX_HOPPER_SHORT", None)
   os.environ["MJX_HOPPER_JAX_CACHE"] = os.path.abspath(os.path.join(args.out, "jax_cache"))
-  notebook = nbformat.read(NOTEBOOK, as_version=4)
+  notebook = nbformat.read(pathlib.Path(folder, NOTEBOOK.name) if args.fresh_venv else NOTEBOOK,
+                           as_version=4)
   films = [i for i, c in enumerate(notebook.cells) if c.cell_type == "code" and ".mp4" in c.source]
   if args.first_video:
     notebook.cells = notebook.cells[:films[0] + 1]
   start = time.time()
   try:
-    NotebookClient(notebook, timeout=args.timeout, kernel_name="python3",
-                   resources={"metadata": {"path": args.out}}).execute()
+    NotebookClient(notebook, timeout=args.timeout, kernel_name=kernel,
+                   resources={"metadata": {"path": folder}}).execute()
   finally:
     nbformat.write(notebook, os.path.join(args.out, "robolympics.ipynb"))
   total = time.time() - start
@@ -97,9 +125,10 @@ def main() -> None:
   print(f"the notebook in {total / 60:.1f} min; its first video after {first_video:.0f} s")
   print(common.table(["section", "wall-clock (s)"],
                      [[t, f"{s:,.0f}"] for t, s in seconds_.items()]))
-  figures = {"total_s": round(total, 1), "first_video_s": first_video, "sections_s": seconds_}
+  figures = {"total_s": round(total, 1), "first_video_s": first_video, "sections_s": seconds_,
+             "install": "timed, from a new venv" if args.fresh_venv else "none (installed)"}
   if not args.first_video:
-    figures["runs"] = scores(os.path.join(args.out, "runs"))
+    figures["runs"] = scores(os.path.join(folder, "runs"))
     print(common.table(["run", "stops at", "best evaluation", "reached after (s)"],
                        [[n, r["target"], f"{r['best_return']:,.0f}", r["target_wall_s"]]
                         for n, r in figures["runs"].items()]))
