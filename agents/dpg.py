@@ -53,9 +53,6 @@ class Config(CommonConfig):
   # LayerNorm after every hidden layer of the critics (FastSAC's), not after the first alone
   # (acme's LayerNormMLP): it keeps the critic's features at one scale under many updates.
   critic_norm: bool = False
-  # Observations scaled by the running mean and std of every replay batch learned from
-  # (FastTD3's empirical normalisation), clipped to +-10, in the policy and the critics alike.
-  obs_norm: bool = False
 
   def __post_init__(self):
     super().__post_init__()
@@ -82,32 +79,6 @@ class State(NamedTuple):
   critic_opt: optax.OptState
   steps: jax.Array  # () int32 updates done
   hparams: dict     # the config's dynamic settings (Config.DYNAMIC), as arrays
-  # With obs_norm: (mean (O,), variance (O,), count ()) of the observations learned from; else ().
-  obs_stats: tuple = ()
-
-
-_OBS_CLIP = 10.0
-
-
-def normalise(state: State, obs):
-  """Observations scaled by the state's running statistics (as they are without obs_norm)."""
-  if not state.obs_stats:
-    return obs
-  mean, var, _ = state.obs_stats
-  return jnp.clip((obs - mean) * jax.lax.rsqrt(var + 1e-8), -_OBS_CLIP, _OBS_CLIP)
-
-
-def merged_stats(stats: tuple, obs, axis_name) -> tuple:
-  """(mean, variance, count) of the observations behind `stats` and the batch `obs` (B, O)
-  together (Chan et al.'s parallel update), the batch's moments averaged over `axis_name`."""
-  mean, var, count = stats
-  batch_mean = pmean(obs.mean(0), axis_name)
-  batch_var = pmean((obs ** 2).mean(0), axis_name) - batch_mean ** 2
-  n = obs.shape[0]
-  total = count + n
-  delta = batch_mean - mean
-  return (mean + delta * n / total,
-          (var * count + batch_var * n + delta ** 2 * count * n / total) / total, total)
 
 
 class Networks(NamedTuple):
@@ -153,15 +124,13 @@ def init(nets: Networks, cfg: Config, obs_size: int, action_size: int, key, hpar
         jax.random.split(critic_key, nets.num_critics))
   else:
     critic = nets.critic.init(critic_key, obs, action)
-  stats = ((jnp.zeros(obs_size), jnp.ones(obs_size), jnp.asarray(1e-4))
-           if cfg.obs_norm else ())
   return State(policy_params, critic, policy_params, critic, opt.init(policy_params),
-               opt.init(critic), jnp.zeros((), jnp.int32), hp, stats)
+               opt.init(critic), jnp.zeros((), jnp.int32), hp)
 
 
 def policy(nets: Networks, state: State, obs):
   """The deterministic policy's actions (..., A)."""
-  return nets.policy.apply(state.policy, normalise(state, obs))
+  return nets.policy.apply(state.policy, obs)
 
 
 def act(nets: Networks, cfg: Config, state: State, obs, key):
@@ -221,10 +190,6 @@ def update(nets: Networks, cfg: Config, state: State, batch, key, axis_name=None
   target networks'. Returns the new state and the step's metrics."""
   del key  # the update is deterministic given the batch
   hp = state.hparams
-  if state.obs_stats:
-    state = state._replace(obs_stats=merged_stats(state.obs_stats, batch.obs, axis_name))
-    batch = batch._replace(obs=normalise(state, batch.obs),
-                           next_obs=normalise(state, batch.next_obs))
   head = nets.head(hp)
   opt = optimizer(hp["learning_rate"], hp["max_grad_norm"])
   (c_loss, q), c_grads = jax.value_and_grad(critic_loss, has_aux=True)(state.critic, nets,
@@ -245,7 +210,7 @@ def update(nets: Networks, cfg: Config, state: State, batch, key, axis_name=None
       steps, hp["target_update_period"], (policy_params, critic),
       (state.target_policy, state.target_critic))
   new = State(policy_params, critic, target_policy, target_critic, policy_opt, critic_opt,
-              steps, hp, state.obs_stats)
+              steps, hp)
   metrics = {"critic_loss": c_loss, "q_mean": q.mean(), "q_min": q.min(), "q_max": q.max(),
              "critic_grad_norm": optax.tree.norm(c_grads), **p_metrics}
   return new, pmean(metrics, axis_name)
@@ -253,9 +218,6 @@ def update(nets: Networks, cfg: Config, state: State, batch, key, axis_name=None
 
 def exported_policy(params: dict, cfg: Config) -> tuple[list, str]:
   """The deterministic policy as `export` writes it: TanhPolicy's LayerNormMLP, then tanh."""
-  if cfg.obs_norm:
-    raise ValueError("export does not write obs_norm's observation statistics yet: a policy "
-                     "trained with obs_norm=True cannot be exported")
   return networks.exported_mlp(params["params"]["LayerNormMLP_0"], len(cfg.policy_layers) + 1,
                                False, cfg.compute_dtype), "tanh"
 
