@@ -38,9 +38,11 @@ def matmul_peak(dtype: str = "float32", repeats: int = 10) -> float:
   return 2 * n**3 * len(devices) / best
 
 
-def cases(robots: str, kinds: str, overrides: dict) -> list[dict]:
+def cases(robots: str, kinds: str, overrides: dict, batch_sizes: str | None = None
+          ) -> list[dict]:
   """What to time: each robot's preset of each kind (its agent, settings, batch size and
-  sizes), `overrides` over its agent's settings."""
+  sizes), `overrides` over its agent's settings, at each of `batch_sizes` (comma-separated;
+  None: the preset's)."""
   from mjx_hopper import envs
   from mjx_hopper.settings import presets
   out = []
@@ -48,10 +50,11 @@ def cases(robots: str, kinds: str, overrides: dict) -> list[dict]:
     env = envs.make(robot)
     for kind in kinds.split(","):
       preset = presets.get(robot, kind)
-      out.append(dict(robot=robot, agent=preset.agent, preset=kind,
-                      overrides={**preset.agent_overrides, **overrides},
-                      obs=env.observation_size, act=env.action_size,
-                      batch=preset.train.batch_size, kind=kind))
+      for batch in (map(int, batch_sizes.split(",")) if batch_sizes
+                    else [preset.train.batch_size]):
+        out.append(dict(robot=robot, agent=preset.agent, preset=kind,
+                        overrides={**preset.agent_overrides, **overrides},
+                        obs=env.observation_size, act=env.action_size, batch=batch, kind=kind))
   return out
 
 
@@ -123,7 +126,8 @@ def work(args) -> dict:
   """A worker's figures: the matmul peaks and every case's row, on this process's devices."""
   from mjx_hopper.settings import flags
   rows = [learner_row(case, args.updates)
-          for case in cases(args.robots, args.presets, flags.overrides(args.set))]
+          for case in cases(args.robots, args.presets, flags.overrides(args.set),
+                            args.batch_sizes)]
   return {"peak": matmul_peak(), "peak_bf16": matmul_peak("bfloat16"), "rows": rows}
 
 
@@ -135,6 +139,8 @@ def main() -> None:
   p.add_argument("--devices", default="1,2", help="XLA CPU device counts (on a GPU: GPUs used)")
   p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                  help="an agent setting for every preset, e.g. compute_dtype=bfloat16")
+  p.add_argument("--batch-sizes", default=None,
+                 help="comma-separated batch sizes to time (default: each preset's)")
   p.add_argument("--label", default="cpu",
                  help="results: benchmarks/results/learner_throughput_LABEL.json")
   args = common.parse(p, work)  # a worker: one device count, as XLA reads it at start-up

@@ -46,7 +46,10 @@ SWEEPS = ("sweep_throughput_h100.json", "sweep_throughput_cpu.json")
 SWEPT = "mjx-hopper sweep from launch, cold"  # sweep_throughput.py's method
 PBT = "pbt_quality_halfcheetah_h100x2.json"
 START = {"one H200": "start_time_h200.json", "2 CPU cores": "start_time_cpu.json"}
-DISTRIBUTED = ("distributed_gpu2.json", "distributed_cpu2.json")
+# The sweeps over processes, and where each file's sweeps compiled: distributed.py gives each an
+# empty cache of its own since 3f0a8f6; the 2-GPU file is older (no 2-GPU machine since).
+DISTRIBUTED = {"distributed_gpu2.json": "the user's default, not emptied",
+               "distributed_cpu2.json": "empty, each its own"}
 # A start's phases as the table shows them: label, and its keys in start_time.py's medians (the
 # first found: the evaluation's program was "one" before it was kept as "evaluate").
 START_ROWS = {"imports": ("imports",), "build": ("build",), "chunk: tracing": ("chunk trace",),
@@ -297,11 +300,13 @@ def sections() -> list[tuple[str, str, str, list[str]]]:
   out.append(start_section())
   out.append(iteration_section())
   out.append(sweep_section())
-  rows = [[machine(name), r["processes"], r["devices"], num(r["first_row_s"], 1),
-           num(r["env_steps_per_s"])] for name in DISTRIBUTED for r in load(name)["figures"]]
+  rows = [[machine(name), r["processes"], r["devices"], cache, num(r["first_row_s"], 1),
+           num(r["env_steps_per_s"])]
+          for name, cache in DISTRIBUTED.items() for r in load(name)["figures"]]
   out.append(("Sweeps over processes", "A 4-seed Hopper sweep (cpu preset) in one process, "
               "then one process per device (`sweep --distributed`); first row from the launch.",
-              table(["machine", "processes", "devices", "first row (s)", "env steps/s"], rows),
+              table(["machine", "processes", "devices", "compile cache", "first row (s)",
+                     "env steps/s"], rows),
               list(DISTRIBUTED)))
   out.append(("Population-based training", "HalfCheetah, 16 members (4 learning rates × 4 "
               "noise scales), grid and PBT side by side, a GPU each, 15.6 minutes; PBT steps "
@@ -319,8 +324,11 @@ def sections() -> list[tuple[str, str, str, list[str]]]:
                             [[name, num(r["target"]), num(r["best_return"]),
                               num(r["target_wall_s"] and r["target_wall_s"] / 60, 1)]
                              for name, r in nb["runs"].items()])
+  installed = ("from a clone in a new venv, its install cell downloading and installing the "
+               "project" if nb.get("install", "").startswith("timed") else
+               "the project installed")
   out.append(("The notebook on 2 CPU cores", "`notebooks/robolympics.ipynb` in full mode "
-              "from an empty compile cache, the project installed (sections under 30 s left "
+              f"from an empty compile cache, {installed} (sections under 30 s left "
               "out); first video from the kernel's start; each run's score on its own clock.",
               text, [NOTEBOOK]))
   out.append(pretrained_section(sorted(p.name for p in RESULTS.glob("pretrained_*.json"))))
