@@ -38,10 +38,23 @@ def seconds(cell) -> tuple[float, float] | None:
   return parse(timing["iopub.execute_input"]), parse(timing["shell.execute_reply"])
 
 
+def one_clock(evals: list[dict]) -> list[dict]:
+  """A member's evaluations, in order, with a resumed run's clock (which starts again at 0)
+  continued from the last evaluation before it: the seconds it trained in all."""
+  out, offset, last = [], 0.0, 0.0
+  for e in evals:
+    if e["wall_s"] < last:
+      offset += last
+    last = e["wall_s"]
+    out.append({**e, "wall_s": e["wall_s"] + offset})
+  return out
+
+
 def scores(runs: str) -> dict[str, dict]:
   """Each run the notebook trained (a folder of `runs`): the return it stops at (None: it
   trains its budget), its best evaluation (a population's best member's), its env steps, and the
-  seconds of its clock at the evaluation that first reached its score (None: none did)."""
+  seconds it had trained (`one_clock`) at the evaluation that first reached its score (None:
+  none did)."""
   out = {}
   for name in sorted(os.listdir(runs)):
     log, config = (os.path.join(runs, name, f) for f in ("log.csv", "config.json"))
@@ -49,8 +62,7 @@ def scores(runs: str) -> dict[str, dict]:
       continue
     with open(config) as f:
       target = json.load(f)["stop_at_return"]
-    evals = [e for member in common.evaluations(log).values() for e in member]
-    # The first to reach it by env steps: a resumed run's clock starts again.
+    evals = [e for member in common.evaluations(log).values() for e in one_clock(member)]
     first = min((e for e in evals if target is not None and e["eval_return"] >= target),
                 key=lambda e: e["env_steps"], default=None)
     out[name] = {"target": target,
