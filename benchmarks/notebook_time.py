@@ -11,8 +11,9 @@ runtime instead: from a clone of this checkout's HEAD (OUT/mjx_hopper/notebooks,
 install cell finds the repository at ".."), in the kernel of a new venv of PYTHON that holds
 Jupyter's kernel alone (as a runtime does before the notebook; not timed), with pip's cache off:
 the install cell downloads and installs the project and its dependencies, and is timed. Keeps
-OUT/robolympics.ipynb; the times go to benchmarks/results/notebook_time_LABEL.json. With --first-video it stops after the first cell
-that films (a newcomer's first wait), and writes notebook_first_video_LABEL.json.
+OUT/robolympics.ipynb; the times go to benchmarks/results/notebook_time_LABEL.json. With
+--first-video it stops after the first cell that films (a newcomer's first wait), and writes
+notebook_first_video_LABEL.json.
 """
 
 from __future__ import annotations

@@ -42,6 +42,11 @@ ENV_OTHERS = "env_throughput_cpu_4robots.json"
 PEERS = ("peers_h100.json", "peers_cpu.json")
 RL_ZOO = "rl_zoo.json"
 LEARNER = ("learner_robots_h100.json", "learner_robots_bf16_h100.json")
+# The Hopper's cpu preset's learner at other batch sizes, and one change to the preset timed to
+# its score beside it (issue 69's cheaper CPU learner).
+LEARNER_CPU = "learner_throughput_cpu_batches.json"
+LEARNER_CHANGES_CPU = [{"baseline": [TTS.format("Hopper_cpu_v_cpu_base")],
+                        "batch1024": [TTS.format("Hopper_cpu_v_cpu_batch1024")]}]
 SWEEPS = ("sweep_throughput_h100.json", "sweep_throughput_cpu.json")
 SWEPT = "mjx-hopper sweep from launch, cold"  # sweep_throughput.py's method
 PBT = "pbt_quality_halfcheetah_h100x2.json"
@@ -108,14 +113,15 @@ def num(x, digits: int = 0) -> str:
 
 def machine(name: str) -> str:
   """A results file's machine in a few words: "1 H100", "2 H200", "2 Intel cores" (a 2-core
-  CPU's maker, where the file names it)."""
+  CPU's maker, and its widest vector unit, where the file names them: "2 AMD cores, AVX2")."""
   text = load(name)["machine"]
   chip = next((c for c in ("H100", "H200") if c in text), None)
   if chip:
     return f"{text.split(' x ')[0]} {chip}"
   if "2-core" in text or text.endswith(" 2 cores"):
     vendor = next((v for v in ("Intel", "AMD") if v in text), None)
-    return f"2 {vendor} cores" if vendor else "2 CPU cores"
+    unit = next((u for u in ("AVX-512", "AVX2") if f"({u})" in text), None)
+    return (f"2 {vendor} cores" if vendor else "2 CPU cores") + (f", {unit}" if unit else "")
   return text
 
 
@@ -295,6 +301,7 @@ def sections() -> list[tuple[str, str, str, list[str]]]:
               table(["robot", "batch", "precision", "updates/s", "GFLOP/update", "% of peak",
                      "bfloat16 updates/s"], rows), list(LEARNER)))
   out.append(learner_changes_section())
+  out.append(cpu_learner_section())
   out.append(c_physics_section())
   out.append(gymnasium_section())
   out.append(start_section())
@@ -475,10 +482,11 @@ def pretrained_section(names: list[str]) -> tuple[str, str, str, list[str]]:
                  "the file's return", "file (KiB)"], rows), names)
 
 
-def learner_changes_section() -> tuple[str, str, str, list[str]]:
-  """The Hopper's gpu preset against itself with one learner change at a time."""
+def changes_table(sittings: list[dict]) -> tuple[str, list[str], dict]:
+  """A preset against itself with one change at a time, in `sittings` (each a baseline and
+  the changes measured beside it); the table, its files, and the last baseline's figures."""
   rows, names = [], []
-  for sitting in LEARNER_CHANGES:
+  for sitting in sittings:
     base = time_to_score(sitting["baseline"], tuning=True)
     commit = load(sitting["baseline"][0])["commit"].split("+")[0]
     for label, files in sitting.items():
@@ -488,13 +496,34 @@ def learner_changes_section() -> tuple[str, str, str, list[str]]:
                    t["reached"], num(t["median"], 1), num(t["env_steps"], 2),
                    num(t["median"] / base["median"], 2)])
       names += files
+  return (table(["change", "seeds", "reached", "median (s)", "env steps (M)", "× preset"], rows),
+          names, base)
+
+
+def learner_changes_section() -> tuple[str, str, str, list[str]]:
+  """The Hopper's gpu preset against itself with one learner change at a time."""
+  text, names, base = changes_table(LEARNER_CHANGES)
   return ("One learner change at a time on one GPU",
           f"The Hopper's gpu preset to 2,500, one change each, seeds run {base['method']} "
           "(their lines say which; 0-9 tune); × preset: over the median of the preset above "
-          "it, in the same session.",
-          table(["change", "seeds", "reached", "median (s)", "env steps (M)", "× preset"],
-                rows),
-          names)
+          "it, in the same session.", text, names)
+
+
+def cpu_learner_section() -> tuple[str, str, str, list[str]]:
+  """The Hopper's cpu preset's learner at other batch sizes, then a change to it timed to the
+  score beside the preset."""
+  found = load(LEARNER_CPU)["figures"]
+  peak = found["peaks_gflops"]["2"]
+  rows = [[num(r["batch"]), num(r["updates_per_s"]), num(r["updates_per_s"] * r["batch"]),
+           num(r["gflop_per_update"], 2), num(100 * r["gflops"] / peak, 1)]
+          for r in found["rows"]]
+  text, names, base = changes_table(LEARNER_CHANGES_CPU)
+  return ("The learner on 2 CPU cores",
+          "The Hopper's cpu preset's update on random batches, 100 to a compiled scan, 2 XLA "
+          "devices; XLA's FLOP count against the measured matmul peak. Below it, the preset "
+          f"to 2,000 with one change, seeds run {base['method']} (their lines say which).",
+          table(["batch", "updates/s", "samples/s", "GFLOP/update", "% of peak"], rows)
+          + "\n\n" + text, [LEARNER_CPU, *names])
 
 
 def c_physics_section() -> tuple[str, str, str, list[str]]:

@@ -61,6 +61,14 @@ def test_a_time_to_score_file_of_fresh_processes_holds_held_out_seeds(tmp_path, 
   monkeypatch.setattr(report, "RESULTS", tmp_path)
   with pytest.raises(SystemExit, match=r"c.json's seeds \[3, 100\] are not all held out"):
     report.time_to_score(["c.json"])
+  assert report.time_to_score(["c.json"], tuning=True)["seeds"] == 2  # a change weighed
+
+
+def test_a_resumed_runs_time_to_its_score_counts_the_part_before_it():
+  import notebook_time
+  walls = [10.0, 20.0, 5.0, 15.0, 3.0]  # two resumes: the clock starts again twice
+  evals = [{"wall_s": w, "env_steps": i} for i, w in enumerate(walls)]
+  assert [e["wall_s"] for e in notebook_time.one_clock(evals)] == [10.0, 20.0, 25.0, 35.0, 38.0]
 
 
 # "in turn": seeds one after another in one process, only the first from process start.
