@@ -239,22 +239,26 @@ def summary() -> str:
 
 def time_section(title: str, method: str, runs: dict, unit: str, scale: float, digits: int,
                  explained: set | None = None):
-  """A time-to-score section: each task's seeds, in `unit` (seconds over `scale`); its methods
-  explained but for those in `explained` (an earlier section's), which it adds to."""
+  """A time-to-score section: each task's seeds, in `unit` (seconds over `scale`), and the
+  machines and methods of its rows where they differ; its methods explained but for those in
+  `explained` (an earlier section's), which it adds to."""
   explained = set() if explained is None else explained
-  rows, methods = [], []
+  rows, methods, machines = [], [], []
   for label, names in runs.items():
     t = time_to_score(names, scale)
     steps, minutes = budget(names)
     methods.append(t["method"])
+    machines.append(" + ".join(sorted({machine(n) for n in names})))
     rows.append([label, num(t["target"]), t["agent"], t["seeds"], t["reached"],
                  *(num(t[k], digits) for k in ("median", "fastest", "slowest")),
                  num(t["env_steps"], 2), f"{steps / 1e6:g}M, {minutes:g} min"])
   head = ["task", "score", "agent", "seeds", "reached", f"median ({unit})", f"fastest ({unit})",
           f"slowest ({unit})", "M env steps to it", "budget"]
-  if len(set(methods)) > 1:
-    head.append("seeds run")
-    rows = [row + [m] for row, m in zip(rows, methods)]
+  # A column for what differs between the rows: where they ran, how their seeds ran.
+  for name, column in (("machine", machines), ("seeds run", methods)):
+    if len(set(column)) > 1:
+      head.append(name)
+      rows = [row + [m] for row, m in zip(rows, column)]
   new = sorted({m for cell in methods for m in cell.split("; ")} - explained)
   explained.update(new)
   if new:

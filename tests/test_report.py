@@ -87,7 +87,7 @@ def test_a_time_to_score_file_that_does_not_say_how_its_seeds_ran_is_refused(
 def test_a_time_section_names_each_rows_method_where_they_differ(tmp_path, monkeypatch):
   seeds = {"100": {"target_wall_s": 30.0, "target_env_steps": 10**6}}
   for name, method in (("a.json", "fresh, cold"), ("b.json", "fresh, warm")):
-    (tmp_path / name).write_text(json.dumps({"figures": {
+    (tmp_path / name).write_text(json.dumps({"machine": "AMD EPYC (AVX2), 2 cores", "figures": {
         "method": method, "target": 2500.0, "agent": "d4pg", "seeds": seeds}}))
   monkeypatch.setattr(report, "RESULTS", tmp_path)
   _, text, rows, _ = report.time_section("t", "Timed.", {"A": ["a.json"], "B": ["b.json"]},
@@ -103,4 +103,19 @@ def test_a_time_section_names_each_rows_method_where_they_differ(tmp_path, monke
   assert "| 2 | 2 |" in rows  # a row of two files' seeds, one each way, explained
   _, text, rows, _ = report.time_section("t", "Timed.", {"A": ["a.json"]}, "s", 1, 0)
   assert "seeds run" not in rows and "fresh, cold:" in text
+  assert "machine" not in rows  # the rows' machines are the same
+
+
+def test_a_time_section_names_each_rows_machine_where_they_differ(tmp_path, monkeypatch):
+  seeds = {"100": {"target_wall_s": 30.0, "target_env_steps": 10**6}}
+  for name, cpu in (("a.json", "Intel(R) Xeon(R) Processor, 2 cores"),
+                    ("b.json", "AMD EPYC (AVX2), 2 cores")):
+    (tmp_path / name).write_text(json.dumps({"machine": cpu, "figures": {
+        "method": "fresh, cold", "target": 2500.0, "agent": "d4pg", "seeds": seeds}}))
+  monkeypatch.setattr(report, "RESULTS", tmp_path)
+  _, _, rows, _ = report.time_section("t", "Timed.", {"A": ["a.json"], "B": ["b.json"]},
+                                      "s", 1, 0)
+  assert rows.splitlines()[0].endswith("| machine |")
+  assert rows.splitlines()[2].endswith("| 2 Intel cores |")
+  assert rows.splitlines()[3].endswith("| 2 AMD cores, AVX2 |")
 
