@@ -29,12 +29,12 @@ GPU = {"Hopper": [TTS.format("Hopper_gpu_heldout")],
           for robot in ROBOTS[1:]},
        "AntLongJump (an event)": [TTS.format(f"AntLongJump_gpu_heldout{n}")
                                   for n in ("", "2", "3")]}
-CPU = {"Hopper": [TTS.format("Hopper_cpu_heldout")],
+CPU = {"Hopper": [TTS.format("Hopper_cpu_heldout_avx2")],
        "Walker2D": [TTS.format("Walker2D_cpu_heldout")],
        "HalfCheetah": [TTS.format(f"HalfCheetah_cpu_heldout{n}") for n in ("", "2")],
        "Ant": [TTS.format("Ant_cpu_heldout")],
        "Humanoid": [TTS.format(f"Humanoid_cpu_heldout{n}") for n in ("", "2", "3")],
-       "Hopper, DDPG": [TTS.format("Hopper_cpu_ddpg_heldout")],
+       "Hopper, DDPG": [TTS.format("Hopper_cpu_ddpg_heldout_avx2")],
        "Hopper, DMPO": [TTS.format("Hopper_cpu_dmpo_heldout")],
        "HighJump (an event)": [TTS.format("HighJump_cpu_heldout")]}
 ENV = {"Hopper": "env_throughput_hopper_cpu.json", "Humanoid": "env_throughput_humanoid_cpu.json"}
