@@ -84,11 +84,16 @@ def test_a_time_to_score_file_that_does_not_say_how_its_seeds_ran_is_refused(
     report.time_to_score(["b.json"])
 
 
-def test_a_time_section_names_each_rows_method_where_they_differ(tmp_path, monkeypatch):
+def write_one_seed(path, machine: str, method: str) -> None:
+  """A time-to-score results file of seed 100, which reached 2,500 at 30 s, on `machine`."""
   seeds = {"100": {"target_wall_s": 30.0, "target_env_steps": 10**6}}
+  path.write_text(json.dumps({"machine": machine, "figures": {
+      "method": method, "target": 2500.0, "agent": "d4pg", "seeds": seeds}}))
+
+
+def test_a_time_section_names_each_rows_method_where_they_differ(tmp_path, monkeypatch):
   for name, method in (("a.json", "fresh, cold"), ("b.json", "fresh, warm")):
-    (tmp_path / name).write_text(json.dumps({"machine": "AMD EPYC (AVX2), 2 cores", "figures": {
-        "method": method, "target": 2500.0, "agent": "d4pg", "seeds": seeds}}))
+    write_one_seed(tmp_path / name, "AMD EPYC (AVX2), 2 cores", method)
   monkeypatch.setattr(report, "RESULTS", tmp_path)
   _, text, rows, _ = report.time_section("t", "Timed.", {"A": ["a.json"], "B": ["b.json"]},
                                          "s", 1, 0)
@@ -107,11 +112,9 @@ def test_a_time_section_names_each_rows_method_where_they_differ(tmp_path, monke
 
 
 def test_a_time_section_names_each_rows_machine_where_they_differ(tmp_path, monkeypatch):
-  seeds = {"100": {"target_wall_s": 30.0, "target_env_steps": 10**6}}
   for name, cpu in (("a.json", "Intel(R) Xeon(R) Processor, 2 cores"),
                     ("b.json", "AMD EPYC (AVX2), 2 cores")):
-    (tmp_path / name).write_text(json.dumps({"machine": cpu, "figures": {
-        "method": "fresh, cold", "target": 2500.0, "agent": "d4pg", "seeds": seeds}}))
+    write_one_seed(tmp_path / name, cpu, "fresh, cold")
   monkeypatch.setattr(report, "RESULTS", tmp_path)
   _, _, rows, _ = report.time_section("t", "Timed.", {"A": ["a.json"], "B": ["b.json"]},
                                       "s", 1, 0)
