@@ -54,9 +54,9 @@ class StartFailed(ValueError):
 
 def join(cluster: Cluster | bool, start_timeout_s: int = START_TIMEOUT_S,
          heartbeat_timeout_s: int = HEARTBEAT_TIMEOUT_S) -> None:
-  """Starts JAX's distributed runtime for `cluster` (True: the launcher's). Call after
-  `mjx_hopper.setup()` (which chooses the CPU collectives) and before anything runs on a
-  device; a second call changes nothing."""
+  """Starts JAX's distributed runtime for `cluster` (True: the launcher's), and over processes on
+  CPUs turns the compile cache off. Call after `mjx_hopper.setup()` (which chooses the CPU
+  collectives) and before anything runs on a device; a second call changes nothing."""
   if jax.distributed.is_initialized():
     return
   cluster = Cluster() if cluster is True else Cluster(*cluster)
