@@ -35,7 +35,7 @@ CPU = {"Hopper": [TTS.format("Hopper_cpu_heldout_avx2")],
        "Ant": [TTS.format("Ant_cpu_heldout")],
        "Humanoid": [TTS.format(f"Humanoid_cpu_heldout{n}") for n in ("", "2", "3")],
        "Hopper, DDPG": [TTS.format("Hopper_cpu_ddpg_heldout_avx2")],
-       "Hopper, DMPO": [TTS.format("Hopper_cpu_dmpo_heldout")],
+       "Hopper, DMPO": [TTS.format("Hopper_cpu_dmpo_heldout_avx2")],
        "HighJump (an event)": [TTS.format("HighJump_cpu_heldout")]}
 ENV = {"Hopper": "env_throughput_hopper_cpu.json", "Humanoid": "env_throughput_humanoid_cpu.json"}
 ENV_OTHERS = "env_throughput_cpu_4robots.json"
