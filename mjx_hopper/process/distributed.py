@@ -71,7 +71,7 @@ def join(cluster: Cluster | bool, start_timeout_s: int = START_TIMEOUT_S,
     raise StartFailed(_start_failure(cluster, error, start_timeout_s)) from None
   if jax.process_count() > 1 and jax.default_backend() == "cpu":
     # Every process compiles every program. Processes other than 0 never load from the compile
-    # cache on CPUs (docs/upstream.md), so process 0's loads won nothing, and on jax 0.12.1 the
+    # cache on CPUs (docs/upstream.md), so process 0's loads won little, and on jax 0.12.1 the
     # program it loaded paired its all-gathers wrongly with one that process 1 compiled: both
     # hung at a sweep's first evaluation.
     jax.config.update("jax_enable_compilation_cache", False)
