@@ -24,7 +24,7 @@ import jax
 import numpy as np
 from jax.experimental import multihost_utils
 
-from mjx_hopper.process import errors, runlock
+from mjx_hopper.process import errors, runlock, runtime
 
 # How long the processes wait for each other to start, in seconds.
 START_TIMEOUT_S = 300
@@ -69,12 +69,7 @@ def join(cluster: Cluster | bool, start_timeout_s: int = START_TIMEOUT_S,
                                heartbeat_timeout_seconds=heartbeat_timeout_s)
   except (RuntimeError, ValueError) as error:
     raise StartFailed(_start_failure(cluster, error, start_timeout_s)) from None
-  if jax.process_count() > 1 and jax.default_backend() == "cpu":
-    # Every process compiles every program. Processes other than 0 never load from the compile
-    # cache on CPUs (docs/upstream.md), so process 0's loads won little, and on jax 0.12.1 the
-    # program it loaded paired its all-gathers wrongly with one that process 1 compiled: both
-    # hung at a sweep's first evaluation.
-    jax.config.update("jax_enable_compilation_cache", False)
+  runtime.compile_cache_over_processes()
 
 
 def _check(cluster: Cluster) -> None:

@@ -55,6 +55,17 @@ def setup(compile_cache: str | None = None, cpu_devices: int | None = None) -> s
   return directory
 
 
+def compile_cache_over_processes() -> None:
+  """Once JAX's distributed runtime has started (`distributed.join`): over processes on CPUs,
+  the compile cache off, so that every process compiles every program. Processes other than 0
+  never load from it on CPUs (docs/upstream.md), so process 0's loads won little, and on jax
+  0.12.1 the program it loaded paired its all-gathers wrongly with one that process 1
+  compiled: both hung at a sweep's first evaluation."""
+  import jax
+  if jax.process_count() > 1 and jax.default_backend() == "cpu":
+    jax.config.update("jax_enable_compilation_cache", False)
+
+
 def settings_before_start(system: str, environ, cpu_devices: int | None = None
                           ) -> dict[str, str]:
   """The environment variables `setup` sets before JAX and MuJoCo start, for `system` (as
