@@ -39,9 +39,10 @@ def measure(args) -> dict:
       trainers = common.project_module("run.runs")
     presets = common.project_module("settings.presets")
     cfg = presets.run_config(args.env, args.kind)
-    trainer = trainers.build(cfg)
     members = getattr(cfg, "member_settings", None) or cfg.members  # its name before c1d0d21
-    state = trainers.init(cfg, trainer, members())
+    plan = common.resolved(cfg)
+    trainer = trainers.build(plan)
+    state = trainers.init(plan, trainer, members())
     chunk = getattr(trainer, "chunk", None) or trainer.train_chunk  # before EpisodeStarts
     refill = getattr(trainer, "refill", None)
     figures = {"lowered_chars": len(chunk.lower(state).as_text())}

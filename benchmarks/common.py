@@ -95,6 +95,15 @@ def project_module(dotted: str):
   return importlib.import_module("mjx_hopper." + (dotted if floors else dotted.split(".")[-1]))
 
 
+def resolved(cfg):
+  """`cfg`'s plan (`settings.plan.resolve`), what `trainers.build` takes; in a checkout from
+  before the plan, `cfg` itself, which its `build` took."""
+  try:
+    return project_module("settings.plan").resolve(cfg)
+  except ModuleNotFoundError:
+    return cfg
+
+
 def worker(script: str, args: dict, devices: int, gpus: bool = True):
   """What `python SCRIPT --worker ARGS` (`args` as JSON) prints last, as JSON, run in a process of
   its own with XLA:CPU split into `devices` devices (XLA reads its flags at start-up) and, with

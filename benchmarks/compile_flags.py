@@ -43,6 +43,7 @@ def work(args) -> dict:
   from mjx_hopper.faces import notebook
   from mjx_hopper.run import trainers
   from mjx_hopper.settings.config import RunConfig
+  from mjx_hopper.settings.plan import resolve
 
   out = {}
   env = envs.make("Hopper")
@@ -56,8 +57,9 @@ def work(args) -> dict:
   out["episodes_compile_s"], out["episodes_run_s"] = t1 - t0, time.perf_counter() - t1
 
   cfg = dataclasses.replace(notebook.tiny(RunConfig(env="Hopper", agent="d4pg")), log_every=0.0)
-  trainer = trainers.build(cfg)
-  state = trainers.init(cfg, trainer, cfg.member_settings())
+  plan = resolve(cfg)
+  trainer = trainers.build(plan)
+  state = trainers.init(plan, trainer)
   t0 = time.perf_counter()
   chunk = trainer.chunk.lower(state).compile()
   t1 = time.perf_counter()

@@ -67,6 +67,7 @@ def part_split(env_name: str, kind: str, repeats: int) -> dict:
     from mjx_hopper.core import replay, rollout
     from mjx_hopper.run import trainers
     from mjx_hopper.settings import presets
+    from mjx_hopper.settings.plan import resolve
     cfg = presets.run_config(env_name, kind)
     tc = cfg.train
     steps = tc.unroll_length * tc.iterations_per_chunk
@@ -76,15 +77,16 @@ def part_split(env_name: str, kind: str, repeats: int) -> dict:
       timed(2)
       return statistics.median(timed() for _ in range(repeats))
 
-    trainer = trainers.build(cfg)
+    plan = resolve(cfg)
+    trainer = trainers.build(plan)
 
     def fresh():  # each part its own state: a chunk's call consumes (donates) the one it gets
-      return trainers.init(cfg, trainer, cfg.member_settings())
+      return trainers.init(plan, trainer)
     learning = per_chunk(trainer.chunk, fresh(), trainer=trainer)
     # The same chunk before learning starts: collection and insert alone.
     waiting = dataclasses.replace(cfg, train=dataclasses.replace(tc, min_replay=tc.replay_size))
-    idle = trainers.build(waiting)
-    collecting = per_chunk(idle.chunk, trainers.init(waiting, idle, waiting.member_settings()),
+    idle = trainers.build(resolve(waiting))
+    collecting = per_chunk(idle.chunk, trainers.init(resolve(waiting), idle),
                            trainer=idle)
     refill = per_chunk(jax.jit(lambda e, _: (trainer.refill(e, False), None),
                                out_shardings=(trainer.shardings.env, None)), fresh().env, None)

@@ -50,7 +50,7 @@ from mjx_hopper.run import trainers  # noqa: E402
 def shared_builds():
   """`trainers.build`, through which every path builds its trainer (`loop.run` and
   `loop.resume`, `checkpoints.restore`, `.load_policy` and `.extract`,
-  `export.export_checkpoint` and the in-process CLI), memoised on `trainers.trainer_key` for a
+  `export.export_checkpoint` and the in-process CLI), memoised on the plan's `key` for a
   test worker's whole session: each config's trainer is traced once, across the test files that the worker runs (tracing one takes about
   15 s of CPU, even when its programs come from the compile cache). A trainer is pure
   functions, so a run is the same with a trainer built once or again. JAX's caches are kept
@@ -60,11 +60,10 @@ def shared_builds():
   built = {}
 
   @functools.wraps(trainers.build)
-  def cached(cfg, num_members=None):
-    key = trainers.trainer_key(cfg, num_members)
-    if key not in built:
-      built[key] = trainers.assemble(cfg, num_members)
-    return built[key]
+  def cached(plan):
+    if plan.key not in built:
+      built[plan.key] = trainers.assemble(plan)
+    return built[plan.key]
   with pytest.MonkeyPatch.context() as patch:
     patch.setattr(trainers, "build", cached)
     yield

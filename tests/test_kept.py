@@ -16,6 +16,7 @@ import configs
 from mjx_hopper import agents
 from mjx_hopper.core import kept
 from mjx_hopper.run import loop, trainers
+from mjx_hopper.settings.plan import resolve
 
 
 class State(NamedTuple):
@@ -161,30 +162,34 @@ def test_under_gspmd_the_function_runs_as_jitted(cache):
   assert len(traced) == 2 and len(os.listdir(cache / kept.FOLDER)) == 1  # "b" not kept
 
 
+def identity(cfg) -> str | None:
+  return resolve(cfg).identity
+
+
 def test_a_trainer_is_kept_only_for_the_packages_own_task_and_agent(monkeypatch):
   cfg = configs.TINY
-  assert trainers.identity(cfg) == repr(trainers.program_key(cfg))
+  assert identity(cfg) == repr(resolve(cfg).program_key)
   # Dynamic settings are data of the same programs; n-step's window and the networks shape them.
   overrides = cfg.agent_overrides
   same = dataclasses.replace(cfg, agent_overrides={**overrides, "learning_rate": 0.5,
                                                    "discount": 0.9, "vmax": 900.0})
-  assert trainers.identity(same) == trainers.identity(cfg)
+  assert identity(same) == identity(cfg)
   for shaping in ({"n_step": 1}, {"critic_layers": (8,)}):
-    assert trainers.identity(dataclasses.replace(cfg, agent_overrides={**overrides, **shaping})
-                         ) != trainers.identity(cfg)
+    assert identity(dataclasses.replace(cfg, agent_overrides={**overrides, **shaping})
+                    ) != identity(cfg)
 
   class Mine(type(cfg.make_env())):  # a task of one's own may change under the same name
     pass
-  assert trainers.identity(dataclasses.replace(cfg, env=Mine)) is None
+  assert identity(dataclasses.replace(cfg, env=Mine)) is None
   d4pg = agents.spec("d4pg")  # and an agent registered from code of one's own
   monkeypatch.setitem(agents._AGENTS, "d4pg", d4pg._replace(make=lambda *a: d4pg.make(*a)))
-  assert trainers.identity(cfg) is None
+  assert identity(cfg) is None
 
 
 def test_a_second_run_of_the_same_shapes_traces_and_compiles_none_of_its_programs(
     tmp_path, monkeypatch):
   # The product's build (not the suite's memo): another seed, learning rate and noise are the
-  # same programs (`trainers.program_key`), which the process already holds, traced and compiled.
+  # same programs (the plan's `program_key`), which the process already holds, traced and compiled.
   monkeypatch.setattr(trainers, "build", trainers.build.__wrapped__)
   heavy = ("chunk", "refill", "evaluate", "init_member")
   events = []

@@ -11,7 +11,7 @@ import pytest
 
 from mjx_hopper.faces import cli, notebook
 from mjx_hopper.run import loop
-from mjx_hopper.run.trainers import trainer_key
+from mjx_hopper.settings.plan import resolve
 from mjx_hopper.settings import flags, presets
 
 import configs
@@ -90,13 +90,13 @@ def test_learning_curve_reads_log_csv(runs):
 def test_tiny_is_the_tests_tiny_run(agent):
   """The notebook's short mode of a robot's preset trains what the suite's shared runs train,
   in Python and on the command line (tests/configs.py), so that they share compiled programs:
-  everything that shapes the trainer is equal (`trainers.trainer_key`)."""
+  everything that shapes the trainer is equal (the plan's `key`)."""
   cfg = notebook.tiny(presets.agent_run_config("Hopper", "cpu", agent, total_env_steps=5_000_000,
                                                max_minutes=5, out_dir="runs/x"))
   assert cfg.out_dir == "runs/x" and cfg.max_minutes is None and cfg.total_env_steps == 80
   args = cli.build_parser().parse_args([*configs.tiny_args(agent)[2:], "--total-env-steps", "80"])
   from_cli = flags.run_config(args)
-  assert trainer_key(cfg) == trainer_key(configs.tiny(agent)) == trainer_key(from_cli)
+  assert resolve(cfg).key == resolve(configs.tiny(agent)).key == resolve(from_cli).key
   assert from_cli.log_every == 0 and from_cli.eval_every == cfg.eval_every
 
 

@@ -21,11 +21,13 @@ CHUNK_TEXT = """
 import hashlib
 import jax
 from mjx_hopper.run import trainers
+from mjx_hopper.settings.plan import resolve
 
 
 def chunk_text(cfg):
-  trainer = trainers.build(cfg, 1)
-  state = jax.eval_shape(lambda: trainers.init(cfg, trainer, [{"seed": 0}], begin=False))
+  plan = resolve(cfg, 1)
+  trainer = trainers.build(plan)
+  state = jax.eval_shape(lambda: trainers.init(plan, trainer, [{"seed": 0}], begin=False))
   return hashlib.sha256(trainer.chunk.lower(state).as_text(debug_info=False).encode()).hexdigest()
 """
 # Run in the notebook's kernel after its own cells: what its workflow left behind.

@@ -10,6 +10,7 @@ import pytest
 from mjx_hopper import store
 from mjx_hopper.faces import cli, export
 from mjx_hopper.run import checkpoints, trainers
+from mjx_hopper.settings.plan import resolve
 from mjx_hopper.settings import config
 from mjx_hopper.store.run_folder import RunFolder, Saved, check_processes
 from configs import TINY
@@ -21,9 +22,10 @@ def partial(tmp_path_factory):
   item names the members it holds); member 3 has the best evaluation."""
   cfg = dataclasses.replace(TINY, seeds=(0, 1, 2, 3),
                             out_dir=str(tmp_path_factory.mktemp("partial")))
-  folder = RunFolder.of(cfg)
-  trainer = trainers.build(cfg, 2)
-  state = trainers.init(cfg, trainer, cfg.member_settings()[2:])
+  folder = RunFolder(cfg.out_dir)
+  plan = resolve(cfg, 2)
+  trainer = trainers.build(plan)
+  state = trainers.init(plan, trainer, plan.members[2:])
   record = {"best_return": [1.0, 5.0], "best_env_steps": [40, 40]}
   mngr = store.manager(folder.checkpoints)
   store.save(mngr, state, {**cfg.saved([2, 3]), "record": record})
@@ -70,7 +72,7 @@ def test_the_cli_takes_a_members_index(partial, capsys):
 
 def test_config_json_is_the_config_item(tmp_path):
   cfg = dataclasses.replace(TINY, out_dir=str(tmp_path))
-  folder = RunFolder.of(cfg)
+  folder = RunFolder(cfg.out_dir)
   assert folder.path == str(tmp_path) and folder.log == str(tmp_path / "log.csv")
   folder.write_config(cfg.saved([0]))
   assert config.load(str(tmp_path / "config.json")).to_json() == cfg.to_json()
@@ -80,10 +82,11 @@ def test_config_json_is_the_config_item(tmp_path):
 def test_a_run_over_processes_resumes_on_as_many(tmp_path):
   cfg = dataclasses.replace(TINY, seeds=(0, 1), out_dir=str(tmp_path))
   assert "processes" not in cfg.saved([0, 1])
-  trainer = trainers.build(cfg, 2)
-  mngr = store.manager(RunFolder.of(cfg).checkpoints)
+  plan = resolve(cfg, 2)
+  trainer = trainers.build(plan)
+  mngr = store.manager(RunFolder(cfg.out_dir).checkpoints)
   check_processes(mngr, 2)  # nothing saved yet: any number
-  store.save(mngr, trainers.init(cfg, trainer, cfg.member_settings()), cfg.saved([0, 1], 2))
+  store.save(mngr, trainers.init(plan, trainer), cfg.saved([0, 1], 2))
   store.wait_and_record(mngr)
   check_processes(mngr, 2)
   saved = Saved.read(mngr, mngr.latest_step())  # eval, export and extract read it as any

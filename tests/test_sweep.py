@@ -22,6 +22,7 @@ from mjx_hopper.core.pbt import exploit_explore
 from mjx_hopper.faces import cli
 from mjx_hopper.process import ledger
 from mjx_hopper.run import checkpoints, loop, sweep, trainers
+from mjx_hopper.settings.plan import resolve
 from mjx_hopper.settings.training import PBT
 from configs import JUMP, JUMP_ARGS, POPULATION, TINY, TINY_ARGS
 from test_train import member
@@ -62,7 +63,7 @@ def single():
   """The trainer of a single JUMP run on one device, as a sweep's member is laid out (a
   single run over two devices gives each its own envs' keys and replay). A member's seed and
   swept values are data, init's inputs, so this one program is every member's single run."""
-  base = trainers.build(JUMP, 1)
+  base = trainers.build(resolve(JUMP, 1))
   ledger.note("trainer", "HighJump d4pg x1 on one device")
   return train.make_trainer(base.env, base.agent, JUMP.train, JUMP.eval_episodes,
                             devices=jax.local_devices()[:1])
@@ -102,7 +103,7 @@ def test_sweep_writes_results_resumes_exactly_and_extracts(single, tmp_path, cap
   # A single run with its sigma given as init's data is the single run of that setting as a
   # user starts it (member 3 has JUMP's own sigma and seed 1), bit for bit.
   assert cfg.member_settings()[3] == {"seed": 1, "sigma": JUMP.agent_config().sigma}
-  user_path = run_chunks(single, trainers.init(dataclasses.replace(JUMP, seed=1), single,
+  user_path = run_chunks(single, trainers.init(resolve(dataclasses.replace(JUMP, seed=1)), single,
                                                [{"seed": 1}]), chunks=1)
   assert_same(user_path, single_run(single, cfg.member_settings()[3], chunks=1))
 
@@ -262,13 +263,13 @@ def test_a_diverged_member_is_frozen_and_the_others_go_on_unchanged(tmp_path, ca
             "frozen at its last finite agent" in out)
   # Members 0 and 2 run as they do beside sane neighbours, bit for bit (the same program): a
   # diverged member leaves the members vmapped with it alone.
-  trainer = trainers.build(cfg)
+  trainer = trainers.build(resolve(cfg))
   sane = dataclasses.replace(cfg, grid={"sigma": (0.1, 0.3), "learning_rate": (1e-3, 3e-4)})
-  beside_sane, _ = run_chunks(trainer, trainers.init(sane, trainer, sane.member_settings()), 3)
+  beside_sane, _ = run_chunks(trainer, trainers.init(resolve(sane), trainer), 3)
   for m in (0, 2):
     assert_same(member(result.state, m), member(beside_sane, m))
   # Members 1 and 3 diverged in their first chunk: their agents stay the ones they started with.
-  start = trainers.init(cfg, trainer, cfg.member_settings())
+  start = trainers.init(resolve(cfg), trainer)
   for m in (1, 3):
     assert_same(member(result.state.agent, m), member(start.agent, m))
   with open(tmp_path / "log.csv") as f:

@@ -17,6 +17,7 @@ from mjx_hopper.core import train
 from mjx_hopper.envs.events import AntLongJump, HighJump
 from mjx_hopper.faces import cli, notebook
 from mjx_hopper.run import checkpoints, loop, trainers
+from mjx_hopper.settings.plan import resolve
 from mjx_hopper.settings import presets
 from configs import JUMP, TINY_ARGS
 
@@ -95,7 +96,7 @@ def test_bad_rewards_are_refused_before_any_compile(task, message, monkeypatch):
     raise AssertionError("the trainer was built")
   monkeypatch.setattr(train, "make_trainer", no_compile)
   with pytest.raises(ValueError, match=message):
-    trainers.build(dataclasses.replace(JUMP, env=task, env_settings={}))
+    trainers.build(resolve(dataclasses.replace(JUMP, env=task, env_settings={})))
 
 
 def test_a_reward_that_turns_nan_mid_episode_ends_the_episode():

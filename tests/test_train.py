@@ -14,13 +14,14 @@ from mjx_hopper.core import evaluator, start, train
 from mjx_hopper.faces import cli
 from mjx_hopper.process import distributed
 from mjx_hopper.run import checkpoints, logger, loop, opening, trainers
+from mjx_hopper.settings.plan import resolve
 
 from configs import TINY, tiny_args
 
 
 @pytest.fixture(scope="module")
 def trainer():
-  return trainers.build(TINY)  # the trainer that loop.run(TINY) below reuses
+  return trainers.build(resolve(TINY))  # the trainer that loop.run(TINY) below reuses
 
 
 @pytest.fixture(scope="module")
@@ -41,7 +42,7 @@ def member(tree, i=0):
 def test_counters_and_replay_fill(two_chunks):
   first, second, metrics, _ = two_chunks
   assert int(first.iteration) == 5 and int(second.iteration) == 10
-  rows = TINY.train.replay_rows()
+  rows = TINY.train.replay_rows
   assert rows == 16  # 64 transitions / 4 envs
   assert int(second.replay.filled) == min(20, rows)
   assert int(second.replay.position) == 20 % rows
@@ -113,11 +114,11 @@ def test_bad_run_config():
 
 def test_where_evaluations_run():
   """"auto" evaluates on the host's CPU a single run that trains on an accelerator."""
-  assert not TINY.evaluates_on_host("cpu")  # it trains on the CPU
-  assert dataclasses.replace(TINY, eval_on="host").evaluates_on_host("cpu")
-  assert TINY.evaluates_on_host("gpu")
-  assert not dataclasses.replace(TINY, seeds=(0, 1)).evaluates_on_host("gpu")  # a sweep (or PBT)
-  assert not dataclasses.replace(TINY, eval_on="train").evaluates_on_host("gpu")
+  assert not TINY.evaluates_on_host("cpu", 1)  # it trains on the CPU
+  assert dataclasses.replace(TINY, eval_on="host").evaluates_on_host("cpu", 1)
+  assert TINY.evaluates_on_host("gpu", 1)
+  assert not TINY.evaluates_on_host("gpu", 2)  # a sweep (or PBT)
+  assert not dataclasses.replace(TINY, eval_on="train").evaluates_on_host("gpu", 1)
 
 
 def test_run_logs_checkpoints_and_resumes(tmp_path, capsys):
@@ -215,11 +216,12 @@ def test_a_run_that_diverges_stops_and_keeps_its_last_finite_checkpoint(tmp_path
   chunk, calls = opening.Chunk.__call__, []
 
   def poisoned(self, state):
-    state, metrics, before = chunk(self, state)
+    state, ran, before = chunk(self, state)
     calls.append(state)
     if len(calls) == 3:
-      metrics = {**metrics, "critic_loss": np.full_like(metrics["critic_loss"], np.nan)}
-    return state, metrics, before
+      ran = ran._replace(metrics={**ran.metrics, "critic_loss": np.full_like(
+          ran.metrics["critic_loss"], np.nan)})
+    return state, ran, before
   monkeypatch.setattr(opening.Chunk, "__call__", poisoned)
   cfg = dataclasses.replace(TINY, out_dir=str(tmp_path), total_env_steps=400,
                             checkpoint_minutes=0.0)
@@ -329,11 +331,12 @@ def test_host_evaluations_pending_at_a_divergence_or_a_checkpoint_still_count(tm
   chunk, calls = opening.Chunk.__call__, []
 
   def poisoned(self, state):  # the third chunk's critic loss goes NaN
-    state, metrics, before = chunk(self, state)
+    state, ran, before = chunk(self, state)
     calls.append(1)
     if len(calls) == 3:
-      metrics = {**metrics, "critic_loss": np.full_like(metrics["critic_loss"], np.nan)}
-    return state, metrics, before
+      ran = ran._replace(metrics={**ran.metrics, "critic_loss": np.full_like(
+          ran.metrics["critic_loss"], np.nan)})
+    return state, ran, before
   _evaluations_compiled_first_and_never_finished(monkeypatch)
   monkeypatch.setattr(opening.Chunk, "__call__", poisoned)
   cfg = dataclasses.replace(TINY, eval_on="host", out_dir=str(tmp_path / "diverges"),

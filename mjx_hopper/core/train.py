@@ -177,7 +177,7 @@ def _make_init(train_env: EpisodeStarts, agent: Agent, cfg: TrainConfig, where: 
     env_state = jax.vmap(train_env.blank)(jax.random.split(env_key, cfg.num_envs))
     return TrainState(
         agent=agent.init(agent_key, hp),
-        replay=replay.init(cfg.replay_rows(), cfg.num_envs, env.observation_size,
+        replay=replay.init(cfg.replay_rows, cfg.num_envs, env.observation_size,
                            env.action_size),
         env=env_state, episode_return=jnp.zeros(cfg.num_envs), key=key,
         iteration=jnp.zeros((), jnp.int32), updates=jnp.zeros((), jnp.int32),

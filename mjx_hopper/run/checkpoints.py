@@ -15,6 +15,7 @@ from mjx_hopper import store
 from mjx_hopper.core import train
 from mjx_hopper.run import trainers
 from mjx_hopper.settings.config import TRAINER_DYNAMIC, RunConfig
+from mjx_hopper.settings.plan import Plan, resolve
 from mjx_hopper.store.run_folder import RunFolder, Saved, open_checkpoints
 
 
@@ -82,11 +83,9 @@ def load_member(directory: str, member: int | str | None = None, env: Any = None
 
   def load(step):
     saved = Saved.read(mngr, step, env)
-    position = saved.position(member)
-    members = saved.member_settings()
-    cfg = built_here(saved.config, print_fn)
-    trainer = trainers.build(cfg, len(members))
-    like = jax.eval_shape(lambda k: trainers.init(cfg, trainer, members).agent, 0)
+    position, members = saved.position(member), saved.member_settings()
+    plan, trainer = _built(saved, print_fn)
+    like = jax.eval_shape(lambda k: trainers.init(plan, trainer, members).agent, 0)
     agents_state, best = saved.agents(mngr, like, which)
     score = saved.record.get("best_return", [None] * len(members))[position] if best else None
     if score is not None:
@@ -97,7 +96,7 @@ def load_member(directory: str, member: int | str | None = None, env: Any = None
     else:
       print_fn(f"the latest policy, at {step * trainer.config.steps_per_iteration:,} env steps"
                + ("" if which == "latest" else " (no evaluation was saved yet)"))
-    return Member(cfg, jax.tree.map(lambda x: x[position], agents_state), trainer, saved,
+    return Member(plan.cfg, jax.tree.map(lambda x: x[position], agents_state), trainer, saved,
                   position, best)
 
   return store.load_newest(mngr, load)[1]
@@ -146,16 +145,21 @@ def _restore(directory: str, print_fn, env: Any, with_best: bool = False):
 
   def load(step):
     saved = Saved.read(mngr, step, env)
-    members = saved.member_settings()
-    cfg = built_here(saved.config, print_fn)
-    trainer = trainers.build(cfg, len(members))
-    state = store.read_state(mngr, step, trainers.init(cfg, trainer, members))
+    plan, trainer = _built(saved, print_fn)
+    state = store.read_state(mngr, step, trainers.init(plan, trainer, saved.member_settings()))
     best = store.read_best(mngr, step, state.agent) if with_best else None
-    return cfg, state, trainer, saved, best
+    return plan.cfg, state, trainer, saved, best
 
   step, out = store.load_newest(mngr, load, print_fn)
   print_fn(f"restored {directory}, step {step}")
   return out
+
+
+def _built(saved: Saved, print_fn) -> tuple[Plan, train.Trainer]:
+  """A checkpoint step's plan and trainer as this process builds them (`built_here`), for the
+  members the step holds."""
+  plan = resolve(built_here(saved.config, print_fn), len(saved.indices))
+  return plan, trainers.build(plan)
 
 
 def _write_member(saved: Saved, state, best, position: int, out_dir: str) -> tuple[str, dict]:

@@ -26,6 +26,7 @@ from mjx_hopper.run import checkpoints, opening
 from mjx_hopper.run.logger import check_services
 from mjx_hopper.run.opening import ProgressFn
 from mjx_hopper.settings.config import RunConfig
+from mjx_hopper.settings.plan import resolve
 from mjx_hopper.store.run_folder import RunFolder
 
 
@@ -70,10 +71,11 @@ def run(cfg: RunConfig, checkpoint_dir: str | None = None, progress: bool = True
     distributed.join(distributed_run)  # before anything runs on a device
   primary = distributed.primary()
   check_services(cfg.wandb, cfg.tensorboard_dir)  # before a compile, which exit waits for
+  plan = resolve(cfg, processes=distributed.count(), backend=jax.default_backend())
   say = _above_progress_bars(print_fn) if primary else _silent
-  folder = RunFolder.of(cfg)
+  folder = RunFolder(cfg.out_dir)
   with _lock(folder.path, say, primary), distributed.watch(folder.path):
-    parts, state = opening.open_run(cfg, folder, checkpoint_dir, say,
+    parts, state = opening.open_run(plan, folder, checkpoint_dir, say,
                                     progress_fn if primary else None)
     with StopRequest() as stop, parts.logger, _naming_the_checkpoint_at_an_error(parts):
       user = _UserCode(stop)
@@ -162,12 +164,12 @@ def _one_chunk(p: opening.Parts, user: "_UserCode", state: train.TrainState):
   """A chunk, checked, its diverged members frozen, and logged: (state, env steps, env steps/s,
   whether progress_fn asked to stop)."""
   before, t0 = p.trainer.env_steps(state), time.perf_counter()
-  state, metrics, agents_before = p.chunk(state)
+  state, ran, agents_before = p.chunk(state)
   env_steps = p.trainer.env_steps(state)
-  p.members.check(env_steps, metrics, p.chunk.finite(state.agent))
+  p.members.check(env_steps, ran.metrics, ran.finite)
   state = p.chunk.freeze(state, agents_before, p.members.diverged)
   rate = (env_steps - before) * len(p.members) / (time.perf_counter() - t0)
-  return state, env_steps, rate, _log_train(p, user, state, env_steps, rate, metrics)
+  return state, env_steps, rate, _log_train(p, user, ran, env_steps, rate)
 
 
 def _take_evaluations(p: opening.Parts, user: "_UserCode", wait: bool) -> bool:
@@ -238,13 +240,13 @@ def _naming_the_checkpoint_at_an_error(parts: opening.Parts):
     raise
 
 
-def _log_train(p: opening.Parts, user: _UserCode, state, env_steps: int, rate: float,
-               metrics: dict) -> bool:
+def _log_train(p: opening.Parts, user: _UserCode, ran: opening.Ran, env_steps: int,
+               rate: float) -> bool:
   """Logs a chunk: a row per member, and a sweep's terminal line. Returns whether progress_fn
   asked to stop."""
-  updates = np.asarray(distributed.gather(state.updates, "updates"))
+  metrics = ran.metrics
   rows = [{"kind": "train", **p.members.tags(m), "env_steps": env_steps,
-           "updates": int(updates[m]), "wall_s": p.until.elapsed(), "steps_per_s": rate,
+           "updates": int(ran.updates[m]), "wall_s": p.until.elapsed(), "steps_per_s": rate,
            **{k: float(v[m]) for k, v in metrics.items()}} for m in range(len(p.members))]
   if not p.members.all_diverged():
     p.display.trained(env_steps, rate, metrics["episode_return"], p.cfg.log_every)

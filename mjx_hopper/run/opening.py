@@ -1,6 +1,7 @@
-"""A run's opening: its settings resolved once into a `Plan`, its newest readable checkpoint
-restored (or a fresh state made) while its programs compile, and the `Parts` that own each step
-between chunks assembled around them, complete."""
+"""A run's opening, from its settings resolved once (`settings.plan`): its trainer and
+checkpoints built, its newest readable checkpoint restored (or a fresh state made) while its
+programs compile, and the `Parts` that own each step between chunks assembled around them,
+complete."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ import functools
 import math
 import os
 import time
-from typing import Any, Callable
+from typing import Any, Callable, NamedTuple
 
 import jax
 import numpy as np
@@ -22,6 +23,7 @@ from mjx_hopper.process import distributed
 from mjx_hopper.run import sweep, trainers
 from mjx_hopper.run.logger import Logger
 from mjx_hopper.settings.config import RunConfig
+from mjx_hopper.settings.plan import Plan
 from mjx_hopper.store.run_folder import RunFolder, check_processes
 
 ProgressFn = Callable[[int, dict], Any]
@@ -54,109 +56,111 @@ class Parts:
 
 
 @dataclasses.dataclass(frozen=True)
-class Plan:
-  """A run resolved at its start, for every step after: its members' settings, folder,
-  checkpoints' folder, saved config (and the defaults it is checked with), the checkpoints it
-  holds (None: a fresh folder), trainer and where it evaluates (None: the training's devices;
-  else the host's CPU devices)."""
-  cfg: RunConfig
-  members: list[dict]
+class Built:
+  """What a run's start builds from its `plan`: its folder, checkpoints' folder and their
+  manager (None: a fresh folder), trainer, and where it evaluates (None: the training's
+  devices; else the host's CPU devices)."""
+  plan: Plan
   folder: RunFolder
   checkpoints: str
-  saved_config: dict
-  defaults: dict
   mngr: Any
   trainer: train.Trainer
   host: Any
 
   def fresh(self, begin: bool = True) -> train.TrainState:
     """The members' fresh TrainState (`trainers.init`)."""
-    return trainers.init(self.cfg, self.trainer, self.members, begin)
+    return trainers.init(self.plan, self.trainer, begin=begin)
 
   def compile(self) -> start.Started:
     """The programs that train the run, compiling (`start.start`)."""
     return start.start(self.trainer, self.fresh, functools.partial(
-        evaluation.lower, self.trainer, len(self.members), self.cfg.eval_episodes, self.host))
+        evaluation.lower, self.trainer, len(self.plan.members), self.plan.cfg.eval_episodes,
+        self.host))
 
 
-def open_run(cfg: RunConfig, folder: RunFolder, checkpoint_dir: str | None, say, progress_fn):
+def open_run(plan: Plan, folder: RunFolder, checkpoint_dir: str | None, say, progress_fn):
   """The parts of a run, and the state to train from (fresh, or the newest readable
   checkpoint's), with the training chunk compiling meanwhile, then the evaluation."""
   t_start = time.perf_counter()
-  plan = resolve(cfg, folder, checkpoint_dir)
-  resumed, started, saver = restore(plan, say)
-  return assemble(plan, resumed, started, saver, say, progress_fn, t_start), resumed.state
+  built = build(plan, folder, checkpoint_dir)
+  resumed, started, saver = restore(built, say)
+  return assemble(built, resumed, started, saver, say, progress_fn, t_start), resumed.state
 
 
-def resolve(cfg: RunConfig, folder: RunFolder, checkpoint_dir: str | None) -> Plan:
-  """The run's plan; a checkpoint of another run is refused before anything is built."""
-  mine = cfg.member_settings()
+def build(plan: Plan, folder: RunFolder, checkpoint_dir: str | None) -> Built:
+  """What the run's start builds; a checkpoint of another run is refused before anything is
+  built."""
   os.makedirs(folder.path, exist_ok=True)
   checkpoint_dir = checkpoint_dir or folder.checkpoints
-  saved_config = cfg.saved(list(range(len(mine))), distributed.count())
-  defaults = cfg.saved_defaults()
-  mngr = checked_manager(cfg, checkpoint_dir, saved_config, defaults)
-  trainer = trainers.build(cfg, len(mine))
-  # Evaluating on the host's CPU beside training is one process's choice: not over processes.
-  on_host = cfg.evaluates_on_host(jax.default_backend()) and distributed.count() == 1
-  return Plan(cfg, mine, folder, checkpoint_dir, saved_config, defaults, mngr, trainer,
-              evaluation.host_sharding(cfg.eval_episodes) if on_host else None)
+  mngr = checked_manager(plan, checkpoint_dir)
+  trainer = trainers.build(plan)
+  return Built(plan, folder, checkpoint_dir, mngr, trainer,
+               evaluation.host_sharding(plan.cfg.eval_episodes) if plan.on_host else None)
 
 
-def restore(plan: Plan, say):
+def restore(built: Built, say):
   """(the newest readable checkpoint's contents or a fresh state's, the programs that train on
   from it (None where nothing is left to train), the run's Saver). A fresh run compiles while
   the checkpoints open; a resumed one that trains on, while its checkpoint is read."""
-  cfg, per_iteration = plan.cfg, plan.trainer.config.steps_per_iteration
-  started = None if plan.mngr is not None else plan.compile()
-  saver = store.Saver(plan.mngr or store.manager(plan.checkpoints, cfg.keep_checkpoints),
-                      plan.saved_config, cfg.checkpoint_minutes, per_iteration, say)
+  plan, cfg, per_iteration = built.plan, built.plan.cfg, built.trainer.config.steps_per_iteration
+  started = None if built.mngr is not None else built.compile()
+  saver = store.Saver(built.mngr or store.manager(built.checkpoints, cfg.keep_checkpoints),
+                      plan.saved, cfg.checkpoint_minutes, per_iteration, say)
   if started is None and (saver.mngr.latest_step() or 0) * per_iteration < cfg.total_env_steps:
-    started = plan.compile()
-  resumed = store.read_latest(saver.mngr, started.state.result() if started else plan.fresh(),
-                              plan.saved_config, say, plan.defaults)
+    started = built.compile()
+  resumed = store.read_latest(saver.mngr, started.state.result() if started else built.fresh(),
+                              plan.saved, say, plan.saved_defaults)
   if distributed.primary():
-    plan.folder.write_config(plan.saved_config)  # once resuming is agreed
-  if plan.trainer.env_steps(resumed.state) >= cfg.total_env_steps:
+    built.folder.write_config(plan.saved)  # once resuming is agreed
+  if built.trainer.env_steps(resumed.state) >= cfg.total_env_steps:
     started = None  # nothing left to train
   elif started is None:  # an older step than the newest was read
-    started = plan.compile()
+    started = built.compile()
   return resumed, started, saver
 
 
-def assemble(plan: Plan, resumed, started, saver, say, progress_fn, t_start: float) -> Parts:
+def assemble(built: Built, resumed, started, saver, say, progress_fn, t_start: float) -> Parts:
   """The parts that own each step between chunks, complete."""
-  cfg, trainer, mine, primary = plan.cfg, plan.trainer, plan.members, distributed.primary()
-  members = Members(mine, list(range(len(mine))), single=len(mine) == 1,
+  cfg, trainer, mine, primary = built.plan.cfg, built.trainer, built.plan.members, (
+      distributed.primary())
+  members = Members(list(mine), list(range(len(mine))), single=len(mine) == 1,
                     pbt=cfg.pbt is not None, target=cfg.stop_at_return, say=say)
   members.load_record(resumed.record)
-  evaluator = Evaluator(trainer, [m["seed"] for m in mine], plan.host,
+  evaluator = Evaluator(trainer, [m["seed"] for m in mine], built.host,
                         started and started.evaluation, resumed.best)
   display = sweep.Report(cfg.grid, members, say)
-  logger = Logger(plan.folder.log if primary else None, cfg.log_every, display.logger_print,
+  logger = Logger(built.folder.log if primary else None, cfg.log_every, display.logger_print,
                   agents.learner_fields(cfg.agent), cfg.tensorboard_dir if primary else None,
                   start_step=trainer.env_steps(resumed.state),
                   id_fields=display.id_fields, wandb_project=cfg.wandb if primary else None,
-                  wandb_config=plan.saved_config)
+                  wandb_config=built.plan.saved)
   say(header(cfg, trainer, len(mine), members.single))
   if warning := gpu_sizes_warning(cfg.agent_defaults, jax.devices()[0].platform):
     say(warning)
   pbt_step = cfg.pbt and pbt.make_step(cfg.pbt, cfg.grid, trainer, cfg.seed, say)
-  return Parts(cfg, plan.folder, trainer, members, evaluator,
+  return Parts(cfg, built.folder, trainer, members, evaluator,
                Chunk(started, evaluator, members), pbt_step, saver, logger, display,
                Until(cfg, t_start), progress_fn, say)
 
 
-def checked_manager(cfg: RunConfig, checkpoint_dir: str, saved_config: dict, defaults: dict):
+def checked_manager(plan: Plan, checkpoint_dir: str):
   """The checkpoint manager of a folder that holds checkpoints, once they are of this run (its
   config and number of processes), before anything is built or compiled for it; None for a
   fresh folder. A checkpoint of another run is a ConfigMismatch."""
   if not (os.path.isdir(checkpoint_dir) and os.listdir(checkpoint_dir)):
     return None
-  mngr = store.manager(checkpoint_dir, cfg.keep_checkpoints)
+  mngr = store.manager(checkpoint_dir, plan.cfg.keep_checkpoints)
   check_processes(mngr, distributed.count())
-  store.check_config(mngr, saved_config, defaults)
+  store.check_config(mngr, plan.saved, plan.saved_defaults)
   return mngr
+
+
+class Ran(NamedTuple):
+  """What a chunk leaves on the host, gathered from every process in one exchange: its metrics
+  (each (members,)), whether each member's agent is finite, and each member's update count."""
+  metrics: dict
+  finite: np.ndarray
+  updates: np.ndarray
 
 
 class Chunk:
@@ -170,19 +174,17 @@ class Chunk:
     self._copy, self._select = evaluator.copy_agents, evaluator.select_agents
 
   def __call__(self, state: train.TrainState):
-    """(state after the chunk, its metrics on the host, a sweep's agents before it (None for a
-    single run, which stops when it diverges))."""
+    """(state after the chunk, what it leaves on the host (`Ran`), a sweep's agents before it
+    (None for a single run, which stops when it diverges))."""
     before = None if self.single else self._copy(state.agent)
     state, metrics = self.program.result()(state)
-    return state, distributed.gather(metrics, "metrics"), before
+    finite = self._finite.result()(state.agent)
+    ran = Ran(*distributed.gather((metrics, finite, state.updates), "chunk's results"))
+    return state, ran, before
 
   def refill(self, state: train.TrainState) -> train.TrainState:
     """`state` with fresh episode starts for the next chunk."""
     return state._replace(env=self._refill.result()(state.env, np.False_))
-
-  def finite(self, agent) -> np.ndarray:
-    """(members,): whether every float of each member's `agent` is finite."""
-    return distributed.gather(self._finite.result()(agent), "finite")
 
   def freeze(self, state: train.TrainState, before, diverged: np.ndarray) -> train.TrainState:
     """`state` with the agents of the `diverged` members taken back to `before`."""

@@ -128,11 +128,11 @@ class RunConfig:
     """The task's env, built with its settings."""
     return envs.make(self.task(), physics=self.physics, **self.task_settings())
 
-  def evaluates_on_host(self, backend: str) -> bool:
-    """Whether evaluations run on the host's CPU, beside training on `backend` (as
-    `jax.default_backend()` names it): `eval_on`."""
+  def evaluates_on_host(self, backend: str, members: int) -> bool:
+    """Whether evaluations of `members` members run on the host's CPU, beside training on
+    `backend` (as `jax.default_backend()` names it): `eval_on`."""
     if self.eval_on == "auto":
-      return len(self.member_settings()) == 1 and backend != "cpu"
+      return members == 1 and backend != "cpu"
     return self.eval_on == "host"
 
   def member_settings(self) -> list[dict]:
@@ -154,29 +154,32 @@ class RunConfig:
   def _largest(self, name: str):
     return self.pbt.ranges(self.grid)[name][1] if self.pbt else max(self.grid[name])
 
-  def to_json(self) -> dict:
+  def to_json(self, task_settings: dict | None = None, agent_config=None) -> dict:
     """The config as a checkpoint and config.json record it: the task by id, with every
-    setting resolved."""
+    setting resolved (`task_settings` and `agent_config`: those already resolved)."""
     out = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
-    settings = self.task_settings()
+    settings = dict(task_settings or self.task_settings())
     out.update(env=self.task_id, episode_steps=settings.pop("episode_steps"),
                env_settings=settings, train=dataclasses.asdict(self.train),
                pbt=None if self.pbt is None else dataclasses.asdict(self.pbt),
-               agent_config=dataclasses.asdict(self.agent_config()))
+               agent_config=dataclasses.asdict(agent_config or self.agent_config()))
     return json.loads(json.dumps(out))
 
-  def saved(self, indices: list[int], processes: int = 1) -> dict:
+  def saved(self, indices: list[int], processes: int = 1, task_settings: dict | None = None,
+            agent_config=None) -> dict:
     """What a checkpoint's config item and config.json hold of this run training members
-    `indices` over `processes` (its record is added at each save)."""
-    item = {**self.to_json(), "member_indices": list(indices)}
+    `indices` over `processes` (its record is added at each save); `task_settings` and
+    `agent_config` as `to_json`'s."""
+    item = {**self.to_json(task_settings, agent_config), "member_indices": list(indices)}
     if processes > 1:
       item["processes"] = processes
     return item
 
-  def saved_defaults(self) -> dict:
+  def saved_defaults(self, agent_config=None) -> dict:
     """{saved key: {setting: default}} for the nested settings in MUST_MATCH: what a config
     saved before a setting existed ran with (a newer agent setting at its default)."""
-    return {"agent_config": field_defaults(self.agent_config()), "env_settings": {}}
+    return {"agent_config": field_defaults(agent_config or self.agent_config()),
+            "env_settings": {}}
 
   @classmethod
   def from_json(cls, saved: dict, env: Any = None) -> "RunConfig":

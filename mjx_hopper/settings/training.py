@@ -58,6 +58,7 @@ class TrainConfig:
         raise ValueError(f"{name} ({getattr(self, name)}) must divide evenly over the "
                          f"{num_devices} devices")
 
+  @property
   def replay_rows(self) -> int:
     """Rows of the replay ring: at least replay_size / num_envs, a multiple of the unroll."""
     rows = -(-self.replay_size // self.num_envs)

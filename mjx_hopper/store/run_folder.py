@@ -30,11 +30,6 @@ class RunFolder:
   def __init__(self, path: str):
     self.path = path
 
-  @classmethod
-  def of(cls, cfg: RunConfig) -> "RunFolder":
-    """The folder of `cfg`'s run: `cfg.out_dir`."""
-    return cls(cfg.out_dir)
-
   @property
   def log(self) -> str:
     """The run's log.csv."""
