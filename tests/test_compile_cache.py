@@ -12,6 +12,7 @@ import configs
 import mjx_hopper
 from mjx_hopper.process import runtime
 from mjx_hopper.run import trainers
+from mjx_hopper.settings.plan import resolve
 
 # Compiles one small program with the cache in argv[1], as a CPU with features argv[2] when
 # given (standing in for another machine), and prints where the cache went and JAX's cache
@@ -81,7 +82,7 @@ def test_a_trainer_of_another_config_is_traced_from_empty_caches():
     return len(traces)
   build = trainers.build.__wrapped__  # the product's, not the suite's memo (conftest)
   try:
-    a, b = configs.tiny("d4pg"), configs.tiny("ddpg")
+    a, b = resolve(configs.tiny("d4pg")), resolve(configs.tiny("ddpg"))
     build(a)
     doubled(1.0)
     build(b)

@@ -82,7 +82,7 @@ class Evaluator:
     """Queues an evaluation of `agent` (every member's) at `env_steps`."""
     self.pending.append(Pending(env_steps, self.copy_agents(agent), diverged.copy()))
 
-  def collect(self, wait: bool) -> list[Done]:
+  def take(self, wait: bool) -> list[Done]:
     """The queued evaluations that are done, oldest first; with `wait`, all of them. On the
     training's devices every evaluation waits; on the host, only those beyond MAX_PENDING do.
     Those queued while the program compiled start here, once it is compiled (or with `wait`)."""

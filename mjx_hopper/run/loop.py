@@ -147,7 +147,7 @@ def _train(p: opening.Parts, state: train.TrainState, progress: bool, stop, user
     if env_steps >= next_eval or last:
       next_eval += cfg.eval_every
       evaluator.submit(env_steps, state.agent, members.diverged)
-    pbt_now = p.pbt_due(before, env_steps)
+    pbt_now = _pbt_due(cfg, before, env_steps)
     # The last evaluation, PBT's (which needs the returns) and a checkpoint's (which holds
     # them) wait; the others do not.
     asked |= _take_evaluations(p, user, wait=last or pbt_now or saving)
@@ -172,11 +172,20 @@ def _one_chunk(p: opening.Parts, user: "_UserCode", state: train.TrainState):
   return state, env_steps, rate, _log_train(p, user, ran, env_steps, rate)
 
 
+def _pbt_due(cfg: RunConfig, before: int, env_steps: int) -> bool:
+  """Whether PBT steps after the chunk from `before` to `env_steps`: at every `pbt.every`-th
+  evaluation, but not at the run's end."""
+  if cfg.pbt is None:
+    return False
+  period = cfg.eval_every * cfg.pbt.every
+  return env_steps // period > before // period and env_steps < cfg.total_env_steps
+
+
 def _take_evaluations(p: opening.Parts, user: "_UserCode", wait: bool) -> bool:
   """Records, keeps and logs the evaluations that are done (with `wait`, all of them). Returns
   whether progress_fn asked to stop."""
   asked = False
-  for done in p.evaluator.collect(wait=wait):
+  for done in p.evaluator.take(wait=wait):
     p.evaluator.keep(done, p.members.evaluated(done.env_steps, done.returns, done.diverged))
     asked |= _log_evaluation(p, user, done)
   return asked

@@ -46,14 +46,6 @@ class Parts:
   progress_fn: ProgressFn | None
   say: Callable[[str], None]
 
-  def pbt_due(self, before: int, env_steps: int) -> bool:
-    """Whether PBT steps after the chunk from `before` to `env_steps`: at every `pbt.every`-th
-    evaluation, but not at the run's end."""
-    if self.cfg.pbt is None:
-      return False
-    period = self.cfg.eval_every * self.cfg.pbt.every
-    return env_steps // period > before // period and env_steps < self.cfg.total_env_steps
-
 
 @dataclasses.dataclass(frozen=True)
 class Built:

@@ -24,6 +24,9 @@ class TrainConfig:
   min_replay: int = setting(20_000, "transitions collected before learning starts")
   iterations_per_chunk: int = setting(25, "iterations per compiled chunk")
 
+  def __post_init__(self):
+    check_types(self)
+
   @property
   def steps_per_iteration(self) -> int:
     """Env steps one iteration collects: num_envs x unroll_length."""
@@ -35,8 +38,7 @@ class TrainConfig:
     return round(self.replay_ratio * self.steps_per_iteration / self.batch_size)
 
   def check(self, num_devices: int = 1) -> None:
-    """Raises ValueError naming the first bad setting."""
-    check_types(self)
+    """Raises ValueError naming the first bad setting (a wrong type is refused when made)."""
     for name in ("num_envs", "unroll_length", "batch_size", "iterations_per_chunk"):
       value = getattr(self, name)
       if not isinstance(value, int) or value < 1:
