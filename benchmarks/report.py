@@ -79,6 +79,7 @@ SUITE_FILES = {"quick": ("suite_time_quick.json", "suite_time_quick_before.json"
 HEAVIEST_FILES = 3
 COMPILE_FLAGS = "compile_flags_cpu.json"
 C_PHYSICS = "c_physics_cpu.json"
+WARP = "warp_physics_h100.json"  # MJX's JAX and Warp physics on one GPU
 # Robots' cpu presets trained with each physics engine (--physics), one after the other; and the
 # Hopper's start with each, in turns (start_time.py's names for them).
 PHYSICS_TTS = {"Hopper": {"MJX": TTS.format("Hopper_cpu_mjx_after_c"),
@@ -307,6 +308,7 @@ def sections() -> list[tuple[str, str, str, list[str]]]:
   out.append(learner_changes_section())
   out.append(cpu_learner_section())
   out.append(c_physics_section())
+  out.append(warp_section())
   out.append(gymnasium_section())
   out.append(start_section())
   out.append(iteration_section())
@@ -569,6 +571,24 @@ def c_physics_section() -> tuple[str, str, str, list[str]]:
           + table(["robot", "physics", "reached", "median (min)", "M env steps",
                    "first row, cold (s)", "warm (s)"], trained),
           [C_PHYSICS, *(n for e in PHYSICS_TTS.values() for n in e.values()), start_file])
+
+
+def warp_section() -> tuple[str, str, str, list[str]]:
+  """MJX's two physics implementations on each robot: the first call, physics steps/s, and the
+  distance to MuJoCo C with the models' solver settings and with a converged solver."""
+  found = load(WARP)["figures"]
+  rows = [[r["robot"], r["impl"], num(r["first_call_s"], 1), num(r["physics_steps_per_s"]),
+           f"{r['qpos_gap_step1']:.1g}", num(r["qpos_gap_last"], 2),
+           num(r["qpos_gap_last_converged"], 3)] for r in found["rows"] if "error" not in r]
+  return ("MJX's JAX and Warp physics on one GPU",
+          f"Each robot's own model, {num(found['worlds'])} worlds, a scan of "
+          f"{found['steps']} physics steps from a random velocity and a constant random control; "
+          f"the largest qpos distance to MuJoCo C over {found['reference_worlds']} of the "
+          "worlds, with the models' solvers (1 iteration, the Humanoid 3) and converged "
+          f"({found['converged_iterations']} iterations). The first call includes Warp's own "
+          "kernel builds (cached on disk after the first robot).",
+          table(["robot", "physics", "first call (s)", "physics steps/s", "to C, step 1",
+                 f"to C, step {found['steps']}", "converged"], rows), [WARP])
 
 
 def gymnasium_section() -> tuple[str, str, str, list[str]]:
