@@ -113,8 +113,8 @@ def restore(built: Built, say):
 
 def assemble(built: Built, resumed, started, saver, say, progress_fn, t_start: float) -> Parts:
   """The parts that own each step between chunks, complete."""
-  cfg, trainer, mine, primary = built.plan.cfg, built.trainer, built.plan.members, (
-      distributed.primary())
+  cfg, mine, trainer = built.plan.cfg, built.plan.members, built.trainer
+  primary = distributed.primary()
   members = Members(list(mine), list(range(len(mine))), single=len(mine) == 1,
                     pbt=cfg.pbt is not None, target=cfg.stop_at_return, say=say)
   members.load_record(resumed.record)
