@@ -9,6 +9,10 @@ convergence (`--converged-iterations`), which tells an unconverged solver's diff
 from the growth of any small difference in a chaotic motion.
 
     bash benchmarks/gpu.sh "python benchmarks/warp_physics.py"
+
+gpu.sh installs what .whl/ holds: add warp-lang's wheel there (mujoco-mjx carries MuJoCo Warp's
+own code). It is larger than one call carries: send it in parts to the machine's /tmp in calls
+that follow each other while it stays warm, join them into .whl/ there, then run gpu.sh.
 """
 
 from __future__ import annotations
