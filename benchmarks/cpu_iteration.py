@@ -84,9 +84,10 @@ def part_split(env_name: str, kind: str, repeats: int) -> dict:
       return trainers.init(plan, trainer)
     learning = per_chunk(trainer.chunk, fresh(), trainer=trainer)
     # The same chunk before learning starts: collection and insert alone.
-    waiting = dataclasses.replace(cfg, train=dataclasses.replace(tc, min_replay=tc.replay_size))
-    idle = trainers.build(resolve(waiting))
-    collecting = per_chunk(idle.chunk, trainers.init(resolve(waiting), idle),
+    waiting = resolve(dataclasses.replace(
+        cfg, train=dataclasses.replace(tc, min_replay=tc.replay_size)))
+    idle = trainers.build(waiting)
+    collecting = per_chunk(idle.chunk, trainers.init(waiting, idle),
                            trainer=idle)
     refill = per_chunk(jax.jit(lambda e, _: (trainer.refill(e, False), None),
                                out_shardings=(trainer.shardings.env, None)), fresh().env, None)

@@ -34,7 +34,7 @@ def assemble(plan: Plan) -> train.Trainer:
   """`build`'s trainer, JAX's in-memory caches as they are. Where a compile ledger is kept, it
   notes the trainer's configuration (`process.ledger`)."""
   key = plan.key
-  env = envs.make(key.task, physics=key.physics, **plan.task_settings)
+  env = plan.cfg.make_env(plan.task_settings)
   envs.check_task(env)
   agent = agents.make(key.agent, env.observation_size, env.action_size, plan.agent_config)
   ledger.note("trainer", f"{key.task.__name__} {key.agent} x{key.members} "

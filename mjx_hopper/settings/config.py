@@ -124,9 +124,11 @@ class RunConfig:
              **self.env_settings}
     return envs.task_settings(self.task(), given)
 
-  def make_env(self) -> envs.LocomotionEnv:
-    """The task's env, built with its settings."""
-    return envs.make(self.task(), physics=self.physics, **self.task_settings())
+  def make_env(self, task_settings: dict | None = None) -> envs.LocomotionEnv:
+    """The task's env, built with its settings (`task_settings`: those already resolved)."""
+    if task_settings is None:
+      task_settings = self.task_settings()
+    return envs.make(self.task(), physics=self.physics, **task_settings)
 
   def evaluates_on_host(self, backend: str, members: int) -> bool:
     """Whether evaluations of `members` members run on the host's CPU, beside training on
@@ -158,11 +160,12 @@ class RunConfig:
     """The config as a checkpoint and config.json record it: the task by id, with every
     setting resolved (`task_settings` and `agent_config`: those already resolved)."""
     out = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
-    settings = dict(task_settings or self.task_settings())
+    settings = dict(self.task_settings() if task_settings is None else task_settings)
     out.update(env=self.task_id, episode_steps=settings.pop("episode_steps"),
                env_settings=settings, train=dataclasses.asdict(self.train),
                pbt=None if self.pbt is None else dataclasses.asdict(self.pbt),
-               agent_config=dataclasses.asdict(agent_config or self.agent_config()))
+               agent_config=dataclasses.asdict(
+                   self.agent_config() if agent_config is None else agent_config))
     return json.loads(json.dumps(out))
 
   def saved(self, indices: list[int], processes: int = 1, task_settings: dict | None = None,
@@ -178,8 +181,9 @@ class RunConfig:
   def saved_defaults(self, agent_config=None) -> dict:
     """{saved key: {setting: default}} for the nested settings in MUST_MATCH: what a config
     saved before a setting existed ran with (a newer agent setting at its default)."""
-    return {"agent_config": field_defaults(agent_config or self.agent_config()),
-            "env_settings": {}}
+    if agent_config is None:
+      agent_config = self.agent_config()
+    return {"agent_config": field_defaults(agent_config), "env_settings": {}}
 
   @classmethod
   def from_json(cls, saved: dict, env: Any = None) -> "RunConfig":
