@@ -44,10 +44,10 @@ def record_episode(checkpoint_dir: str, member: int, path: str) -> dict:
   """Runs one deterministic episode of `member`'s final policy and saves its qpos."""
   import jax
 
-  from mjx_hopper.core import train
+  from mjx_hopper.core import rollout
   from mjx_hopper.run import checkpoints
   cfg, agent_state, trainer = checkpoints.load_policy(checkpoint_dir, member)
-  result = jax.device_get(jax.jit(lambda s, k: train.evaluate(
+  result = jax.device_get(jax.jit(lambda s, k: rollout.evaluate(
       trainer.env, trainer.agent, s, k, 1, record_qpos=True))(agent_state, jax.random.PRNGKey(7)))
   length = int(result["length"][0])
   np.savez(path, qpos=np.asarray(result["qpos"][:length + 1]), env=cfg.task_id,

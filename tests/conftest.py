@@ -51,9 +51,10 @@ def shared_builds():
   """`trainers.build`, through which every path builds its trainer (`loop.run` and
   `loop.resume`, `checkpoints.restore`, `.load_policy` and `.extract`,
   `export.export_checkpoint` and the in-process CLI), memoised on the plan's `key` for a
-  test worker's whole session: each config's trainer is traced once, across the test files that the worker runs (tracing one takes about
-  15 s of CPU, even when its programs come from the compile cache). A trainer is pure
-  functions, so a run is the same with a trainer built once or again. JAX's caches are kept
+  test worker's whole session: each config's trainer is traced once, across the test files
+  that the worker runs (tracing one takes about 15 s of CPU, even when its programs come from
+  the compile cache). A trainer is pure functions, so a run is the same with a trainer built
+  once or again. JAX's caches are kept
   (`trainers.assemble`), not emptied for each new trainer as `trainers.build` empties them: the
   memoised trainers and envs would be traced again, which made the quick tier trace far longer.
   `trainers.build.__wrapped__` is the product's."""

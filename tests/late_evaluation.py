@@ -11,9 +11,9 @@ import jax
 
 from mjx_hopper.core import evaluator
 from mjx_hopper.faces import cli
-from mjx_hopper.run import opening
+from mjx_hopper.run import loop
 
-lower, chunk = evaluator.lower, opening.Chunk.__call__
+lower, chunk = evaluator.lower, loop.Chunk.__call__
 
 
 def late_lower(*args):
@@ -28,5 +28,5 @@ def slow_chunk(self, state):
 
 
 if __name__ == "__main__":
-  evaluator.lower, opening.Chunk.__call__ = late_lower, slow_chunk
+  evaluator.lower, loop.Chunk.__call__ = late_lower, slow_chunk
   cli.main(sys.argv[1:])

@@ -72,7 +72,8 @@ def test_video_and_episode_reward_plot(runs, tmp_path):
   lines = notebook.plot_episode_rewards(episodes).get_lines()
   assert len(lines) == 5
   assert lines[-1].get_xdata()[-1] == episodes["length"].sum() - 1  # one after another
-  np.testing.assert_array_equal(lines[0].get_ydata(), episodes["rewards"][0, :episodes["length"][0]])
+  first = episodes["rewards"][0, :episodes["length"][0]]
+  np.testing.assert_array_equal(lines[0].get_ydata(), first)
 
 
 def test_learning_curve_reads_log_csv(runs):

@@ -45,7 +45,8 @@ print("FACTS " + json.dumps({
                     for c in (ddpg, dmpo, walker, jump_cfg, ant_cfg)},
     "tasks": [json.load(open(f"{c.out_dir}/config.json"))["env"] for c in (cfg, jump_cfg, ant_cfg)],
     "jump_settings": json.load(open(f"{jump_cfg.out_dir}/config.json"))["env_settings"],
-    "jump_terms": sorted(k for k in jump_episodes if k not in ("return", "length", "rewards", "qpos")),
+    "jump_terms": sorted(k for k in jump_episodes
+                         if k not in ("return", "length", "rewards", "qpos")),
     "videos": sorted(p for p in os.listdir() if p.endswith(".mp4")),
     "pbt": json.load(open(f"{pbt_cfg.out_dir}/config.json"))["pbt"],
     "pbt_members": sorted(set(notebook.read_log(f"{pbt_cfg.out_dir}/log.csv")["eval"]["member"])),

@@ -30,7 +30,8 @@ def first_row(env_steps, metrics):
   sys.stdout.flush()
   return False
 
-cfg = notebook.tiny(loop.RunConfig(env="Hopper", agent="d4pg", agent_defaults="cpu", out_dir=sys.argv[1]))
+cfg = notebook.tiny(loop.RunConfig(env="Hopper", agent="d4pg", agent_defaults="cpu",
+                                   out_dir=sys.argv[1]))
 loop.run(cfg, progress=False, print_fn=lambda line: None, progress_fn=first_row)
 """
 

@@ -168,11 +168,11 @@ def reference_pbt_step(returns, diverged, values, ranges, quanta, pbt, rng):
   if not pool:
     return sources, new
   replaced = ranked[S - max(count, S - len(healthy)):]
-  for member in replaced:
-    if member in pool:
+  for m in replaced:
+    if m in pool:
       continue
     source = pool[int(rng.integers(len(pool)))]
-    sources[member] = source
+    sources[m] = source
     for name in values:
       now = float(values[name][source])
       moved = now * pbt.factors[int(rng.integers(len(pbt.factors)))]
@@ -182,7 +182,7 @@ def reference_pbt_step(returns, diverged, values, ranges, quanta, pbt, rng):
         if snapped == now:
           snapped = now + q if moved > now else now - q
         moved = snapped
-      new[name][member] = min(max(moved, ranges[name][0]), ranges[name][1])
+      new[name][m] = min(max(moved, ranges[name][0]), ranges[name][1])
   return sources, new
 
 

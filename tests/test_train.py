@@ -13,7 +13,7 @@ from mjx_hopper import agents, store
 from mjx_hopper.core import evaluator, start, train
 from mjx_hopper.faces import cli
 from mjx_hopper.process import distributed
-from mjx_hopper.run import checkpoints, logger, loop, opening, trainers
+from mjx_hopper.run import checkpoints, logger, loop, trainers
 from mjx_hopper.settings.plan import resolve
 
 from configs import TINY, tiny_args
@@ -213,7 +213,7 @@ def test_a_run_that_diverges_stops_and_keeps_its_last_finite_checkpoint(tmp_path
                                                                         capsys):
   """The third chunk's critic loss goes NaN: the run stops there, says so, and never saves
   that state; the checkpoint of the chunk before stays the newest, and resumes."""
-  chunk, calls = opening.Chunk.__call__, []
+  chunk, calls = loop.Chunk.__call__, []
 
   def poisoned(self, state):
     state, ran, before = chunk(self, state)
@@ -222,7 +222,7 @@ def test_a_run_that_diverges_stops_and_keeps_its_last_finite_checkpoint(tmp_path
       ran = ran._replace(metrics={**ran.metrics, "critic_loss": np.full_like(
           ran.metrics["critic_loss"], np.nan)})
     return state, ran, before
-  monkeypatch.setattr(opening.Chunk, "__call__", poisoned)
+  monkeypatch.setattr(loop.Chunk, "__call__", poisoned)
   cfg = dataclasses.replace(TINY, out_dir=str(tmp_path), total_env_steps=400,
                             checkpoint_minutes=0.0)
   result = loop.run(cfg, progress=False)
@@ -235,7 +235,7 @@ def test_a_run_that_diverges_stops_and_keeps_its_last_finite_checkpoint(tmp_path
   assert np.isnan(last["critic_loss"])  # the diverged chunk's row is logged
   # The evaluations due at 40 and 80 env steps ran, however long their compile took.
   assert [int(r["env_steps"]) for r in result.history if r["kind"] == "eval"] == [40, 80]
-  monkeypatch.setattr(opening.Chunk, "__call__", chunk)
+  monkeypatch.setattr(loop.Chunk, "__call__", chunk)
   resumed = loop.resume(str(tmp_path / "checkpoints"), progress=False, total_env_steps=160)
   assert train.iterations(resumed.state) == 20
 
@@ -328,7 +328,7 @@ def test_host_evaluations_pending_at_a_divergence_or_a_checkpoint_still_count(tm
   """Evaluations still on the host when the run diverges are logged, and their agents (taken
   before it diverged) can be its best; a checkpoint waits for those due before it, so that
   its record holds them."""
-  chunk, calls = opening.Chunk.__call__, []
+  chunk, calls = loop.Chunk.__call__, []
 
   def poisoned(self, state):  # the third chunk's critic loss goes NaN
     state, ran, before = chunk(self, state)
@@ -338,7 +338,7 @@ def test_host_evaluations_pending_at_a_divergence_or_a_checkpoint_still_count(tm
           ran.metrics["critic_loss"], np.nan)})
     return state, ran, before
   _evaluations_compiled_first_and_never_finished(monkeypatch)
-  monkeypatch.setattr(opening.Chunk, "__call__", poisoned)
+  monkeypatch.setattr(loop.Chunk, "__call__", poisoned)
   cfg = dataclasses.replace(TINY, eval_on="host", out_dir=str(tmp_path / "diverges"),
                             total_env_steps=400)
   result = loop.run(cfg, progress=False)
@@ -346,7 +346,7 @@ def test_host_evaluations_pending_at_a_divergence_or_a_checkpoint_still_count(tm
   assert [s for s, _ in evals] == [40, 80] and len(calls) == 3
   assert result.best_return[0] == pytest.approx(max(r for _, r in evals))
   calls.clear()
-  monkeypatch.setattr(opening.Chunk, "__call__", chunk)
+  monkeypatch.setattr(loop.Chunk, "__call__", chunk)
   saved = loop.run(dataclasses.replace(cfg, out_dir=str(tmp_path / "saves"),
                                        total_env_steps=80, checkpoint_minutes=0.0),
                    progress=False)
@@ -421,14 +421,14 @@ def test_an_exception_from_user_code_saves_first_and_the_run_resumes_there(tmp_p
 def test_an_error_in_the_chunk_names_the_checkpoint_that_resumes(tmp_path, monkeypatch, capsys):
   """A chunk that fails (a reward's host callback, say) takes its state with it (the chunk
   takes its input's memory); the run waits for the save in flight and names what is kept."""
-  chunk, calls = opening.Chunk.__call__, []
+  chunk, calls = loop.Chunk.__call__, []
 
   def failing(self, state):
     calls.append(None)
     if len(calls) == 3:
       raise Broken("a reward's host callback")
     return chunk(self, state)
-  monkeypatch.setattr(opening.Chunk, "__call__", failing)
+  monkeypatch.setattr(loop.Chunk, "__call__", failing)
   cfg = dataclasses.replace(TINY, total_env_steps=400, out_dir=str(tmp_path),
                             checkpoint_minutes=0.0)
   with pytest.raises(Broken):

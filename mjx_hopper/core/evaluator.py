@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
 
-from mjx_hopper.core import train
+from mjx_hopper.core import rollout, train
 from mjx_hopper.process import distributed
 
 MAX_PENDING = 3  # evaluations running on the host beyond which training waits for the oldest
@@ -54,7 +54,7 @@ def lower(trainer: train.Trainer, members: int, episodes: int, host: NamedShardi
   keys = jax.ShapeDtypeStruct((members, 2), jnp.uint32)
   if host is None:
     return trainer.evaluate.lower(agent_shapes, keys)
-  evaluate = train.make_evaluate(trainer.env, trainer.agent, episodes, members,
+  evaluate = rollout.make_evaluate(trainer.env, trainer.agent, episodes, members,
                                  list(host.mesh.devices.flat))
   agent, keys = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=host),
                              (agent_shapes, keys))
@@ -82,16 +82,17 @@ class Evaluator:
     """Queues an evaluation of `agent` (every member's) at `env_steps`."""
     self.pending.append(Pending(env_steps, self.copy_agents(agent), diverged.copy()))
 
-  def take(self, wait: bool) -> list[Done]:
+  def compiling(self) -> bool:
+    """Whether the evaluation's program is still compiling. It rests on this process's clock:
+    over processes, `take` is given the value agreed on, before the evaluation's collectives."""
+    return self.program is not None and not self.program.done()
+
+  def take(self, wait: bool, compiling: bool = False) -> list[Done]:
     """The queued evaluations that are done, oldest first; with `wait`, all of them. On the
     training's devices every evaluation waits; on the host, only those beyond MAX_PENDING do.
-    Those queued while the program compiled start here, once it is compiled (or with `wait`)."""
-    if not self.pending:
-      return []
-    # Whether the program is compiled rests on one process's clock: agreed over processes,
-    # before the evaluation's collectives.
-    compiling, = distributed.agree("evaluation", not self.program.done())
-    if compiling and not wait:
+    Those queued while the program compiled (`compiling`, agreed over processes) start here,
+    once it is compiled (or with `wait`)."""
+    if not self.pending or (compiling and not wait):
       return []
     self.pending = [p if p.started is not None else p._replace(started=self._start(p))
                     for p in self.pending]

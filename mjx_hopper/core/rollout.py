@@ -1,4 +1,5 @@
-"""Batched, jit-compiled rollouts of an env: whole episodes, and steady-state stepping."""
+"""Batched, jit-compiled rollouts of an env: whole episodes (a policy's, and an agent's
+evaluation), and steady-state stepping."""
 
 from __future__ import annotations
 
@@ -6,7 +7,10 @@ from typing import Callable
 
 import jax
 import jax.numpy as jnp
+from jax.sharding import Mesh
 
+from mjx_hopper.agents.base import Agent
+from mjx_hopper.core import kept
 from mjx_hopper.process import parallel
 from mjx_hopper.envs import EpisodeStarts, LocomotionEnv
 
@@ -44,6 +48,45 @@ def episodes(env: LocomotionEnv, policy: Policy, key: jax.Array, num_episodes: i
   if record_qpos:
     result["qpos"] = result["qpos"][0]
   return result
+
+
+def evaluate(env: LocomotionEnv, agent: Agent, agent_state, key: jax.Array,
+             num_episodes: int, record_qpos: bool = False,
+             devices: list | Mesh | None = None) -> dict[str, jax.Array]:
+  """`num_episodes` episodes of one member's deterministic policy, over `devices`.
+
+  Returns "return" and "length" (num_episodes,), each reward term's mean, and with `record_qpos`
+  episode 0's "qpos"."""
+  return episodes(env, lambda obs, _: agent.policy(agent_state, obs), key, num_episodes,
+                  record_qpos=record_qpos, devices=devices)
+
+
+def per_member(fn, local_members: int):
+  """`fn` over a leading axis of `local_members`: vmap, or plain code for one member (a single
+  run's program)."""
+  if local_members > 1:
+    return jax.vmap(fn)
+
+  def one(*args):
+    out = fn(*jax.tree.map(lambda x: x[0], args))
+    return jax.tree.map(lambda x: x[None], out)
+  return one
+
+
+def exported(env) -> bool:
+  """Whether `env`'s programs go through `jax.export` (`kept`): not where its step calls the
+  host."""
+  return not getattr(env, "calls_host", False)
+
+
+def make_evaluate(env: LocomotionEnv, agent: Agent, eval_episodes: int, num_members: int,
+                  devices: list | Mesh | None = None, identity: str | None = None):
+  """Trainer.evaluate: each member's `eval_episodes` episodes, jitted, over `devices` (a
+  list, or the trainer's mesh: `parallel.per_device`); kept as traced under `identity`."""
+  # One member's evaluation as plain code (vmap of one traces much slower), several under vmap.
+  return kept.jit(per_member(
+      lambda s, k: evaluate(env, agent, s, k, eval_episodes, devices=devices), num_members),
+      identity, "evaluate", exported=exported(env))
 
 
 def _local_episodes(env, policy, state, policy_keys, record_qpos, record_rewards):

@@ -107,7 +107,7 @@ class Layout(NamedTuple):
 
   def each_member(self, fn):
     """`fn` of one member, over this device's members."""
-    return per_member(fn, self.local_members)
+    return rollout.per_member(fn, self.local_members)
 
 
 def layout(num_members: int, devices: list) -> Layout:
@@ -144,24 +144,9 @@ def make_trainer(env: LocomotionEnv, agent: Agent, cfg: TrainConfig, eval_episod
   refill = _make_refill(train_env, where, identity)
   return Trainer(_make_init(train_env, agent, cfg, where, num_members, refill, identity),
                  _make_chunk(train_env, agent, cfg, where, dynamic_updates, identity), refill,
-                 make_evaluate(env, agent, eval_episodes, num_members, where.mesh, identity),
+                 rollout.make_evaluate(env, agent, eval_episodes, num_members, where.mesh,
+                                       identity),
                  cfg, env, agent, num_members, where.shardings)
-
-
-def _exported(env) -> bool:
-  """Whether `env`'s programs go through `jax.export` (`kept`): not where its step calls the
-  host."""
-  return not getattr(env, "calls_host", False)
-
-
-def make_evaluate(env: LocomotionEnv, agent: Agent, eval_episodes: int, num_members: int,
-                  devices: list | Mesh | None = None, identity: str | None = None):
-  """Trainer.evaluate: each member's `eval_episodes` episodes, jitted, over `devices` (a
-  list, or the trainer's mesh: `parallel.per_device`); kept as traced under `identity`."""
-  # One member's evaluation as plain code (vmap of one traces much slower), several under vmap.
-  return kept.jit(per_member(
-      lambda s, k: evaluate(env, agent, s, k, eval_episodes, devices=devices), num_members),
-      identity, "evaluate", exported=_exported(env))
 
 
 def _make_init(train_env: EpisodeStarts, agent: Agent, cfg: TrainConfig, where: Layout,
@@ -184,7 +169,7 @@ def _make_init(train_env: EpisodeStarts, agent: Agent, cfg: TrainConfig, where: 
         replay_ratio=jnp.asarray(ratio, jnp.float32))
 
   compiled_init = kept.jit(jax.vmap(init_member), identity, "init_member",
-                           exported=_exported(env), out_shardings=where.shardings)
+                           exported=rollout.exported(env), out_shardings=where.shardings)
 
   def init(seeds, hparams=None, begin=True):
     # NumPy until the one compiled call: eager JAX here would compile programs of its own.
@@ -210,7 +195,7 @@ def _make_refill(train_env: EpisodeStarts, where: Layout, identity: str | None):
   replicated = NamedSharding(where.mesh, P())
   return kept.jit(jax.shard_map(refill, mesh=where.mesh, in_specs=(where.specs.env, P()),
                                 out_specs=where.specs.env, check_vma=False),
-                  identity, "refill", exported=_exported(train_env),
+                  identity, "refill", exported=rollout.exported(train_env),
                   in_shardings=(where.shardings.env, replicated),
                   out_shardings=where.shardings.env, donate_argnums=0)
 
@@ -305,7 +290,7 @@ def _make_chunk(train_env: EpisodeStarts, agent: Agent, cfg: TrainConfig, where:
   return kept.jit(
       jax.shard_map(chunk, mesh=where.mesh, in_specs=(where.specs,),
                     out_specs=(where.specs, P(MEMBERS)), check_vma=False),
-      identity, "chunk", exported=_exported(train_env), in_shardings=(where.shardings,),
+      identity, "chunk", exported=rollout.exported(train_env), in_shardings=(where.shardings,),
       out_shardings=(where.shardings, per_member_out), donate_argnums=0)
 
 
@@ -346,26 +331,3 @@ def iterations(state: TrainState) -> int:
   if isinstance(count, jax.Array):
     count = count.addressable_data(0)
   return int(np.asarray(jax.device_get(count)).reshape(-1)[0])
-
-
-def per_member(fn, local_members: int):
-  """`fn` over a leading axis of `local_members`: vmap, or plain code for one member (a single
-  run's program)."""
-  if local_members > 1:
-    return jax.vmap(fn)
-
-  def one(*args):
-    out = fn(*jax.tree.map(lambda x: x[0], args))
-    return jax.tree.map(lambda x: x[None], out)
-  return one
-
-
-def evaluate(env: LocomotionEnv, agent: Agent, agent_state, key: jax.Array,
-             num_episodes: int, record_qpos: bool = False,
-             devices: list | Mesh | None = None) -> dict[str, jax.Array]:
-  """`num_episodes` episodes of one member's deterministic policy, over `devices`.
-
-  Returns "return" and "length" (num_episodes,), each reward term's mean, and with `record_qpos`
-  episode 0's "qpos"."""
-  return rollout.episodes(env, lambda obs, _: agent.policy(agent_state, obs), key, num_episodes,
-                          record_qpos=record_qpos, devices=devices)

@@ -38,7 +38,8 @@ def _mesh(batch_size: int, devices=None) -> Mesh | None:
 
 
 def batch_sharding(batch_size: int) -> NamedSharding | None:
-  """Shards axis 0 over every device (of every process), or None when the batch does not divide evenly."""
+  """Shards axis 0 over every device (of every process), or None when the batch does not divide
+  evenly."""
   mesh = _mesh(batch_size)
   return None if mesh is None else NamedSharding(mesh, BATCH)
 

@@ -12,7 +12,7 @@ import jax
 import numpy as np
 
 from mjx_hopper import store
-from mjx_hopper.core import train
+from mjx_hopper.core import rollout, train
 from mjx_hopper.run import trainers
 from mjx_hopper.settings.config import TRAINER_DYNAMIC, RunConfig
 from mjx_hopper.settings.plan import Plan, resolve
@@ -108,7 +108,7 @@ def evaluate_checkpoint(directory: str, member: int | str | None = None, episode
   """Evaluates a checkpoint's policy (as `load_member` picks it) over `episodes` episodes, and
   with `video_path`, films episode 0 as an mp4. Returns the per-episode "return" and "length"."""
   cfg, agent_state, trainer = load_policy(directory, member, env, which, print_fn)
-  result = jax.device_get(jax.jit(lambda s, k: train.evaluate(
+  result = jax.device_get(jax.jit(lambda s, k: rollout.evaluate(
       trainer.env, trainer.agent, s, k, episodes, record_qpos=video_path is not None))(
           agent_state, jax.random.PRNGKey(seed)))
   returns = np.asarray(result["return"])

@@ -11,7 +11,7 @@ import contextlib
 import dataclasses
 import sys
 import time
-from typing import Any, Callable
+from typing import Any, Callable, NamedTuple
 
 import jax
 import numpy as np
@@ -19,7 +19,7 @@ from tqdm.auto import tqdm
 
 import mjx_hopper
 from mjx_hopper import store
-from mjx_hopper.core import train
+from mjx_hopper.core import evaluator as evaluation, start, train
 from mjx_hopper.process import distributed, runlock
 from mjx_hopper.process.stop import StopRequest
 from mjx_hopper.run import checkpoints, opening
@@ -122,6 +122,7 @@ def _train(p: opening.Parts, state: train.TrainState, progress: bool, stop, user
            ) -> train.TrainState:
   """Chunks until the env steps or deadline, a stop, the target, or every member diverged."""
   cfg, members, evaluator = p.cfg, p.members, p.evaluator
+  chunk = Chunk(p.started, evaluator, members)
   env_steps = p.trainer.env_steps(state)
   bar = _progress_bar(cfg.total_env_steps, env_steps) if progress and not (
       p.until.total_reached(env_steps)) else None
@@ -136,21 +137,22 @@ def _train(p: opening.Parts, state: train.TrainState, progress: bool, stop, user
     if stopped or signalled or members.done():
       break
     before = env_steps
-    state, env_steps, rate, asked_now = _one_chunk(p, user, state)
+    state, env_steps, rate, asked_now = _one_chunk(p, chunk, user, state)
     asked |= asked_now
     if members.all_diverged():
       break  # this state is not evaluated, and never saved
-    state = p.chunk.refill(state)  # after the row: its program may still be compiling
-    last, signalled, saving = distributed.agree(
-        "after the chunk", asked or p.until.reached(env_steps), stop.requested, p.saver.due())
+    state = chunk.refill(state)  # after the row: its program may still be compiling
+    pbt_now = _pbt_due(cfg, before, env_steps)
+    last, signalled, saving, compiling = distributed.agree(
+        "after the chunk", asked or p.until.reached(env_steps), stop.requested, p.saver.due(),
+        evaluator.compiling())
     _signalled_elsewhere(stop, signalled)
     if env_steps >= next_eval or last:
       next_eval += cfg.eval_every
       evaluator.submit(env_steps, state.agent, members.diverged)
-    pbt_now = _pbt_due(cfg, before, env_steps)
     # The last evaluation, PBT's (which needs the returns) and a checkpoint's (which holds
     # them) wait; the others do not.
-    asked |= _take_evaluations(p, user, wait=last or pbt_now or saving)
+    asked |= _take_evaluations(p, user, last or pbt_now or saving, compiling)
     if pbt_now:
       state = p.pbt_step(state, evaluator.latest.returns, env_steps, members)
     if saving:
@@ -160,14 +162,52 @@ def _train(p: opening.Parts, state: train.TrainState, progress: bool, stop, user
   return state
 
 
-def _one_chunk(p: opening.Parts, user: "_UserCode", state: train.TrainState):
+class Ran(NamedTuple):
+  """What a chunk leaves on the host, gathered from every process in one exchange: its metrics
+  (each (members,)), whether each member's agent is finite, and each member's update count."""
+  metrics: dict
+  finite: np.ndarray
+  updates: np.ndarray
+
+
+class Chunk:
+  """Runs one compiled chunk and the refill of its episode starts, and freezes a sweep's members
+  that diverged in it at their agents before it."""
+
+  def __init__(self, started: start.Started | None, evaluator: evaluation.Evaluator, members):
+    self.program, self._refill, self._finite = (
+        (started.chunk, started.refill, started.finite) if started else (None, None, None))
+    self.single = members.single
+    self._copy, self._select = evaluator.copy_agents, evaluator.select_agents
+
+  def __call__(self, state: train.TrainState):
+    """(state after the chunk, what it leaves on the host (`Ran`), a sweep's agents before it
+    (None for a single run, which stops when it diverges))."""
+    before = None if self.single else self._copy(state.agent)
+    state, metrics = self.program.result()(state)
+    finite = self._finite.result()(state.agent)
+    ran = Ran(*distributed.gather((metrics, finite, state.updates), "chunk's results"))
+    return state, ran, before
+
+  def refill(self, state: train.TrainState) -> train.TrainState:
+    """`state` with fresh episode starts for the next chunk."""
+    return state._replace(env=self._refill.result()(state.env, np.False_))
+
+  def freeze(self, state: train.TrainState, before, diverged: np.ndarray) -> train.TrainState:
+    """`state` with the agents of the `diverged` members taken back to `before`."""
+    if before is None or not diverged.any():
+      return state
+    return state._replace(agent=self._select(diverged, before, state.agent))
+
+
+def _one_chunk(p: opening.Parts, chunk: Chunk, user: "_UserCode", state: train.TrainState):
   """A chunk, checked, its diverged members frozen, and logged: (state, env steps, env steps/s,
   whether progress_fn asked to stop)."""
   before, t0 = p.trainer.env_steps(state), time.perf_counter()
-  state, ran, agents_before = p.chunk(state)
+  state, ran, agents_before = chunk(state)
   env_steps = p.trainer.env_steps(state)
   p.members.check(env_steps, ran.metrics, ran.finite)
-  state = p.chunk.freeze(state, agents_before, p.members.diverged)
+  state = chunk.freeze(state, agents_before, p.members.diverged)
   rate = (env_steps - before) * len(p.members) / (time.perf_counter() - t0)
   return state, env_steps, rate, _log_train(p, user, ran, env_steps, rate)
 
@@ -181,11 +221,12 @@ def _pbt_due(cfg: RunConfig, before: int, env_steps: int) -> bool:
   return env_steps // period > before // period and env_steps < cfg.total_env_steps
 
 
-def _take_evaluations(p: opening.Parts, user: "_UserCode", wait: bool) -> bool:
-  """Records, keeps and logs the evaluations that are done (with `wait`, all of them). Returns
-  whether progress_fn asked to stop."""
+def _take_evaluations(p: opening.Parts, user: "_UserCode", wait: bool,
+                      compiling: bool = False) -> bool:
+  """Records, keeps and logs the evaluations that are done (with `wait`, all of them; while the
+  evaluation is `compiling`, none). Returns whether progress_fn asked to stop."""
   asked = False
-  for done in p.evaluator.take(wait=wait):
+  for done in p.evaluator.take(wait, compiling):
     p.evaluator.keep(done, p.members.evaluated(done.env_steps, done.returns, done.diverged))
     asked |= _log_evaluation(p, user, done)
   return asked
@@ -249,7 +290,7 @@ def _naming_the_checkpoint_at_an_error(parts: opening.Parts):
     raise
 
 
-def _log_train(p: opening.Parts, user: _UserCode, ran: opening.Ran, env_steps: int,
+def _log_train(p: opening.Parts, user: _UserCode, ran: Ran, env_steps: int,
                rate: float) -> bool:
   """Logs a chunk: a row per member, and a sweep's terminal line. Returns whether progress_fn
   asked to stop."""

@@ -10,10 +10,9 @@ import functools
 import math
 import os
 import time
-from typing import Any, Callable, NamedTuple
+from typing import Any, Callable
 
 import jax
-import numpy as np
 
 from mjx_hopper import agents, store
 from mjx_hopper.core import evaluator as evaluation, pbt, start, train
@@ -37,7 +36,7 @@ class Parts:
   trainer: train.Trainer
   members: Members
   evaluator: Evaluator
-  chunk: Callable
+  started: start.Started | None  # the programs that train it (None: nothing left to train)
   pbt_step: Callable | None
   saver: store.Saver
   logger: Logger
@@ -59,15 +58,11 @@ class Built:
   trainer: train.Trainer
   host: Any
 
-  def fresh(self, begin: bool = True) -> train.TrainState:
-    """The members' fresh TrainState (`trainers.init`)."""
-    return trainers.init(self.plan, self.trainer, begin=begin)
-
   def compile(self) -> start.Started:
     """The programs that train the run, compiling (`start.start`)."""
-    return start.start(self.trainer, self.fresh, functools.partial(
-        evaluation.lower, self.trainer, len(self.plan.members), self.plan.cfg.eval_episodes,
-        self.host))
+    return start.start(self.trainer, functools.partial(trainers.init, self.plan, self.trainer),
+                       functools.partial(evaluation.lower, self.trainer, len(self.plan.members),
+                                         self.plan.cfg.eval_episodes, self.host))
 
 
 def open_run(plan: Plan, folder: RunFolder, checkpoint_dir: str | None, say, progress_fn):
@@ -100,7 +95,8 @@ def restore(built: Built, say):
                       plan.saved, cfg.checkpoint_minutes, per_iteration, say)
   if started is None and (saver.mngr.latest_step() or 0) * per_iteration < cfg.total_env_steps:
     started = built.compile()
-  resumed = store.read_latest(saver.mngr, started.state.result() if started else built.fresh(),
+  resumed = store.read_latest(saver.mngr, started.state.result() if started
+                              else trainers.init(plan, built.trainer),
                               plan.saved, say, plan.saved_defaults)
   if distributed.primary():
     built.folder.write_config(plan.saved)  # once resuming is agreed
@@ -115,6 +111,10 @@ def assemble(built: Built, resumed, started, saver, say, progress_fn, t_start: f
   """The parts that own each step between chunks, complete."""
   cfg, mine, trainer = built.plan.cfg, built.plan.members, built.trainer
   primary = distributed.primary()
+  say(header(cfg, trainer, len(mine)))
+  if warning := gpu_sizes_warning(cfg.agent_defaults, jax.devices()[0].platform):
+    say(warning)
+  until = Until(cfg, t_start)
   members = Members(list(mine), list(range(len(mine))), single=len(mine) == 1,
                     pbt=cfg.pbt is not None, target=cfg.stop_at_return, say=say)
   members.load_record(resumed.record)
@@ -126,13 +126,10 @@ def assemble(built: Built, resumed, started, saver, say, progress_fn, t_start: f
                   start_step=trainer.env_steps(resumed.state),
                   id_fields=display.id_fields, wandb_project=cfg.wandb if primary else None,
                   wandb_config=built.plan.saved)
-  say(header(cfg, trainer, len(mine), members.single))
-  if warning := gpu_sizes_warning(cfg.agent_defaults, jax.devices()[0].platform):
-    say(warning)
   pbt_step = cfg.pbt and pbt.make_step(cfg.pbt, cfg.grid, trainer, cfg.seed, say)
   return Parts(cfg, built.folder, trainer, members, evaluator,
-               Chunk(started, evaluator, members), pbt_step, saver, logger, display,
-               Until(cfg, t_start), progress_fn, say)
+               started, pbt_step, saver, logger, display,
+               until, progress_fn, say)
 
 
 def checked_manager(plan: Plan, checkpoint_dir: str):
@@ -145,44 +142,6 @@ def checked_manager(plan: Plan, checkpoint_dir: str):
   check_processes(mngr, distributed.count())
   store.check_config(mngr, plan.saved, plan.saved_defaults)
   return mngr
-
-
-class Ran(NamedTuple):
-  """What a chunk leaves on the host, gathered from every process in one exchange: its metrics
-  (each (members,)), whether each member's agent is finite, and each member's update count."""
-  metrics: dict
-  finite: np.ndarray
-  updates: np.ndarray
-
-
-class Chunk:
-  """Runs one compiled chunk and the refill of its episode starts, and freezes a sweep's members
-  that diverged in it at their agents before it."""
-
-  def __init__(self, started: start.Started | None, evaluator: Evaluator, members: Members):
-    self.program, self._refill, self._finite = (
-        (started.chunk, started.refill, started.finite) if started else (None, None, None))
-    self.single = members.single
-    self._copy, self._select = evaluator.copy_agents, evaluator.select_agents
-
-  def __call__(self, state: train.TrainState):
-    """(state after the chunk, what it leaves on the host (`Ran`), a sweep's agents before it
-    (None for a single run, which stops when it diverges))."""
-    before = None if self.single else self._copy(state.agent)
-    state, metrics = self.program.result()(state)
-    finite = self._finite.result()(state.agent)
-    ran = Ran(*distributed.gather((metrics, finite, state.updates), "chunk's results"))
-    return state, ran, before
-
-  def refill(self, state: train.TrainState) -> train.TrainState:
-    """`state` with fresh episode starts for the next chunk."""
-    return state._replace(env=self._refill.result()(state.env, np.False_))
-
-  def freeze(self, state: train.TrainState, before, diverged: np.ndarray) -> train.TrainState:
-    """`state` with the agents of the `diverged` members taken back to `before`."""
-    if before is None or not diverged.any():
-      return state
-    return state._replace(agent=self._select(diverged, before, state.agent))
 
 
 class Until:
@@ -217,9 +176,10 @@ def gpu_sizes_warning(agent_defaults: str, platform: str) -> str | None:
   return None
 
 
-def header(cfg: RunConfig, trainer: train.Trainer, count: int, single: bool) -> str:
+def header(cfg: RunConfig, trainer: train.Trainer, count: int) -> str:
   """The run's first line: its task, agent, members, envs, physics (where not MJX), devices and
   chunk."""
+  single = count == 1
   config, each = trainer.config, "" if single else " each"
   per_chunk = config.steps_per_iteration * config.iterations_per_chunk
   return (f"{cfg.task_id} with {cfg.agent} ({cfg.agent_defaults}): "

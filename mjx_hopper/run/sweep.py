@@ -18,8 +18,8 @@ sweep per value.
 
 Population-based training (`RunConfig(pbt=PBT())`, `mjx-hopper sweep --pbt`): every
 `PBT.every` evaluations, the worst members take a copy of a better member's agent and perturb
-the grid's settings within bounds (docs/pbt.md). A member whose learning goes non-finite is marked diverged: frozen at its
-last finite agent, or under PBT, the first to be replaced.
+the grid's settings within bounds (docs/pbt.md). A member whose learning goes non-finite is
+marked diverged: frozen at its last finite agent, or under PBT, the first to be replaced.
 """
 
 from __future__ import annotations
