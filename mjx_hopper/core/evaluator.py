@@ -13,6 +13,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
 
 from mjx_hopper.core import rollout, train
 from mjx_hopper.process import distributed
+from mjx_hopper.settings.plan import Plan
 
 MAX_PENDING = 3  # evaluations running on the host beyond which training waits for the oldest
 
@@ -39,37 +40,39 @@ class Done(NamedTuple):
     return self.result["return"].mean(-1)
 
 
-def host_sharding(episodes: int) -> NamedSharding:
-  """The host's CPU devices for an evaluation of `episodes` on the host: as many as the
-  episodes spread evenly over."""
-  cpus = jax.devices("cpu")
+def host_sharding(plan: Plan) -> NamedSharding | None:
+  """Where `plan`'s evaluations run: None on the training's devices, or on the host's CPU
+  devices (`Plan.on_host`), as many as its episodes spread evenly over."""
+  if not plan.on_host:
+    return None
+  episodes, cpus = plan.cfg.eval_episodes, jax.devices("cpu")
   count = max(k for k in range(1, len(cpus) + 1) if episodes % k == 0)
   return NamedSharding(Mesh(np.array(cpus[:count]), ("host",)), P())
 
 
-def lower(trainer: train.Trainer, members: int, episodes: int, host: NamedSharding | None,
-          agent_shapes):
-  """The evaluation of `members` members' agents of `agent_shapes`, `episodes` each, lowered
-  for the training's devices, or with `host` (`host_sharding`), the host's."""
+def lower(trainer: train.Trainer, plan: Plan, agent_shapes):
+  """The evaluation of `plan`'s members' agents of `agent_shapes`, lowered where it runs
+  (`host_sharding`)."""
+  members, host = len(plan.members), host_sharding(plan)
   keys = jax.ShapeDtypeStruct((members, 2), jnp.uint32)
   if host is None:
     return trainer.evaluate.lower(agent_shapes, keys)
-  evaluate = rollout.make_evaluate(trainer.env, trainer.agent, episodes, members,
-                                 list(host.mesh.devices.flat))
+  evaluate = rollout.make_evaluate(trainer.env, trainer.agent, plan.cfg.eval_episodes, members,
+                                   list(host.mesh.devices.flat))
   agent, keys = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=host),
                              (agent_shapes, keys))
   return evaluate.lower(agent, keys)
 
 
 class Evaluator:
-  """Evaluates every member's deterministic policy when asked, by `program` (the compiled
-  `lower`'s future; None for a run with nothing left to train), on the training's devices or,
-  with `host`, on the host's CPU devices beside training. `best` is each member's agent at its
-  best evaluation (a resumed run's; None before any)."""
+  """Evaluates every member of `plan` by its deterministic policy when asked, by `program` (the
+  compiled `lower`'s future; None for a run with nothing left to train), on the training's
+  devices or on the host's CPU devices beside training (`host_sharding`). `best` is each
+  member's agent at its best evaluation (a resumed run's; None before any)."""
 
-  def __init__(self, trainer: train.Trainer, seeds: list[int], host: NamedSharding | None,
-               program, best=None):
-    self.seeds, self.host, self.program, self.best = seeds, host, program, best
+  def __init__(self, trainer: train.Trainer, plan: Plan, program, best=None):
+    self.seeds, self.host = [m["seed"] for m in plan.members], host_sharding(plan)
+    self.program, self.best = program, best
     self.latest: Done | None = None  # the latest evaluation kept
     self.pending: list[Pending] = []
     # Every member's agents copied, and chosen member by member: the host loop's chunk uses

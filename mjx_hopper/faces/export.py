@@ -211,13 +211,15 @@ def export_checkpoint(directory: str, out: str, member: int | str | None = None,
   written."""
   from mjx_hopper.run import checkpoints
 
-  cfg, state, trainer, saved, position, best = checkpoints.load_member(directory, member, env,
-                                                                       which, print_fn)
+  plan, state, trainer, saved, position, best = checkpoints.load_member(directory, member, env,
+                                                                        which, print_fn)
+  cfg = plan.cfg
   evaluation = _evaluation(saved.record, position, best, cfg.eval_episodes,
                            saved.step * trainer.config.steps_per_iteration)
-  policy = policy_of(cfg.agent, cfg.agent_config(), state.policy,
+  policy = policy_of(cfg.agent, plan.agent_config, state.policy,
                      trainer.env.observation_size, trainer.env.action_size,
-                     task=_task(cfg), member=saved.indices[position],
+                     task=_task(cfg.task_id, plan.task_settings),
+                     member=saved.indices[position],
                      evaluation=evaluation,
                      checkpoint_format=saved.item.get("checkpoint_format", 1),
                      versions={"mjx_hopper": mjx_hopper.__version__, "numpy": np.__version__},
@@ -229,10 +231,10 @@ def export_checkpoint(directory: str, out: str, member: int | str | None = None,
   return out
 
 
-def _task(cfg) -> dict:
-  """The task a RunConfig trains, by id, with every setting resolved."""
-  settings = cfg.task_settings()
-  return {"env": cfg.task_id, "episode_steps": settings.pop("episode_steps"),
+def _task(task_id: str, task_settings: dict) -> dict:
+  """The task a run trains, by id, with every setting resolved (`Plan.task_settings`)."""
+  settings = dict(task_settings)
+  return {"env": task_id, "episode_steps": settings.pop("episode_steps"),
           "env_settings": settings}
 
 

@@ -58,19 +58,24 @@ def saved_config(directory: str, print_fn=print, env: Any = None) -> RunConfig:
 class Member(NamedTuple):
   """One member's policy read from a checkpoint (`load_member`)."""
 
-  config: RunConfig
+  plan: Plan          # its run's settings, resolved for the members the step holds
   agent: Any          # its agent state, without the member axis
   trainer: train.Trainer
   saved: Saved        # the checkpoint step it was read from
   position: int       # its position along the step's member axis
   best: bool          # whether `agent` is its best evaluation's (else the latest)
 
+  @property
+  def config(self) -> RunConfig:
+    return self.plan.cfg
+
 
 def load_policy(directory: str, member: int | str | None = None, env: Any = None,
                 which: str = "best", print_fn=print):
   """(RunConfig, agent state, Trainer) of member `member` of the newest readable checkpoint in
   `directory` (`load_member`)."""
-  return load_member(directory, member, env, which, print_fn)[:3]
+  loaded = load_member(directory, member, env, which, print_fn)
+  return loaded.config, loaded.agent, loaded.trainer
 
 
 def load_member(directory: str, member: int | str | None = None, env: Any = None,
@@ -96,7 +101,7 @@ def load_member(directory: str, member: int | str | None = None, env: Any = None
     else:
       print_fn(f"the latest policy, at {step * trainer.config.steps_per_iteration:,} env steps"
                + ("" if which == "latest" else " (no evaluation was saved yet)"))
-    return Member(plan.cfg, jax.tree.map(lambda x: x[position], agents_state), trainer, saved,
+    return Member(plan, jax.tree.map(lambda x: x[position], agents_state), trainer, saved,
                   position, best)
 
   return store.load_newest(mngr, load)[1]

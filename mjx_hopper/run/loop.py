@@ -75,11 +75,11 @@ def run(cfg: RunConfig, checkpoint_dir: str | None = None, progress: bool = True
   say = _above_progress_bars(print_fn) if primary else _silent
   folder = RunFolder(cfg.out_dir)
   with _lock(folder.path, say, primary), distributed.watch(folder.path):
-    parts, state = opening.open_run(plan, folder, checkpoint_dir, say,
-                                    progress_fn if primary else None)
+    parts, restored = opening.open_run(plan, folder, checkpoint_dir, say,
+                                       progress_fn if primary else None)
     with StopRequest() as stop, parts.logger, _naming_the_checkpoint_at_an_error(parts):
       user = _UserCode(stop)
-      state = _train(parts, state, progress, stop, user)
+      state = _train(parts, restored, progress, stop, user)
     result = _finish(parts, state, stop)
   user.raise_error()
   return result
@@ -118,12 +118,13 @@ def _lock(folder: str, say, primary: bool):
     yield
 
 
-def _train(p: opening.Parts, state: train.TrainState, progress: bool, stop, user: "_UserCode"
-           ) -> train.TrainState:
-  """Chunks until the env steps or deadline, a stop, the target, or every member diverged."""
-  cfg, members, evaluator = p.cfg, p.members, p.evaluator
-  chunk = Chunk(p.started, evaluator, members)
-  env_steps = p.trainer.env_steps(state)
+def _train(p: opening.Parts, restored: opening.Restored, progress: bool, stop,
+           user: "_UserCode") -> train.TrainState:
+  """Chunks from `restored` until the env steps or deadline, a stop, the target, or every
+  member diverged."""
+  cfg, members = p.cfg, p.members
+  chunk = Chunk(p.started, p.evaluator, members)
+  state, env_steps = restored.resumed.state, restored.env_steps
   bar = _progress_bar(cfg.total_env_steps, env_steps) if progress and not (
       p.until.total_reached(env_steps)) else None
   next_eval = (env_steps // cfg.eval_every + 1) * cfg.eval_every
@@ -137,7 +138,7 @@ def _train(p: opening.Parts, state: train.TrainState, progress: bool, stop, user
     if stopped or signalled or members.done():
       break
     before = env_steps
-    state, env_steps, rate, asked_now = _one_chunk(p, chunk, user, state)
+    state, env_steps, rate, asked_now = _one_chunk(p, chunk, user, state, env_steps)
     asked |= asked_now
     if members.all_diverged():
       break  # this state is not evaluated, and never saved
@@ -145,18 +146,18 @@ def _train(p: opening.Parts, state: train.TrainState, progress: bool, stop, user
     pbt_now = _pbt_due(cfg, before, env_steps)
     last, signalled, saving, compiling = distributed.agree(
         "after the chunk", asked or p.until.reached(env_steps), stop.requested, p.saver.due(),
-        evaluator.compiling())
+        p.evaluator.compiling())
     _signalled_elsewhere(stop, signalled)
-    if env_steps >= next_eval or last:
-      next_eval += cfg.eval_every
-      evaluator.submit(env_steps, state.agent, members.diverged)
+    due = env_steps >= next_eval or last
+    next_eval += cfg.eval_every if due else 0
     # The last evaluation, PBT's (which needs the returns) and a checkpoint's (which holds
     # them) wait; the others do not.
-    asked |= _take_evaluations(p, user, last or pbt_now or saving, compiling)
+    asked |= _take_evaluations(p, user, last or pbt_now or saving, compiling,
+                               due=(env_steps, state.agent) if due else None)
     if pbt_now:
-      state = p.pbt_step(state, evaluator.latest.returns, env_steps, members)
+      state = p.pbt_step(state, p.evaluator.latest.returns, env_steps, members)
     if saving:
-      p.saver.save(state, evaluator.best, members)
+      p.saver.save(state, p.evaluator.best, members)
     _show(bar, p, env_steps, rate)
   _close(p, user, state, bar)
   return state
@@ -200,12 +201,13 @@ class Chunk:
     return state._replace(agent=self._select(diverged, before, state.agent))
 
 
-def _one_chunk(p: opening.Parts, chunk: Chunk, user: "_UserCode", state: train.TrainState):
-  """A chunk, checked, its diverged members frozen, and logged: (state, env steps, env steps/s,
-  whether progress_fn asked to stop)."""
-  before, t0 = p.trainer.env_steps(state), time.perf_counter()
+def _one_chunk(p: opening.Parts, chunk: Chunk, user: "_UserCode", state: train.TrainState,
+               before: int):
+  """A chunk from `before` env steps, checked, its diverged members frozen, and logged: (state,
+  env steps, env steps/s, whether progress_fn asked to stop)."""
+  t0 = time.perf_counter()
   state, ran, agents_before = chunk(state)
-  env_steps = p.trainer.env_steps(state)
+  env_steps = before + p.trainer.config.steps_per_chunk
   p.members.check(env_steps, ran.metrics, ran.finite)
   state = chunk.freeze(state, agents_before, p.members.diverged)
   rate = (env_steps - before) * len(p.members) / (time.perf_counter() - t0)
@@ -222,9 +224,12 @@ def _pbt_due(cfg: RunConfig, before: int, env_steps: int) -> bool:
 
 
 def _take_evaluations(p: opening.Parts, user: "_UserCode", wait: bool,
-                      compiling: bool = False) -> bool:
-  """Records, keeps and logs the evaluations that are done (with `wait`, all of them; while the
-  evaluation is `compiling`, none). Returns whether progress_fn asked to stop."""
+                      compiling: bool = False, due: tuple | None = None) -> bool:
+  """Queues the evaluation `due` (env steps, agents) if any, then records, keeps and logs the
+  evaluations that are done (with `wait`, all of them; while the evaluation is `compiling`,
+  none). Returns whether progress_fn asked to stop."""
+  if due is not None:
+    p.evaluator.submit(*due, p.members.diverged)
   asked = False
   for done in p.evaluator.take(wait, compiling):
     p.evaluator.keep(done, p.members.evaluated(done.env_steps, done.returns, done.diverged))

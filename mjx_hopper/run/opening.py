@@ -10,7 +10,7 @@ import functools
 import math
 import os
 import time
-from typing import Any, Callable
+from typing import Any, Callable, NamedTuple
 
 import jax
 
@@ -49,29 +49,27 @@ class Parts:
 @dataclasses.dataclass(frozen=True)
 class Built:
   """What a run's start builds from its `plan`: its folder, checkpoints' folder and their
-  manager (None: a fresh folder), trainer, and where it evaluates (None: the training's
-  devices; else the host's CPU devices)."""
+  manager (None: a fresh folder) and trainer."""
   plan: Plan
   folder: RunFolder
   checkpoints: str
   mngr: Any
   trainer: train.Trainer
-  host: Any
 
   def compile(self) -> start.Started:
     """The programs that train the run, compiling (`start.start`)."""
     return start.start(self.trainer, functools.partial(trainers.init, self.plan, self.trainer),
-                       functools.partial(evaluation.lower, self.trainer, len(self.plan.members),
-                                         self.plan.cfg.eval_episodes, self.host))
+                       functools.partial(evaluation.lower, self.trainer, self.plan))
 
 
-def open_run(plan: Plan, folder: RunFolder, checkpoint_dir: str | None, say, progress_fn):
-  """The parts of a run, and the state to train from (fresh, or the newest readable
+def open_run(plan: Plan, folder: RunFolder, checkpoint_dir: str | None, say, progress_fn
+             ) -> tuple[Parts, Restored]:
+  """The parts of a run, and what it trains from (a fresh state, or the newest readable
   checkpoint's), with the training chunk compiling meanwhile, then the evaluation."""
   t_start = time.perf_counter()
   built = build(plan, folder, checkpoint_dir)
-  resumed, started, saver = restore(built, say)
-  return assemble(built, resumed, started, saver, say, progress_fn, t_start), resumed.state
+  restored = restore(built, say)
+  return assemble(built, restored, say, progress_fn, t_start), restored
 
 
 def build(plan: Plan, folder: RunFolder, checkpoint_dir: str | None) -> Built:
@@ -81,14 +79,22 @@ def build(plan: Plan, folder: RunFolder, checkpoint_dir: str | None) -> Built:
   checkpoint_dir = checkpoint_dir or folder.checkpoints
   mngr = checked_manager(plan, checkpoint_dir)
   trainer = trainers.build(plan)
-  return Built(plan, folder, checkpoint_dir, mngr, trainer,
-               evaluation.host_sharding(plan.cfg.eval_episodes) if plan.on_host else None)
+  return Built(plan, folder, checkpoint_dir, mngr, trainer)
 
 
-def restore(built: Built, say):
-  """(the newest readable checkpoint's contents or a fresh state's, the programs that train on
-  from it (None where nothing is left to train), the run's Saver). A fresh run compiles while
-  the checkpoints open; a resumed one that trains on, while its checkpoint is read."""
+class Restored(NamedTuple):
+  """What a run trains from: the newest readable checkpoint's contents or a fresh state's
+  (`store.read_latest`), its env steps, the programs that train on from it (None where nothing
+  is left to train) and the run's Saver."""
+  resumed: Any
+  env_steps: int
+  started: start.Started | None
+  saver: store.Saver
+
+
+def restore(built: Built, say) -> Restored:
+  """What the run trains from. A fresh run compiles while the checkpoints open; a resumed one
+  that trains on, while its checkpoint is read."""
   plan, cfg, per_iteration = built.plan, built.plan.cfg, built.trainer.config.steps_per_iteration
   started = None if built.mngr is not None else built.compile()
   saver = store.Saver(built.mngr or store.manager(built.checkpoints, cfg.keep_checkpoints),
@@ -100,16 +106,18 @@ def restore(built: Built, say):
                               plan.saved, say, plan.saved_defaults)
   if distributed.primary():
     built.folder.write_config(plan.saved)  # once resuming is agreed
-  if built.trainer.env_steps(resumed.state) >= cfg.total_env_steps:
+  env_steps = built.trainer.env_steps(resumed.state)
+  if env_steps >= cfg.total_env_steps:
     started = None  # nothing left to train
   elif started is None:  # an older step than the newest was read
     started = built.compile()
-  return resumed, started, saver
+  return Restored(resumed, env_steps, started, saver)
 
 
-def assemble(built: Built, resumed, started, saver, say, progress_fn, t_start: float) -> Parts:
+def assemble(built: Built, restored: Restored, say, progress_fn, t_start: float) -> Parts:
   """The parts that own each step between chunks, complete."""
   cfg, mine, trainer = built.plan.cfg, built.plan.members, built.trainer
+  resumed, started = restored.resumed, restored.started
   primary = distributed.primary()
   say(header(cfg, trainer, len(mine)))
   if warning := gpu_sizes_warning(cfg.agent_defaults, jax.devices()[0].platform):
@@ -118,17 +126,16 @@ def assemble(built: Built, resumed, started, saver, say, progress_fn, t_start: f
   members = Members(list(mine), list(range(len(mine))), single=len(mine) == 1,
                     pbt=cfg.pbt is not None, target=cfg.stop_at_return, say=say)
   members.load_record(resumed.record)
-  evaluator = Evaluator(trainer, [m["seed"] for m in mine], built.host,
-                        started and started.evaluation, resumed.best)
+  evaluator = Evaluator(trainer, built.plan, started and started.evaluation, resumed.best)
   display = sweep.Report(cfg.grid, members, say)
   logger = Logger(built.folder.log if primary else None, cfg.log_every, display.logger_print,
                   agents.learner_fields(cfg.agent), cfg.tensorboard_dir if primary else None,
-                  start_step=trainer.env_steps(resumed.state),
+                  start_step=restored.env_steps,
                   id_fields=display.id_fields, wandb_project=cfg.wandb if primary else None,
                   wandb_config=built.plan.saved)
   pbt_step = cfg.pbt and pbt.make_step(cfg.pbt, cfg.grid, trainer, cfg.seed, say)
   return Parts(cfg, built.folder, trainer, members, evaluator,
-               started, pbt_step, saver, logger, display,
+               started, pbt_step, restored.saver, logger, display,
                until, progress_fn, say)
 
 
@@ -181,13 +188,12 @@ def header(cfg: RunConfig, trainer: train.Trainer, count: int) -> str:
   chunk."""
   single = count == 1
   config, each = trainer.config, "" if single else " each"
-  per_chunk = config.steps_per_iteration * config.iterations_per_chunk
   return (f"{cfg.task_id} with {cfg.agent} ({cfg.agent_defaults}): "
           f"{'' if single else f'{count} members, '}{config.num_envs} envs{each}"
           f"{' in MuJoCo C' if cfg.physics == 'c' else ''} on "
           f"{len(jax.devices())} {jax.devices()[0].platform} device(s)"
           f"{f' of {distributed.count()} processes' if distributed.count() > 1 else ''}, "
-          f"{per_chunk:,} env steps and "
+          f"{config.steps_per_chunk:,} env steps and "
           f"{config.updates_per_iteration * config.iterations_per_chunk:,} updates per chunk"
           f"{'' if single else ' per member'}")
 

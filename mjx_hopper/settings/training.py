@@ -33,6 +33,11 @@ class TrainConfig:
     return self.num_envs * self.unroll_length
 
   @property
+  def steps_per_chunk(self) -> int:
+    """Env steps one chunk collects."""
+    return self.steps_per_iteration * self.iterations_per_chunk
+
+  @property
   def updates_per_iteration(self) -> int:
     """Learner updates per iteration: replay_ratio x its env steps / batch_size, rounded."""
     return round(self.replay_ratio * self.steps_per_iteration / self.batch_size)
