@@ -67,6 +67,7 @@ class Member(NamedTuple):
 
   @property
   def config(self) -> RunConfig:
+    """Its run's config, as this process resolved it (`plan.cfg`)."""
     return self.plan.cfg
 
 
