@@ -38,7 +38,9 @@ def run_split(minutes: float, env: str, kind: str) -> dict:
                "--out-dir", out]
     start = time.time()
     cache = os.path.join(out, "cache")
-    subprocess.run(command, check=True, env=dict(os.environ, MJX_HOPPER_JAX_CACHE=cache),
+    # Run from the scratch folder: from a checkout's root, `-c` would import its source folder,
+    # not the installed package (the GPU machine's).
+    subprocess.run(command, check=True, cwd=out, env=dict(os.environ, MJX_HOPPER_JAX_CACHE=cache),
                    stdout=subprocess.DEVNULL)
     wall = time.time() - start
     with open(os.path.join(out, "log.csv")) as f:
