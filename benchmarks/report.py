@@ -66,7 +66,12 @@ START_ROWS = {"imports": ("imports",), "build": ("build",), "chunk: tracing": ("
 GYMNASIUM = "gymnasium_throughput_cpu.json"
 NOTEBOOK = "notebook_time_cpu.json"
 FIDELITY = "fidelity.json"
-ITERATION = {"XLA's": "cpu_iteration_cpu.json", "YNNPACK's": "cpu_iteration_cpu_ynn.json"}
+# Where a chunk's time goes: the Hopper's cpu preset with each choice of CPU matrix kernels, and
+# the gpu presets of the Hopper and the Humanoid (whose physics is the largest share).
+ITERATION = {"Hopper cpu, XLA's": "cpu_iteration_cpu.json",
+             "Hopper cpu, YNNPACK's": "cpu_iteration_cpu_ynn.json",
+             "Hopper gpu": "cpu_iteration_gpu_hopper_h100.json",
+             "Humanoid gpu": "cpu_iteration_gpu_humanoid_h100.json"}
 # CI's jobs in its order, each tier also at an earlier commit, measured the same day.
 SUITE = {"suite_time_quick.json": "`scripts/test.sh`",
          "suite_time_quick_before.json": "`scripts/test.sh`, before",
@@ -450,27 +455,29 @@ def sweep_section() -> tuple[str, str, str, list[str]]:
 
 
 def iteration_section() -> tuple[str, str, str, list[str]]:
-  """Where the main job's time goes on 2 CPU cores, with each choice of matrix kernels: its run,
-  and a chunk's parts."""
+  """Where a training run's time goes, on 2 CPU cores (with each choice of matrix kernels) and
+  on one GPU: its run, and a chunk's parts."""
   data = {label: load(name)["figures"] for label, name in ITERATION.items()}
   parts = {label: d["parts"] for label, d in data.items()}
-  rows = [[name, *(num(p[key], 2) for p in parts.values())]
-          for name, key in (("physics", "physics_s"), ("episode starts' refill", "refill_s"),
-                            ("acting and replay insert", "acting_and_insert_s"),
-                            ("learner (replay samples in it)", "learner_s"),
-                            ("whole chunk", "chunk_s"))]
+  rows = [[name, *(num(p[key]) for p in parts.values())]
+          for name, key in (("env steps", "env_steps_per_chunk"),
+                            ("updates", "updates_per_chunk"))]
+  rows += [[name, *(num(p[key], 3) for p in parts.values())]
+           for name, key in (("physics (s)", "physics_s"), ("episode starts' refill (s)", "refill_s"),
+                             ("acting and replay insert (s)", "acting_and_insert_s"),
+                             ("learner, replay samples in it (s)", "learner_s"),
+                             ("whole chunk (s)", "chunk_s"))]
+  rows += [[name, *(f"{p[key] / p['chunk_s']:.0%}" for p in parts.values())]
+           for name, key in (("physics's share", "physics_s"), ("learner's share", "learner_s"))]
   rows += [[name, *(num(d["run"][key], digits) for d in data.values())]
            for name, key, digits in (("run: chunks' env steps/s", "chunk_env_steps_per_s", 0),
                                      ("run: wall clock's env steps/s", "wall_env_steps_per_s", 0))]
   rows.append(["run: pauses after the first row (evaluations, logs, saves)",
                *(f"{d['run']['pause_share']:.1%}" for d in data.values())])
-  first = next(iter(parts.values()))
-  text = (f"A chunk: {num(first['env_steps_per_chunk'])} env steps, "
-          f"{num(first['updates_per_chunk'])} updates.\n\n"
-          + table(["part of a chunk (s)", *data], rows))
-  return ("The CPU iteration", "The main job (Hopper, cold cache) and a chunk's parts timed "
-          "alone, with XLA's matrix kernels (setup's) and YNNPACK's.",
-          text, list(ITERATION.values()))
+  return ("Where a chunk's time goes", "A preset's training run (cold cache) and a chunk's "
+          "parts, each timed alone: the Hopper's cpu preset on 2 CPU cores with XLA's matrix "
+          "kernels (setup's) and YNNPACK's; the Hopper's and the Humanoid's gpu presets on one "
+          "GPU.", table(["a chunk's", *data], rows), list(ITERATION.values()))
 
 
 def pretrained_section(names: list[str]) -> tuple[str, str, str, list[str]]:
