@@ -125,13 +125,11 @@ def _train(p: opening.Parts, restored: opening.Restored, progress: bool, stop,
   cfg, members = p.cfg, p.members
   chunk = Chunk(p.started, p.evaluator, members)
   state, env_steps = restored.resumed.state, restored.env_steps
-  bar = _progress_bar(cfg.total_env_steps, env_steps) if progress and not (
-      p.until.total_reached(env_steps)) else None
+  bar = _progress_bar(p, env_steps) if progress else None
   next_eval = (env_steps // cfg.eval_every + 1) * cfg.eval_every
   asked = last = False  # asked by progress_fn; last: the run ends after this chunk
   while True:
-    # Over processes, what one process alone knows (a signal, its clock, progress_fn) is
-    # agreed on, so that every process makes the same choices.
+    # What one process alone knows (a signal, its clock, progress_fn) is agreed on.
     stopped, signalled = distributed.agree(
         "chunk", asked or last or p.until.total_reached(env_steps), stop.requested)
     _signalled_elsewhere(stop, signalled)
@@ -150,8 +148,7 @@ def _train(p: opening.Parts, restored: opening.Restored, progress: bool, stop,
     _signalled_elsewhere(stop, signalled)
     due = env_steps >= next_eval or last
     next_eval += cfg.eval_every if due else 0
-    # The last evaluation, PBT's (which needs the returns) and a checkpoint's (which holds
-    # them) wait; the others do not.
+    # The last evaluation, PBT's and a checkpoint's (which need the returns) wait; others not.
     asked |= _take_evaluations(p, user, last or pbt_now or saving, compiling,
                                due=(env_steps, state.agent) if due else None)
     if pbt_now:
@@ -369,7 +366,11 @@ def _finish(p: opening.Parts, state: train.TrainState, stop) -> Result:
                 p.members.best_return)
 
 
-def _progress_bar(total: int, initial: int):
+def _progress_bar(p: opening.Parts, initial: int):
+  """The run's progress bar from `initial` env steps; None where it trains no further."""
+  total = p.cfg.total_env_steps
+  if p.until.total_reached(initial):
+    return None
   bar = tqdm(total=total, initial=min(initial, total), unit=" env steps", unit_scale=True,
              dynamic_ncols=True)
   bar.set_postfix_str("compiling the training step")
