@@ -72,15 +72,12 @@ ITERATION = {"Hopper cpu, XLA's": "cpu_iteration_cpu.json",
              "Hopper cpu, YNNPACK's": "cpu_iteration_cpu_ynn.json",
              "Hopper gpu": "cpu_iteration_gpu_hopper_h100.json",
              "Humanoid gpu": "cpu_iteration_gpu_humanoid_h100.json"}
-# CI's jobs in its order, each tier also at an earlier commit, measured the same day.
+# CI's jobs in its order.
 SUITE = {"suite_time_quick.json": "`scripts/test.sh`",
-         "suite_time_quick_before.json": "`scripts/test.sh`, before",
          "suite_time_slow.json": "`scripts/test.sh -m slow`",
-         "suite_time_slow_before.json": "`scripts/test.sh -m slow`, before",
          "suite_time_floor_py311.json": "`.ci/floor`"}
-# The tiers' results files, after and before, for the seconds of each test file.
-SUITE_FILES = {"quick": ("suite_time_quick.json", "suite_time_quick_before.json"),
-               "slow": ("suite_time_slow.json", "suite_time_slow_before.json")}
+# The tiers' results files, for the seconds of each test file.
+SUITE_FILES = {"quick": "suite_time_quick.json", "slow": "suite_time_slow.json"}
 HEAVIEST_FILES = 3
 COMPILE_FLAGS = "compile_flags_cpu.json"
 C_PHYSICS = "c_physics_cpu.json"
@@ -365,21 +362,16 @@ def sections() -> list[tuple[str, str, str, list[str]]]:
 
 
 def suite_files_table() -> str:
-  """The heaviest test files of each tier in worker-seconds (their tests' summed seconds), each
-  tier before and after ("–": not in the tier), and the sum over all files."""
-  columns = [(tier, when) for tier in SUITE_FILES for when in ("before", "after")]
-  seconds = {(tier, when): load(SUITE_FILES[tier][when == "before"])["figures"]["file_s"]
-             for tier, when in columns}
-  names = []
-  for tier in SUITE_FILES:
-    now, then = seconds[tier, "after"], seconds[tier, "before"]
-    names += sorted(set(now) | set(then),
-                    key=lambda f: -max(now.get(f, 0), then.get(f, 0)))[:HEAVIEST_FILES]
-  rows = [[f"`{name}`", *(num(seconds[c][name]) if name in seconds[c] else "–" for c in columns)]
+  """The heaviest test files of each tier in worker-seconds (their tests' summed seconds; "–":
+  not in the tier), and the sum over all files."""
+  seconds = {tier: load(name)["figures"]["file_s"] for tier, name in SUITE_FILES.items()}
+  names = [name for files in seconds.values()
+           for name in sorted(files, key=lambda f: -files[f])[:HEAVIEST_FILES]]
+  rows = [[f"`{name}`", *(num(files[name]) if name in files else "–" for files in seconds.values())]
           for name in dict.fromkeys(names)]
-  rows.append(["all files", *(num(sum(seconds[c].values())) for c in columns)])
+  rows.append(["all files", *(num(sum(files.values())) for files in seconds.values())])
   return ("Worker-seconds by test file, the heaviest of each tier:\n\n"
-          + table(["file", *(f"{tier}, {when}" for tier, when in columns)], rows))
+          + table(["file", *seconds], rows))
 
 
 def compile_flags_line() -> str:
@@ -463,7 +455,8 @@ def iteration_section() -> tuple[str, str, str, list[str]]:
           for name, key in (("env steps", "env_steps_per_chunk"),
                             ("updates", "updates_per_chunk"))]
   rows += [[name, *(num(p[key], 3) for p in parts.values())]
-           for name, key in (("physics (s)", "physics_s"), ("episode starts' refill (s)", "refill_s"),
+           for name, key in (("physics (s)", "physics_s"),
+                             ("episode starts' refill (s)", "refill_s"),
                              ("acting and replay insert (s)", "acting_and_insert_s"),
                              ("learner, replay samples in it (s)", "learner_s"),
                              ("whole chunk (s)", "chunk_s"))]
