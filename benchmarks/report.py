@@ -45,6 +45,10 @@ LEARNER = ("learner_robots_h100.json", "learner_robots_bf16_h100.json")
 # The Hopper's cpu preset's learner at other batch sizes, and one change to the preset timed to
 # its score beside it (issue 69's cheaper CPU learner).
 LEARNER_CPU = "learner_throughput_cpu_batches.json"
+# The Hopper's cpu preset's learner with a cheaper critic, in one session beside the preset.
+LEARNER_CPU_CRITICS = {"none": "learner_throughput_cpu_base.json",
+                       "num_atoms=21": "learner_throughput_cpu_atoms21.json",
+                       "critic_layers=(64, 64)": "learner_throughput_cpu_critic64.json"}
 LEARNER_CHANGES_CPU = [{"baseline": [TTS.format("Hopper_cpu_v_cpu_base")],
                         "batch1024": [TTS.format("Hopper_cpu_v_cpu_batch1024")]}]
 SWEEPS = ("sweep_throughput_h100.json", "sweep_throughput_cpu.json")
@@ -523,13 +527,22 @@ def cpu_learner_section() -> tuple[str, str, str, list[str]]:
   rows = [[num(r["batch"]), num(r["updates_per_s"]), num(r["updates_per_s"] * r["batch"]),
            num(r["gflop_per_update"], 2), num(100 * r["gflops"] / peak, 1)]
           for r in found["rows"]]
+  critics = {change: load(name)["figures"] for change, name in LEARNER_CPU_CRITICS.items()}
+  preset = critics["none"]["rows"][0]["updates_per_s"]
+  critic_rows = [[change, num(r["updates_per_s"]), num(r["updates_per_s"] / preset, 2),
+                  num(r["gflop_per_update"], 2),
+                  num(100 * r["gflops"] / found["peaks_gflops"]["2"], 1)]
+                 for change, found in critics.items() for r in found["rows"]]
   text, names, base = changes_table(LEARNER_CHANGES_CPU)
   return ("The learner on 2 CPU cores",
           "The Hopper's cpu preset's update on random batches, 100 to a compiled scan, 2 XLA "
-          "devices; XLA's FLOP count against the measured matmul peak. Below it, the preset "
+          "devices; XLA's FLOP count against the measured matmul peak: at other batch sizes, "
+          "then with a cheaper critic (× preset: in the same session). Below them, the preset "
           f"to 2,000 with one change, seeds run {base['method']} (their lines say which).",
           table(["batch", "updates/s", "samples/s", "GFLOP/update", "% of peak"], rows)
-          + "\n\n" + text, [LEARNER_CPU, *names])
+          + "\n\n" + table(["critic change", "updates/s", "× preset", "GFLOP/update",
+                             "% of peak"], critic_rows)
+          + "\n\n" + text, [LEARNER_CPU, *LEARNER_CPU_CRITICS.values(), *names])
 
 
 def c_physics_section() -> tuple[str, str, str, list[str]]:
