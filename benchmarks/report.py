@@ -24,7 +24,7 @@ ROOT = pathlib.Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "benchmarks" / "results"
 ROBOTS = ("Hopper", "Walker2D", "HalfCheetah", "Ant", "Humanoid")
 TTS = "time_to_score_{}.json"
-GPU = {"Hopper": [TTS.format("Hopper_gpu_heldout")],
+GPU = {"Hopper": [TTS.format("Hopper_gpu_heldout3")],
        **{robot: [TTS.format(f"{robot}_gpu_heldout"), TTS.format(f"{robot}_gpu_heldout2")]
           for robot in ROBOTS[1:]},
        "AntLongJump (an event)": [TTS.format(f"AntLongJump_gpu_heldout{n}")
