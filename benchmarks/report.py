@@ -54,7 +54,8 @@ LEARNER_CHANGES_CPU = [{"baseline": [TTS.format("Hopper_cpu_v_cpu_base")],
 SWEEPS = ("sweep_throughput_h100.json", "sweep_throughput_cpu.json")
 SWEPT = "mjx-hopper sweep from launch, cold"  # sweep_throughput.py's method
 PBT = "pbt_quality_halfcheetah_h100x2.json"
-START = {"one H200": "start_time_h200.json", "2 CPU cores": "start_time_cpu.json"}
+START = {"one H200": "start_time_h200.json", "one H100": "start_time_h100.json",
+         "2 CPU cores": "start_time_cpu.json"}
 # The sweeps over processes, and where each file's sweeps compiled: distributed.py gives each an
 # empty cache of its own since 3f0a8f6; the 2-GPU file is older (no 2-GPU machine since).
 DISTRIBUTED = {"distributed_gpu2.json": "the user's default, not emptied",
