@@ -36,7 +36,7 @@ def __getattr__(name: str):
   raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-__all__ = ["Ant", "Array", "AutoReset", "BoundedArray", "EnvironmentSpec", "EpisodeStarts", "HalfCheetah", "Hopper",
-           "Humanoid", "LocomotionEnv", "PHYSICS", "REWARD_TERMS", "Robot", "State", "Walker2D", "check_task",
-           "list_envs", "make", "register", "robot_of", "settings_of", "task_class", "task_id",
-           "task_settings", "tasks", "to_gymnasium"]
+__all__ = ["Ant", "Array", "AutoReset", "BoundedArray", "EnvironmentSpec", "EpisodeStarts",
+           "HalfCheetah", "Hopper", "Humanoid", "LocomotionEnv", "PHYSICS", "REWARD_TERMS", "Robot",
+           "State", "Walker2D", "check_task", "list_envs", "make", "register", "robot_of",
+           "settings_of", "task_class", "task_id", "task_settings", "tasks", "to_gymnasium"]
