@@ -445,7 +445,7 @@ def test_a_signal_to_another_process_stops_this_one_after_its_chunk_saved(tmp_pa
   on after each chunk), this one stops after its chunk too, saves, and says why."""
   agree = distributed.agree
 
-  def signalled_elsewhere(phase, *flags):  # (last, signalled, saving) after a chunk
+  def signalled_elsewhere(phase, *flags):  # (last, signalled, saving, compiling) after a chunk
     agreed = agree(phase, *flags)
     return (agreed[0], True, *agreed[2:]) if phase == "after the chunk" else agreed
   monkeypatch.setattr(distributed, "agree", signalled_elsewhere)

@@ -90,7 +90,7 @@ class Evaluator:
     over processes, `take` is given the value agreed on, before the evaluation's collectives."""
     return self.program is not None and not self.program.done()
 
-  def take(self, wait: bool, compiling: bool = False) -> list[Done]:
+  def take(self, wait: bool, compiling: bool) -> list[Done]:
     """The queued evaluations that are done, oldest first; with `wait`, all of them. On the
     training's devices every evaluation waits; on the host, only those beyond MAX_PENDING do.
     Those queued while the program compiled (`compiling`, agreed over processes) start here,

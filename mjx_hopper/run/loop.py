@@ -220,8 +220,8 @@ def _pbt_due(cfg: RunConfig, before: int, env_steps: int) -> bool:
   return env_steps // period > before // period and env_steps < cfg.total_env_steps
 
 
-def _take_evaluations(p: opening.Parts, user: "_UserCode", wait: bool,
-                      compiling: bool = False, due: tuple | None = None) -> bool:
+def _take_evaluations(p: opening.Parts, user: "_UserCode", wait: bool, compiling: bool,
+                      due: tuple | None = None) -> bool:
   """Queues the evaluation `due` (env steps, agents) if any, then records, keeps and logs the
   evaluations that are done (with `wait`, all of them; while the evaluation is `compiling`,
   none). Returns whether progress_fn asked to stop."""
@@ -242,7 +242,7 @@ def _signalled_elsewhere(stop, signalled: bool) -> None:
 
 def _close(p: opening.Parts, user: "_UserCode", state: train.TrainState, bar) -> None:
   """After the last chunk: the evaluations still running, the bar, the last checkpoint."""
-  _take_evaluations(p, user, wait=True)
+  _take_evaluations(p, user, wait=True, compiling=False)  # waiting, whatever it agreed
   if bar is not None:
     bar.close()
   if not p.members.all_diverged():
