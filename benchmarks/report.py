@@ -532,8 +532,8 @@ def cpu_learner_section() -> tuple[str, str, str, list[str]]:
   preset = critics["none"]["rows"][0]["updates_per_s"]
   critic_rows = [[change, num(r["updates_per_s"]), num(r["updates_per_s"] / preset, 2),
                   num(r["gflop_per_update"], 2),
-                  num(100 * r["gflops"] / found["peaks_gflops"]["2"], 1)]
-                 for change, found in critics.items() for r in found["rows"]]
+                  num(100 * r["gflops"] / figures["peaks_gflops"]["2"], 1)]
+                 for change, figures in critics.items() for r in figures["rows"]]
   text, names, base = changes_table(LEARNER_CHANGES_CPU)
   return ("The learner on 2 CPU cores",
           "The Hopper's cpu preset's update on random batches, 100 to a compiled scan, 2 XLA "

@@ -54,9 +54,9 @@ def shared_builds():
   test worker's whole session: each config's trainer is traced once, across the test files
   that the worker runs (tracing one takes about 15 s of CPU, even when its programs come from
   the compile cache). A trainer is pure functions, so a run is the same with a trainer built
-  once or again. JAX's caches are kept
-  (`trainers.assemble`), not emptied for each new trainer as `trainers.build` empties them: the
-  memoised trainers and envs would be traced again, which made the quick tier trace far longer.
+  once or again. JAX's caches are kept (`trainers.assemble`), not emptied for each new trainer
+  as `trainers.build` empties them: the memoised trainers and envs would be traced again, which
+  made the quick tier trace far longer.
   `trainers.build.__wrapped__` is the product's."""
   built = {}
 
