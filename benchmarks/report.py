@@ -259,9 +259,9 @@ def time_section(title: str, method: str, runs: dict, unit: str, scale: float, d
     machines.append(" + ".join(sorted({machine(n) for n in names})))
     rows.append([label, num(t["target"]), t["agent"], t["seeds"], t["reached"],
                  *(num(t[k], digits) for k in ("median", "fastest", "slowest")),
-                 num(t["env_steps"], 2), f"{steps / 1e6:g}M, {minutes:g} min"])
+                 num(t["env_steps"], 2), f"{steps / 1e6:g}", f"{minutes:g}"])
   head = ["task", "score", "agent", "seeds", "reached", f"median ({unit})", f"fastest ({unit})",
-          f"slowest ({unit})", "M env steps to it", "budget"]
+          f"slowest ({unit})", "M env steps to it", "budget (M env steps)", "budget (min)"]
   # A column for what differs between the rows: where they ran, how their seeds ran.
   for name, column in (("machine", machines), ("seeds run", methods)):
     if len(set(column)) > 1:
