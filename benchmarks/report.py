@@ -54,8 +54,9 @@ LEARNER_CHANGES_CPU = [{"baseline": [TTS.format("Hopper_cpu_v_cpu_base")],
 SWEEPS = ("sweep_throughput_h100.json", "sweep_throughput_cpu.json")
 SWEPT = "mjx-hopper sweep from launch, cold"  # sweep_throughput.py's method
 PBT = "pbt_quality_halfcheetah_h100x2.json"
-START = {"one H200": "start_time_h200.json", "one H100": "start_time_h100.json",
-         "2 CPU cores": "start_time_cpu.json"}
+# The main job's start on each machine: each file's own code, cold and warm (a file's other
+# checkout, the before of an earlier change, stays in the file).
+START = ("start_time_h200.json", "start_time_h100.json", "start_time_cpu.json")
 # The sweeps over processes, and where each file's sweeps compiled: distributed.py gives each an
 # empty cache of its own since 3f0a8f6; the 2-GPU file is older (no 2-GPU machine since).
 DISTRIBUTED = {"distributed_gpu2.json": "the user's default, not emptied",
@@ -388,26 +389,23 @@ def compile_flags_line() -> str:
 
 
 def start_section() -> tuple[str, str, str, list[str]]:
-  """A run's start, phase by phase (s from process start), before and after, cold and warm."""
-  tables = []
-  for where, name in START.items():
-    data, columns = load(name), {}
-    versions, flags = data["figures"].get("versions", {}), data["figures"].get("xla_flags")
+  """A run's start, phase by phase (s from process start), cold and warm, on each machine at
+  the code its file measured."""
+  columns = {}
+  for name in START:
+    data = load(name)
     for label, figures in data["figures"]["medians"].items():
-      code, cache = label.rsplit(", ", 1)
-      code = (versions[code] if len(set(versions.values())) > 1
-              else code.replace("this checkout", data["commit"]))
-      columns[f"{code}{' with ' + flags if flags else ''}, {cache}"] = figures
-    rows = []
-    for label, keys in START_ROWS.items():
-      found = [next((c[k] for k in keys if c.get(k) is not None), None) for c in columns.values()]
-      rows.append([label, *("–" if x is None else num(x, 0 if keys == ("steps_per_s",) else 1)
-                            for x in found)])
-    tables.append(f"On {where}:\n\n" + table(["phase (s)", *columns], rows))
+      checkout, cache = label.rsplit(", ", 1)
+      if checkout == "this checkout":
+        columns[f"{machine(name)}, {code(data['commit'])}, {cache}"] = figures
+  rows = []
+  for label, keys in START_ROWS.items():
+    found = [next((c[k] for k in keys if c.get(k) is not None), None) for c in columns.values()]
+    rows.append([label, *("–" if x is None else num(x, 0 if keys == ("steps_per_s",) else 1)
+                          for x in found)])
   return ("The start, phase by phase", "The main job (Hopper), s from process start, empty "
-          "(cold) or warm compile cache, beside an earlier commit or other releases; compiles "
-          "overlap.",
-          "\n\n".join(tables), list(START.values()))
+          "(cold) or warm compile cache; compiles overlap.",
+          table(["phase (s)", *columns], rows), list(START))
 
 
 def fidelity_table() -> str:
