@@ -85,7 +85,7 @@ PRESETS: dict[tuple[str, str], Preset] = {
         **_GPU, "agent_overrides": {"sigma": 0.6, "sigma_min": 0.2, "learning_rate": 1e-3},
         "train": dataclasses.replace(_GPU_TRAIN, num_envs=512, batch_size=1024,
                                      replay_size=1_000_000),
-        "eval_every": 250_000}, target=3000.0, env_steps=2_500_000, minutes=3.0,
+        "eval_every": 250_000}, target=3000.0, env_steps=4_000_000, minutes=3.0,
         why="512 envs, 32 updates of 1,024, 1e-3, noise 0.2 to 0.6 (evidence: 60e8b34)"),
     ("Ant", "cpu"): Preset(**_CPU_TUNED, target=3000.0, env_steps=8_500_000, minutes=18.0,
                            why=_CPU_TUNED_WHY.format("9ac1947")),
