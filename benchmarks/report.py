@@ -32,7 +32,7 @@ GPU = {"Hopper": [TTS.format("Hopper_gpu_heldout3")],
                                   for n in ("", "2", "3")]}
 CPU = {"Hopper": [TTS.format("Hopper_cpu_heldout_avx2")],
        "Walker2D": [TTS.format("Walker2D_cpu_heldout")],
-       "HalfCheetah": [TTS.format(f"HalfCheetah_cpu_heldout{n}") for n in ("", "2")],
+       "HalfCheetah": [TTS.format(f"HalfCheetah_cpu_heldout{n}") for n in ("", "2", "3")],
        "Ant": [TTS.format("Ant_cpu_heldout")],
        "Humanoid": [TTS.format(f"Humanoid_cpu_heldout{n}") for n in ("", "2", "3")],
        "Hopper, DDPG": [TTS.format("Hopper_cpu_ddpg_heldout_avx2")],
