@@ -3,6 +3,7 @@
 import dataclasses
 import json
 import pathlib
+import re
 import sys
 import warnings
 
@@ -57,6 +58,21 @@ def test_each_preset_is_the_one_its_results_measured_with_the_budget_they_need(k
           (preset.agent, preset.agent_overrides, dataclasses.asdict(preset.train)))), names
       assert presets.get(task, kind) is preset
       assert (preset.env_steps, preset.minutes) == report.budget(names), (task, kind)
+
+
+def test_the_notebooks_jump_trains_its_seed_for_the_budget_measured_on_it():
+  # Its cell trains seed 0 with the event's settings; the results file timed that seed.
+  notebook = json.loads((pathlib.Path(report.ROOT) / "notebooks" / "robolympics.ipynb").read_text())
+  cell = next("".join(c["source"]) for c in notebook["cells"]
+              if "".join(c["source"]).startswith("jump_cfg = make_config("))
+  ran = report.load(report.NOTEBOOK_JUMP)["figures"]
+  preset = presets.get("mjx_hopper.envs.events:HighJump", "cpu")
+  assert list(ran["seeds"]) == ["0"] and ran["target"] == preset.target
+  assert ran["agent_overrides"] == json.loads(json.dumps(preset.agent_overrides))
+  assert 'agent_overrides={"vmax": 900.0}' in cell and "stop_at_return=1500" in cell
+  steps, minutes = report.budget([report.NOTEBOOK_JUMP])
+  assert f"minutes={minutes:g}," in cell
+  assert int(re.search(r"env_steps=([\d_]+)", cell).group(1)) >= steps
 
 
 def test_the_budget_is_the_presets_unless_a_run_says_otherwise():
