@@ -62,7 +62,7 @@ def test_each_preset_is_the_one_its_results_measured_with_the_budget_they_need(k
 
 def test_the_notebooks_jump_trains_its_seed_for_the_budget_measured_on_it():
   # Its cell trains seed 0 with the event's settings; the results file timed that seed.
-  notebook = json.loads((pathlib.Path(report.ROOT) / "notebooks" / "robolympics.ipynb").read_text())
+  notebook = json.loads((report.ROOT / "notebooks" / "robolympics.ipynb").read_text())
   cell = next("".join(c["source"]) for c in notebook["cells"]
               if "".join(c["source"]).startswith("jump_cfg = make_config("))
   ran = report.load(report.NOTEBOOK_JUMP)["figures"]
