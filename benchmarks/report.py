@@ -10,7 +10,6 @@ deterministic.
 from __future__ import annotations
 
 import argparse
-import collections
 import json
 import math
 import pathlib
@@ -249,18 +248,6 @@ def summary() -> str:
       table(["robot", "× PyBullet", "rl-zoo SAC", "rl-zoo TQC"], rows)])
 
 
-def machines_of(names: list[str]) -> str:
-  """The machine of a task's seeds, or where they ran on several (one seed on each at a time),
-  each with its number of seeds: "1 H200 (3 seeds), 1 H100 (2)"."""
-  seeds = collections.Counter()
-  for name in names:
-    seeds[machine(name)] += len(load(name)["figures"]["seeds"])
-  if len(seeds) == 1:
-    return next(iter(seeds))
-  return ", ".join(f"{m} ({n}{' seeds' if i == 0 else ''})"
-                   for i, (m, n) in enumerate(seeds.most_common()))
-
-
 def time_section(title: str, method: str, runs: dict, unit: str, scale: float, digits: int,
                  explained: set | None = None):
   """A time-to-score section: each task's seeds, in `unit` (seconds over `scale`), and the
@@ -272,7 +259,7 @@ def time_section(title: str, method: str, runs: dict, unit: str, scale: float, d
     t = time_to_score(names, scale)
     steps, minutes = budget(names)
     methods.append(t["method"])
-    machines.append(machines_of(names))
+    machines.append(" or ".join(sorted({machine(n) for n in names})))  # each seed on one
     rows.append([label, num(t["target"]), t["agent"], t["seeds"], t["reached"],
                  *(num(t[k], digits) for k in ("median", "fastest", "slowest")),
                  num(t["env_steps"], 2), f"{steps / 1e6:g}", f"{minutes:g}"])
